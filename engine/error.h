@@ -1,0 +1,29 @@
+// Errors caused by the user's input (job files, scenes, parameters, paths).
+// The CLI turns an InputError into one line "file:line: message" and exit code 2;
+// anything else escaping is a bug in fluxgraph.
+#pragma once
+
+#include <stdexcept>
+#include <string>
+
+namespace fg {
+
+class InputError : public std::runtime_error {
+public:
+    InputError(std::string file, int line, const std::string& message)
+        : std::runtime_error(format(file, line, message)), file_(std::move(file)), line_(line) {}
+    explicit InputError(const std::string& message) : std::runtime_error(message), line_(0) {}
+
+    const std::string& file() const { return file_; }
+    int line() const { return line_; }
+
+private:
+    static std::string format(const std::string& file, int line, const std::string& message) {
+        if (file.empty()) return message;
+        return line > 0 ? file + ":" + std::to_string(line) + ": " + message : file + ": " + message;
+    }
+    std::string file_;
+    int line_;
+};
+
+}  // namespace fg

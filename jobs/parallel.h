@@ -1,0 +1,118 @@
+// The one thin layer over oneTBB. Everything else in fluxgraph expresses its
+// parallelism through these functions:
+//  - parallelFor: a loop over an index range [0, n) in chunks of `grain` items;
+//  - deterministicReduce: per-block accumulators over fixed blocks, merged in
+//    block order, so a floating-point sum is bit-identical for any thread count;
+//  - ThreadLimit: caps the worker count for a scope (the --threads option);
+//  - TaskGraph: a dependency graph of tasks (the pass scheduler's flow graph).
+// Chunks are booked to the calling pass's WorkContext for the profiler.
+#pragma once
+
+#include "jobs/work_context.h"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <cstddef>
+#include <functional>
+#include <memory>
+#include <vector>
+
+namespace fg::jobs {
+
+struct IndexRange {
+    std::size_t begin = 0;
+    std::size_t end = 0;
+    std::size_t size() const { return end - begin; }
+};
+
+// body(IndexRange) is called for disjoint chunks covering [0, n), each at most
+// `grain` items long. Chunk boundaries depend only on n and grain.
+template <class Body>
+void parallelForChunks(std::size_t n, std::size_t grain, Body&& body) {
+    if (n == 0) return;
+    if (grain == 0) grain = 1;
+    WorkContext* owner = currentContext();
+    const std::size_t chunks = (n + grain - 1) / grain;
+    tbb::parallel_for(
+        tbb::blocked_range<std::size_t>(0, chunks, 1),
+        [&](const tbb::blocked_range<std::size_t>& r) {
+            for (std::size_t c = r.begin(); c != r.end(); ++c) {
+                const IndexRange chunk{c * grain, std::min(n, (c + 1) * grain)};
+                ChunkTimer timer(owner, static_cast<std::int64_t>(chunk.size()));
+                body(chunk);
+            }
+        },
+        tbb::simple_partitioner());
+}
+
+// body(i) for every i in [0, n).
+template <class Body>
+void parallelFor(std::size_t n, std::size_t grain, Body&& body) {
+    parallelForChunks(n, grain, [&](IndexRange r) {
+        for (std::size_t i = r.begin; i != r.end; ++i) body(i);
+    });
+}
+
+// Splits [0, n) into `blocks` contiguous blocks (fewer if n is small), reduces
+// each into a fresh accumulator made by init(), calling body(acc, IndexRange),
+// and merges them with merge(total, part) in block order on the calling thread.
+// The block count is fixed by the caller, never by the thread count, which is
+// what makes the result reproducible.
+template <class Acc, class Init, class Body, class Merge>
+Acc deterministicReduce(std::size_t n, std::size_t blocks, Init&& init, Body&& body, Merge&& merge) {
+    if (blocks == 0) blocks = 1;
+    blocks = std::max<std::size_t>(1, std::min(blocks, n));
+    std::vector<std::unique_ptr<Acc>> parts(blocks);
+    const std::size_t per = (n + blocks - 1) / std::max<std::size_t>(blocks, 1);
+    parallelForChunks(blocks, 1, [&](IndexRange r) {
+        for (std::size_t b = r.begin; b != r.end; ++b) {
+            parts[b] = std::make_unique<Acc>(init());
+            const IndexRange items{std::min(n, b * per), std::min(n, (b + 1) * per)};
+            if (items.size() > 0) body(*parts[b], items);
+        }
+    });
+    Acc total = init();
+    for (auto& part : parts)
+        if (part) merge(total, *part);
+    return total;
+}
+
+// Number of worker threads the pool currently allows.
+int maxThreads();
+// Hardware concurrency of the machine.
+int hardwareThreads();
+
+// Caps parallelism to `threads` for its lifetime (0 = hardware default).
+class ThreadLimit {
+public:
+    explicit ThreadLimit(int threads);
+    ~ThreadLimit();
+    ThreadLimit(const ThreadLimit&) = delete;
+    ThreadLimit& operator=(const ThreadLimit&) = delete;
+
+private:
+    struct Impl;
+    std::unique_ptr<Impl> impl_;
+};
+
+// A dependency graph of tasks run on the shared pool: a task starts once all of
+// its predecessors have finished; independent tasks run concurrently. If a task
+// throws, tasks not yet started are skipped and run() rethrows the first error.
+class TaskGraph {
+public:
+    TaskGraph();
+    ~TaskGraph();
+    TaskGraph(const TaskGraph&) = delete;
+    TaskGraph& operator=(const TaskGraph&) = delete;
+
+    int addTask(std::function<void()> task);
+    void addEdge(int from, int to);
+    void run();
+
+private:
+    struct Impl;
+    std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace fg::jobs
