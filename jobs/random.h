@@ -31,6 +31,7 @@ inline constexpr std::uint64_t streamKey(std::string_view name) {
 
 class Rng {
 public:
+    Rng() = default;
     Rng(std::uint64_t seed, std::uint64_t pass, std::uint64_t item) {
         const std::uint64_t k = splitmix64(splitmix64(seed ^ splitmix64(pass)) ^ item);
         inc_ = (splitmix64(k ^ 0xDA942042E4DD58B5ull) << 1u) | 1u;

@@ -1,0 +1,74 @@
+// Pass parameters, the context a running pass sees, and registry look-ups.
+#include "engine/pass.h"
+
+#include <sstream>
+#include <stdexcept>
+
+namespace fg {
+
+std::string toString(ParamType type) {
+    switch (type) {
+    case ParamType::Int: return "int";
+    case ParamType::Float: return "float";
+    case ParamType::Bool: return "bool";
+    case ParamType::String: return "string";
+    }
+    return "?";
+}
+
+std::string toString(const ParamValue& value) {
+    std::ostringstream out;
+    std::visit(
+        [&](const auto& v) {
+            using T = std::decay_t<decltype(v)>;
+            if constexpr (std::is_same_v<T, bool>) out << (v ? "true" : "false");
+            else if constexpr (std::is_same_v<T, std::string>) out << '"' << v << '"';
+            else out << v;
+        },
+        value);
+    return out.str();
+}
+
+const ParamValue& PassParams::at(const std::string& name) const {
+    const auto it = values_.find(name);
+    if (it == values_.end()) throw std::logic_error("pass asked for undeclared parameter '" + name + "'");
+    return it->second;
+}
+std::int64_t PassParams::getInt(const std::string& name) const { return std::get<std::int64_t>(at(name)); }
+double PassParams::getFloat(const std::string& name) const { return std::get<double>(at(name)); }
+bool PassParams::getBool(const std::string& name) const { return std::get<bool>(at(name)); }
+const std::string& PassParams::getString(const std::string& name) const { return std::get<std::string>(at(name)); }
+
+PassContext::PassContext(const Scene& scene, const RayQuery& rays, const FilmSettings& film, std::uint64_t seed,
+                         const PassParams& params, std::map<std::string, BufferHandle*> inputs,
+                         std::map<std::string, BufferHandle*> outputs, std::string instanceName)
+    : scene_(scene), rays_(rays), film_(film), seed_(seed), params_(params), inputs_(std::move(inputs)),
+      outputs_(std::move(outputs)), instance_(std::move(instanceName)) {}
+
+void PassContext::reportProgress(double fraction) const {
+    if (progress_) progress_(instance_, fraction);
+}
+
+BufferHandle* PassContext::checked(const std::map<std::string, BufferHandle*>& slots, const std::string& slot,
+                                   const char* type, const char* kind) {
+    const auto it = slots.find(slot);
+    if (it == slots.end()) throw std::logic_error(std::string("pass used undeclared ") + kind + " '" + slot + "'");
+    if (it->second->type != type) {
+        throw std::logic_error(std::string(kind) + " '" + slot + "' is " + it->second->type + ", not " + type);
+    }
+    return it->second;
+}
+
+const PassRegistration* findPass(const std::string& name) {
+    for (const auto& r : passRegistry())
+        if (r.spec.name == name) return &r;
+    return nullptr;
+}
+
+const Pipeline* findPipeline(const std::string& name) {
+    for (const auto& p : builtinPipelines())
+        if (p.name == name) return &p;
+    return nullptr;
+}
+
+}  // namespace fg

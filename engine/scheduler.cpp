@@ -1,0 +1,340 @@
+// Pass scheduler. Validation happens entirely in ExecutionPlan::build so that a
+// job with a mistake fails in milliseconds with one line, before any scene is
+// loaded or pixel traced. Execution maps the plan onto a jobs::TaskGraph.
+#include "engine/scheduler.h"
+
+#include "engine/error.h"
+#include "jobs/parallel.h"
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <mutex>
+#include <set>
+#include <sstream>
+
+namespace fg {
+
+namespace {
+
+std::string slotBuffer(const std::map<std::string, std::string>& bindings, const std::string& slot) {
+    const auto it = bindings.find(slot);
+    return it == bindings.end() ? slot : it->second;
+}
+
+// Splits "file:line" back for InputError; messages keep the source text as given.
+[[noreturn]] void fail(const std::string& source, const std::string& message) {
+    throw InputError(source + ": " + message);
+}
+
+ParamValue convertSetting(const ParamSpec& spec, const ParamSetting& setting, const std::string& instance) {
+    const std::string where = "parameter '" + instance + "." + spec.name + "'";
+    const ParamValue& v = setting.value;
+    switch (spec.type) {
+    case ParamType::Int: {
+        std::int64_t value = 0;
+        if (const auto* i = std::get_if<std::int64_t>(&v)) {
+            value = *i;
+        } else if (const auto* d = std::get_if<double>(&v); d && std::floor(*d) == *d) {
+            value = static_cast<std::int64_t>(*d);
+        } else {
+            fail(setting.source, where + " must be an integer, got " + toString(v));
+        }
+        if (static_cast<double>(value) < spec.minValue || static_cast<double>(value) > spec.maxValue) {
+            std::ostringstream msg;
+            msg << where << " = " << value << " is outside its valid range [" << spec.minValue << ", "
+                << spec.maxValue << "]";
+            fail(setting.source, msg.str());
+        }
+        return value;
+    }
+    case ParamType::Float: {
+        double value = 0.0;
+        if (const auto* i = std::get_if<std::int64_t>(&v)) {
+            value = static_cast<double>(*i);
+        } else if (const auto* d = std::get_if<double>(&v)) {
+            value = *d;
+        } else {
+            fail(setting.source, where + " must be a number, got " + toString(v));
+        }
+        if (!std::isfinite(value) || value < spec.minValue || value > spec.maxValue) {
+            std::ostringstream msg;
+            msg << where << " = " << value << " is outside its valid range [" << spec.minValue << ", "
+                << spec.maxValue << "]";
+            fail(setting.source, msg.str());
+        }
+        return value;
+    }
+    case ParamType::Bool:
+        if (const auto* b = std::get_if<bool>(&v)) return *b;
+        fail(setting.source, where + " must be true or false, got " + toString(v));
+    case ParamType::String: {
+        const auto* s = std::get_if<std::string>(&v);
+        if (!s) fail(setting.source, where + " must be a string, got " + toString(v));
+        if (!spec.choices.empty() && std::find(spec.choices.begin(), spec.choices.end(), *s) == spec.choices.end()) {
+            std::string allowed;
+            for (const auto& c : spec.choices) allowed += (allowed.empty() ? "" : ", ") + c;
+            fail(setting.source, where + " = \"" + *s + "\" is not one of: " + allowed);
+        }
+        return *s;
+    }
+    }
+    return v;
+}
+
+}  // namespace
+
+ExecutionPlan ExecutionPlan::build(const Pipeline& pipeline, const JobParams& params, const std::string& origin) {
+    ExecutionPlan plan;
+    plan.pipeline_ = pipeline;
+    const auto nodeSource = [&](const PipelineNode& node) {
+        return node.sourceLine > 0 ? origin + ":" + std::to_string(node.sourceLine) : origin;
+    };
+
+    // Passes exist, instance names are unique, parameters are known and valid.
+    std::set<std::string> instances;
+    for (const PipelineNode& node : pipeline.nodes) {
+        PlannedPass planned;
+        planned.node = node;
+        planned.registration = findPass(node.pass);
+        if (!planned.registration) {
+            std::string known;
+            for (const auto& r : passRegistry()) known += (known.empty() ? "" : ", ") + r.spec.name;
+            fail(nodeSource(node), "unknown pass '" + node.pass + "' (registered passes: " + known + ")");
+        }
+        if (!instances.insert(node.instance).second) {
+            fail(nodeSource(node), "pass instance '" + node.instance + "' appears twice in pipeline '" +
+                                       pipeline.name + "'");
+        }
+        const PassSpec& spec = planned.registration->spec;
+        for (const ParamSpec& p : spec.params) planned.params.set(p.name, p.defaultValue);
+        if (const auto it = params.values.find(node.instance); it != params.values.end()) {
+            for (const auto& [key, setting] : it->second) {
+                const auto found = std::find_if(spec.params.begin(), spec.params.end(),
+                                                [&](const ParamSpec& p) { return p.name == key; });
+                if (found == spec.params.end()) {
+                    std::string known;
+                    for (const auto& p : spec.params) known += (known.empty() ? "" : ", ") + p.name;
+                    fail(setting.source, "unknown parameter '" + key + "' for pass '" + node.instance +
+                                             "' (" + spec.name + " takes: " + known + ")");
+                }
+                planned.params.set(key, convertSetting(*found, setting, node.instance));
+            }
+        }
+        for (const auto& [slot, buffer] : node.inputBindings) {
+            (void)buffer;
+            if (std::none_of(spec.inputs.begin(), spec.inputs.end(), [&](const SlotSpec& s) { return s.name == slot; }))
+                fail(nodeSource(node), "pass '" + node.instance + "' has no input slot '" + slot + "'");
+        }
+        for (const auto& [slot, buffer] : node.outputBindings) {
+            (void)buffer;
+            if (std::none_of(spec.outputs.begin(), spec.outputs.end(), [&](const SlotSpec& s) { return s.name == slot; }))
+                fail(nodeSource(node), "pass '" + node.instance + "' has no output slot '" + slot + "'");
+        }
+        plan.passes_.push_back(std::move(planned));
+    }
+    for (const auto& [instance, table] : params.values) {
+        if (!instances.count(instance)) {
+            const auto src = params.tableSource.find(instance);
+            fail(src != params.tableSource.end() ? src->second : origin,
+                 "[passes." + instance + "] names no pass of pipeline '" + pipeline.name + "'");
+        }
+    }
+
+    // Every buffer has exactly one producer; every input has a producer of the same type.
+    std::map<std::string, std::string> bufferType;
+    for (std::size_t i = 0; i < plan.passes_.size(); ++i) {
+        const PlannedPass& p = plan.passes_[i];
+        for (const SlotSpec& out : p.registration->spec.outputs) {
+            const std::string buffer = slotBuffer(p.node.outputBindings, out.name);
+            if (plan.producer_.count(buffer)) {
+                fail(nodeSource(p.node), "buffer '" + buffer + "' is produced by both '" +
+                                             plan.passes_[plan.producer_[buffer]].node.instance + "' and '" +
+                                             p.node.instance + "'");
+            }
+            plan.producer_[buffer] = static_cast<int>(i);
+            bufferType[buffer] = out.type;
+        }
+    }
+    for (PlannedPass& p : plan.passes_) {
+        for (const SlotSpec& in : p.registration->spec.inputs) {
+            const std::string buffer = slotBuffer(p.node.inputBindings, in.name);
+            const auto it = plan.producer_.find(buffer);
+            if (it == plan.producer_.end()) {
+                fail(nodeSource(p.node), "input '" + in.name + "' (" + in.type + ") of pass '" + p.node.instance +
+                                             "' reads buffer '" + buffer + "', which no pass produces");
+            }
+            if (bufferType[buffer] != in.type) {
+                fail(nodeSource(p.node), "input '" + in.name + "' of pass '" + p.node.instance + "' expects " +
+                                             in.type + " but buffer '" + buffer + "' is " + bufferType[buffer] +
+                                             " (from '" + plan.passes_[it->second].node.instance + "')");
+            }
+            if (std::find(p.dependencies.begin(), p.dependencies.end(), it->second) == p.dependencies.end())
+                p.dependencies.push_back(it->second);
+        }
+    }
+    for (const std::string& result : pipeline.results) {
+        if (!plan.producer_.count(result))
+            fail(origin, "pipeline '" + pipeline.name + "' promises result '" + result + "' but no pass produces it");
+    }
+
+    // Topological order (Kahn); whatever remains sits on a cycle.
+    const std::size_t n = plan.passes_.size();
+    std::vector<int> indegree(n, 0);
+    for (std::size_t i = 0; i < n; ++i) indegree[i] = static_cast<int>(plan.passes_[i].dependencies.size());
+    std::vector<int> ready;
+    for (std::size_t i = 0; i < n; ++i)
+        if (indegree[i] == 0) ready.push_back(static_cast<int>(i));
+    while (!ready.empty()) {
+        const int current = ready.front();
+        ready.erase(ready.begin());
+        plan.order_.push_back(current);
+        for (std::size_t j = 0; j < n; ++j) {
+            const auto& deps = plan.passes_[j].dependencies;
+            if (std::find(deps.begin(), deps.end(), current) != deps.end() && --indegree[j] == 0)
+                ready.push_back(static_cast<int>(j));
+        }
+    }
+    if (plan.order_.size() != n) {
+        std::string cycle;
+        for (std::size_t i = 0; i < n; ++i)
+            if (indegree[i] > 0) cycle += (cycle.empty() ? "" : ", ") + plan.passes_[i].node.instance;
+        fail(origin, "pipeline '" + pipeline.name + "' has a dependency cycle through passes: " + cycle);
+    }
+
+    // Cull passes that do not contribute to any result.
+    std::vector<bool> needed(n, false);
+    std::vector<int> stack;
+    for (const std::string& result : pipeline.results) stack.push_back(plan.producer_[result]);
+    while (!stack.empty()) {
+        const int i = stack.back();
+        stack.pop_back();
+        if (needed[static_cast<std::size_t>(i)]) continue;
+        needed[static_cast<std::size_t>(i)] = true;
+        for (int d : plan.passes_[static_cast<std::size_t>(i)].dependencies) stack.push_back(d);
+    }
+    for (std::size_t i = 0; i < n; ++i) plan.passes_[i].culled = !needed[i];
+    return plan;
+}
+
+std::string ExecutionPlan::toDot() const {
+    std::ostringstream dot;
+    dot << "digraph \"" << pipeline_.name << "\" {\n  rankdir=LR;\n  node [shape=box, fontname=\"Helvetica\"];\n";
+    for (const PlannedPass& p : passes_) {
+        dot << "  \"" << p.node.instance << "\" [label=\"" << p.node.instance;
+        if (p.node.instance != p.node.pass) dot << "\\n(" << p.node.pass << ")";
+        dot << "\"" << (p.culled ? ", style=dashed, color=gray" : "") << "];\n";
+    }
+    for (const PlannedPass& p : passes_) {
+        for (const SlotSpec& in : p.registration->spec.inputs) {
+            const std::string buffer = slotBuffer(p.node.inputBindings, in.name);
+            const PlannedPass& from = passes_[static_cast<std::size_t>(producer_.at(buffer))];
+            dot << "  \"" << from.node.instance << "\" -> \"" << p.node.instance << "\" [label=\"" << buffer
+                << " : " << in.type << "\"];\n";
+        }
+    }
+    for (const std::string& result : pipeline_.results) {
+        dot << "  \"result:" << result << "\" [shape=note];\n";
+        dot << "  \"" << passes_[static_cast<std::size_t>(producer_.at(result))].node.instance << "\" -> \"result:"
+            << result << "\";\n";
+    }
+    dot << "}\n";
+    return dot.str();
+}
+
+RunResult execute(const ExecutionPlan& plan, const Scene& scene, const RayQuery& rays, const RunOptions& options) {
+    const auto& passes = plan.passes();
+    const std::size_t n = passes.size();
+
+    // Buffers and how many live passes still have to read each.
+    std::map<std::string, BufferHandle> buffers;
+    std::map<std::string, std::atomic<int>> readers;
+    std::set<std::string> results(plan.pipeline().results.begin(), plan.pipeline().results.end());
+    for (const PlannedPass& p : passes) {
+        if (p.culled) continue;
+        for (const SlotSpec& out : p.registration->spec.outputs)
+            buffers[slotBuffer(p.node.outputBindings, out.name)].type = out.type;
+    }
+    for (const PlannedPass& p : passes) {
+        if (p.culled) continue;
+        for (const SlotSpec& in : p.registration->spec.inputs) ++readers[slotBuffer(p.node.inputBindings, in.name)];
+    }
+    std::mutex bufferMutex;  // guards freeing against concurrent lookups
+
+    RunResult result;
+    std::vector<PassStats> stats(n);
+    const std::int64_t runStart = jobs::wallNanos();
+    jobs::TaskGraph graph;
+    std::vector<int> taskOf(n, -1);
+    for (std::size_t i = 0; i < n; ++i) {
+        const PlannedPass& p = passes[i];
+        if (p.culled) continue;
+        taskOf[i] = graph.addTask([&, i] {
+            const PlannedPass& pass = passes[i];
+            std::map<std::string, BufferHandle*> inputs, outputs;
+            {
+                std::lock_guard lock(bufferMutex);
+                for (const SlotSpec& in : pass.registration->spec.inputs)
+                    inputs[in.name] = &buffers.at(slotBuffer(pass.node.inputBindings, in.name));
+                for (const SlotSpec& out : pass.registration->spec.outputs)
+                    outputs[out.name] = &buffers.at(slotBuffer(pass.node.outputBindings, out.name));
+            }
+            PassContext ctx(scene, rays, options.film, options.seed, pass.params, inputs, outputs, pass.node.instance);
+            if (options.progress) ctx.setProgressSink(options.progress);
+
+            jobs::WorkContext work;
+            work.label = pass.node.instance;
+            const std::int64_t wall0 = jobs::wallNanos();
+            const std::int64_t cpu0 = jobs::threadCpuNanos();
+            const std::int64_t chunkCpu0 = jobs::chunkCpuOnThisThread();
+            {
+                jobs::ScopedContext scope(&work);
+                auto instance = pass.registration->create();
+                instance->run(ctx);
+            }
+            const std::int64_t wall1 = jobs::wallNanos();
+            const std::int64_t serialCpu =
+                (jobs::threadCpuNanos() - cpu0) - (jobs::chunkCpuOnThisThread() - chunkCpu0);
+
+            PassStats& s = stats[i];
+            s.instance = pass.node.instance;
+            s.pass = pass.node.pass;
+            s.startSeconds = 1e-9 * static_cast<double>(wall0 - runStart);
+            s.wallSeconds = 1e-9 * static_cast<double>(wall1 - wall0);
+            s.cpuSeconds = 1e-9 * static_cast<double>(serialCpu + work.chunkCpuNs.load());
+            s.items = ctx.items();
+            for (const auto& [slot, handle] : outputs) {
+                if (!handle->data) {
+                    throw std::logic_error("pass '" + pass.node.instance + "' did not produce its output '" + slot + "'");
+                }
+                s.outputBytes += handle->bytes ? handle->bytes() : 0;
+            }
+            if (jobs::TraceRecorder::instance().enabled())
+                jobs::TraceRecorder::instance().record({pass.node.instance, "pass", jobs::threadSlot(), wall0, wall1, s.items});
+
+            // Free every input this pass was the last reader of.
+            std::lock_guard lock(bufferMutex);
+            for (const SlotSpec& in : pass.registration->spec.inputs) {
+                const std::string buffer = slotBuffer(pass.node.inputBindings, in.name);
+                if (--readers[buffer] == 0 && !results.count(buffer)) buffers[buffer].data.reset();
+            }
+            // Outputs nobody reads (side outputs of a needed pass) go at once.
+            for (const SlotSpec& out : pass.registration->spec.outputs) {
+                const std::string buffer = slotBuffer(pass.node.outputBindings, out.name);
+                if (readers[buffer] == 0 && !results.count(buffer)) buffers[buffer].data.reset();
+            }
+        });
+    }
+    for (std::size_t i = 0; i < n; ++i) {
+        if (taskOf[i] < 0) continue;
+        for (int d : passes[i].dependencies) graph.addEdge(taskOf[static_cast<std::size_t>(d)], taskOf[i]);
+    }
+    graph.run();
+    result.wallSeconds = 1e-9 * static_cast<double>(jobs::wallNanos() - runStart);
+    for (int i : plan.topologicalOrder())
+        if (!passes[static_cast<std::size_t>(i)].culled) result.stats.push_back(stats[static_cast<std::size_t>(i)]);
+    for (const std::string& r : results) result.results[r] = buffers.at(r);
+    return result;
+}
+
+}  // namespace fg

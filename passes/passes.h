@@ -1,0 +1,10 @@
+// Registrations of the passes defined in passes/, collected by passes/registry.cpp.
+#pragma once
+
+#include "engine/pass.h"
+
+namespace fg {
+
+PassRegistration pathTracerPass();
+
+}  // namespace fg

@@ -1,0 +1,81 @@
+// Per-vertex path tracing logic shared by the path tracer's schedules (and by
+// later passes that need path-traced remainders): one call advances a path by
+// one segment — medium event or surface event — adding emission with MIS,
+// queueing a next-event shadow ray, and choosing the next direction.
+#pragma once
+
+#include "engine/math.h"
+#include "engine/ray_query.h"
+#include "engine/scene.h"
+#include "jobs/random.h"
+
+#include <cstdint>
+#include <span>
+#include <vector>
+
+namespace fg {
+
+struct PathTracerScene {
+    PathTracerScene(const Scene& scene, const RayQuery& rays);
+    const Scene& scene;
+    const RayQuery& rays;
+    std::vector<int> infiniteLights;
+    // Shadow rays must walk through null boundaries and media instead of a plain occlusion test.
+    bool shadowsNeedTransmittance = false;
+};
+
+struct PathLimits {
+    int maxDepth = 16;
+    int rrDepth = 5;
+};
+
+// What MIS and medium tracking need to remember about the previous vertex.
+struct PathHistory {
+    Vec3 previousPosition{0.0f};
+    float previousPdf = 0.0f;  // solid-angle pdf of the direction sampled there
+    float etaScale = 1.0f;     // product of eta^2 over refractions, undone for Russian roulette
+    int medium = -1;
+    int depth = 0;             // scattering events so far
+    bool specular = true;      // previous vertex was the camera or a specular event: no MIS for emission
+
+    static PathHistory atCamera(int cameraMedium) {
+        PathHistory h;
+        h.medium = cameraMedium;
+        return h;
+    }
+};
+
+struct ShadowRequest {
+    Ray ray;
+    Rgb contribution{0.0f};  // added to the path's radiance times the transmittance found
+    int medium = -1;
+    bool pending = false;
+};
+
+struct PathVertexState {
+    Ray& ray;
+    Rgb& throughput;
+    Rgb& radiance;
+    PathHistory& history;
+    jobs::Rng& rng;
+};
+
+// Consumes the hit of state.ray; returns false when the path ends. May fill `shadow`.
+bool advancePath(const PathTracerScene& pts, const PathLimits& limits, const Hit& hit, PathVertexState& state,
+                 ShadowRequest& shadow);
+
+// Transmittance along a shadow ray: 0 if blocked by a non-null surface.
+Rgb shadowTransmittance(const PathTracerScene& pts, const ShadowRequest& shadow);
+
+// Resolves the pending shadow rays of `paths` and adds their contributions to radiance[path].
+void resolveShadowRays(const PathTracerScene& pts, std::span<const std::uint32_t> paths,
+                       std::span<const ShadowRequest> shadows, std::span<Rgb> radiance);
+
+// Medium on the side of a shape's surface that direction `dir` enters; shapes
+// that declare no media keep the current one.
+inline int mediumAfterCrossing(const Shape& shape, const Vec3& ng, const Vec3& dir, int current) {
+    if (shape.interiorMedium < 0 && shape.exteriorMedium < 0) return current;
+    return glm::dot(dir, ng) < 0.0f ? shape.interiorMedium : shape.exteriorMedium;
+}
+
+}  // namespace fg
