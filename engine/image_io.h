@@ -29,7 +29,8 @@ void writePngPreview(const std::string& path, const ImageChannels& image, float 
 // Reads R, G, B and any other channels back; metadata strings with the "fluxgraph:" prefix stripped.
 ImageChannels readExr(const std::string& path, Metadata* metadata = nullptr);
 
-// Writes to path + ".tmp-<pid>" through `writer`, then renames onto `path`;
+// Writes to temporaryPathFor(path) (same directory, ".<stem>.tmp-<pid>-<n><ext>")
+// through `writer`, then renames onto `path`;
 // removes the temporary on any failure and rethrows.
 template <class Writer>
 void writeAtomically(const std::string& path, Writer&& writer);
