@@ -84,7 +84,8 @@ ParamValue convertSetting(const ParamSpec& spec, const ParamSetting& setting, co
 
 }  // namespace
 
-ExecutionPlan ExecutionPlan::build(const Pipeline& pipeline, const JobParams& params, const std::string& origin) {
+ExecutionPlan ExecutionPlan::build(const Pipeline& pipeline, const JobParams& params, const std::string& origin,
+                                   const std::vector<PassRegistration>& registry) {
     ExecutionPlan plan;
     plan.pipeline_ = pipeline;
     const auto nodeSource = [&](const PipelineNode& node) {
@@ -96,10 +97,12 @@ ExecutionPlan ExecutionPlan::build(const Pipeline& pipeline, const JobParams& pa
     for (const PipelineNode& node : pipeline.nodes) {
         PlannedPass planned;
         planned.node = node;
-        planned.registration = findPass(node.pass);
+        const auto found = std::find_if(registry.begin(), registry.end(),
+                                        [&](const PassRegistration& r) { return r.spec.name == node.pass; });
+        planned.registration = found == registry.end() ? nullptr : &*found;
         if (!planned.registration) {
             std::string known;
-            for (const auto& r : passRegistry()) known += (known.empty() ? "" : ", ") + r.spec.name;
+            for (const auto& r : registry) known += (known.empty() ? "" : ", ") + r.spec.name;
             fail(nodeSource(node), "unknown pass '" + node.pass + "' (registered passes: " + known + ")");
         }
         if (!instances.insert(node.instance).second) {

@@ -34,7 +34,9 @@ struct PlannedPass {
 class ExecutionPlan {
 public:
     // Throws InputError (naming `origin`, the job file, where no better line is known).
-    static ExecutionPlan build(const Pipeline& pipeline, const JobParams& params, const std::string& origin);
+    // `registry` defaults to the built-in table; tests pass their own passes.
+    static ExecutionPlan build(const Pipeline& pipeline, const JobParams& params, const std::string& origin,
+                               const std::vector<PassRegistration>& registry = passRegistry());
 
     const Pipeline& pipeline() const { return pipeline_; }
     const std::vector<PlannedPass>& passes() const { return passes_; }

@@ -197,6 +197,8 @@ public:
         const PathTracerScene pts(scene, ctx.rays());
 
         Film& film = ctx.createOutput<Film>("image", ctx.filmSettings());
+        film.aov("time_ns");  // create both channels before holding references into them
+        film.aov("samples");
         std::vector<float>& timeAov = film.aov("time_ns");
         std::vector<float>& sampleAov = film.aov("samples");
         const std::size_t pixelCount = film.pixelCount();
@@ -213,6 +215,9 @@ public:
             } else {
                 traceTile(pts, camera, ctx.seed(), settings, firstSample, pixels * spp, paths);
             }
+            // A non-finite sample would poison every pixel its filter reaches.
+            for (Rgb& L : paths.column<PathRadiance>())
+                if (!isFinite(L)) L = Rgb(0.0f);
             film.addRound({firstPixel, pixels, settings.spp, paths.column<PathRaster>(),
                            paths.column<PathRadiance>()});
             const auto times = paths.column<PathTimeNs>();
