@@ -97,9 +97,9 @@ ExecutionPlan ExecutionPlan::build(const Pipeline& pipeline, const JobParams& pa
     for (const PipelineNode& node : pipeline.nodes) {
         PlannedPass planned;
         planned.node = node;
-        const auto found = std::find_if(registry.begin(), registry.end(),
+        const auto registered = std::find_if(registry.begin(), registry.end(),
                                         [&](const PassRegistration& r) { return r.spec.name == node.pass; });
-        planned.registration = found == registry.end() ? nullptr : &*found;
+        planned.registration = registered == registry.end() ? nullptr : &*registered;
         if (!planned.registration) {
             std::string known;
             for (const auto& r : registry) known += (known.empty() ? "" : ", ") + r.spec.name;
