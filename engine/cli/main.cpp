@@ -1,1 +1,138 @@
-int main() { return 0; }
+// The fluxgraph command line: render, validate, graph, passes, pipelines.
+// Input errors print one line "file:line: message" and exit with code 2,
+// leaving no output file behind; internal errors exit with code 1.
+#include "engine/error.h"
+#include "engine/job.h"
+#include "engine/pass.h"
+#include "engine/render.h"
+
+#include <CLI/CLI.hpp>
+
+#include <cstdio>
+#include <iostream>
+#include <unistd.h>
+
+namespace {
+
+constexpr int kInputErrorExit = 2;
+
+void printPasses() {
+    for (const fg::PassRegistration& r : fg::passRegistry()) {
+        const fg::PassSpec& s = r.spec;
+        std::cout << s.name << " — " << s.doc << "\n";
+        for (const auto& in : s.inputs) std::cout << "  in   " << in.name << " : " << in.type << "  " << in.doc << "\n";
+        for (const auto& out : s.outputs)
+            std::cout << "  out  " << out.name << " : " << out.type << "  " << out.doc << "\n";
+        for (const auto& p : s.params) {
+            std::cout << "  param " << p.name << " : " << fg::toString(p.type) << " = " << fg::toString(p.defaultValue);
+            if (p.type == fg::ParamType::Int || p.type == fg::ParamType::Float)
+                std::cout << "  [" << p.minValue << ", " << p.maxValue << "]";
+            if (!p.choices.empty()) {
+                std::cout << "  {";
+                for (std::size_t i = 0; i < p.choices.size(); ++i) std::cout << (i ? "|" : "") << p.choices[i];
+                std::cout << "}";
+            }
+            std::cout << "\n      " << p.doc << "\n";
+        }
+        std::cout << "\n";
+    }
+}
+
+void printPipelines() {
+    for (const fg::Pipeline& p : fg::builtinPipelines()) {
+        std::cout << p.name << " — " << p.doc << "\n  passes:";
+        for (const auto& n : p.nodes) std::cout << " " << n.instance;
+        std::cout << "\n  results:";
+        for (const auto& r : p.results) std::cout << " " << r;
+        std::cout << "\n";
+    }
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+    CLI::App app{"fluxgraph — a pass-based renderer for photon density estimation research"};
+    app.require_subcommand(1);
+
+    std::string jobPath;
+    fg::JobOverrides overrides;
+    int threads = -1;
+    long long seed = -1;
+    std::string outDir, profilePath;
+    bool quiet = false;
+
+    const auto addJobOptions = [&](CLI::App* cmd) {
+        cmd->add_option("job", jobPath, "job file (TOML)")->required();
+        cmd->add_option("--set", overrides.sets, "override a job value, e.g. passes.pt.spp=64 (repeatable)");
+    };
+    CLI::App* render = app.add_subcommand("render", "render a job");
+    addJobOptions(render);
+    render->add_option("--threads", threads, "worker threads (0 = all)");
+    render->add_option("--seed", seed, "random seed");
+    render->add_option("--out", outDir, "output directory");
+    render->add_option("--profile", profilePath, "write a Chrome trace-event JSON (open in ui.perfetto.dev)");
+    render->add_flag("--quiet,-q", quiet, "no progress bar and no pass table");
+    CLI::App* validate = app.add_subcommand("validate", "check a job, its pipeline and its scene without rendering");
+    addJobOptions(validate);
+    CLI::App* graph = app.add_subcommand("graph", "print a job's pipeline as Graphviz DOT");
+    addJobOptions(graph);
+    app.add_subcommand("passes", "list every registered pass with its inputs, outputs and parameters");
+    app.add_subcommand("pipelines", "list the built-in pipelines");
+
+    try {
+        app.parse(argc, argv);
+    } catch (const CLI::CallForHelp& e) {
+        return app.exit(e);
+    } catch (const CLI::CallForAllHelp& e) {
+        return app.exit(e);
+    } catch (const CLI::ParseError& e) {
+        std::cerr << "fluxgraph: " << e.what() << "\n";
+        return kInputErrorExit;
+    }
+
+    try {
+        if (app.got_subcommand("passes")) {
+            printPasses();
+            return 0;
+        }
+        if (app.got_subcommand("pipelines")) {
+            printPipelines();
+            return 0;
+        }
+        if (threads >= 0) overrides.threads = threads;
+        if (seed >= 0) overrides.seed = static_cast<std::uint64_t>(seed);
+        if (render->parsed() && render->count("--seed") && seed < 0) throw fg::InputError("--seed: must be non-negative");
+        if (render->parsed() && render->count("--threads") && threads < 0)
+            throw fg::InputError("--threads: must be 0 (all) or a positive count");
+        if (!outDir.empty()) overrides.outputDirectory = outDir;
+        const fg::Job job = fg::loadJob(jobPath, overrides);
+
+        if (graph->parsed()) {
+            std::cout << fg::ExecutionPlan::build(job.pipeline, job.params, job.path).toDot();
+            return 0;
+        }
+        if (validate->parsed()) {
+            const fg::ExecutionPlan plan = fg::validateJob(job);
+            std::size_t live = 0;
+            for (const auto& p : plan.passes()) live += p.culled ? 0 : 1;
+            std::cout << job.path << ": ok (pipeline '" << job.pipeline.name << "', " << live << " passes, scene "
+                      << job.scenePath << ")\n";
+            return 0;
+        }
+        fg::RenderOptions options;
+        options.showProgress = !quiet && ::isatty(STDERR_FILENO);
+        options.profilePath = profilePath;
+        const fg::RenderOutcome outcome = fg::renderJob(job, options);
+        if (!quiet) {
+            std::cout << fg::formatPassTable(outcome);
+            for (const std::string& f : outcome.files) std::cout << "wrote " << f << "\n";
+        }
+        return 0;
+    } catch (const fg::InputError& e) {
+        std::cerr << e.what() << "\n";
+        return kInputErrorExit;
+    } catch (const std::exception& e) {
+        std::cerr << "fluxgraph: internal error: " << e.what() << "\n";
+        return 1;
+    }
+}

@@ -1,0 +1,37 @@
+// Renders a job end to end: validate the pipeline, load the scene, build the
+// ray-query acceleration structure, run the passes, write the images (EXR with
+// metadata + PNG preview, atomically) and, if asked, a Chrome trace.
+#pragma once
+
+#include "engine/job.h"
+#include "engine/scheduler.h"
+#include "jobs/work_context.h"
+
+#include <string>
+#include <vector>
+
+namespace fg {
+
+struct RenderOptions {
+    bool showProgress = false;     // a progress bar on stderr
+    std::string profilePath;       // Chrome trace-event JSON, empty = none
+};
+
+struct RenderOutcome {
+    RunResult run;
+    double sceneSeconds = 0.0;     // scene loading
+    double accelSeconds = 0.0;     // Embree build
+    std::vector<std::string> files;
+};
+
+// Everything except rendering: the job's pipeline and parameters, its scene,
+// and the output directory. Throws InputError.
+ExecutionPlan validateJob(const Job& job);
+RenderOutcome renderJob(const Job& job, const RenderOptions& options);
+
+// Human-readable per-pass table (wall, CPU, items, items/s, bytes).
+std::string formatPassTable(const RenderOutcome& outcome);
+// Chrome trace-event JSON of the given slices (times relative to the earliest).
+std::string chromeTraceJson(const std::vector<jobs::TraceSlice>& slices);
+
+}  // namespace fg
