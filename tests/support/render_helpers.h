@@ -1,0 +1,29 @@
+// Helpers for tests that render small programmatic scenes through the real
+// scheduler and passes.
+#pragma once
+
+#include "engine/film.h"
+#include "engine/scene.h"
+#include "engine/scheduler.h"
+
+#include <map>
+#include <string>
+#include <vector>
+
+namespace fg::test {
+
+struct RenderedImage {
+    int width = 0;
+    int height = 0;
+    std::vector<Rgb> pixels;
+    const Rgb& at(int x, int y) const { return pixels[static_cast<std::size_t>(y) * width + x]; }
+    Rgb mean() const;
+};
+
+// Runs a built-in pipeline on `scene` with the given pass parameters
+// ("instance.param" -> value) and returns its "image" result.
+RenderedImage renderPipeline(const Scene& scene, const std::string& pipeline,
+                             const std::map<std::string, ParamValue>& params, const FilmSettings& film,
+                             std::uint64_t seed = 1, int threads = 0);
+
+}  // namespace fg::test
