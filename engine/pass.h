@@ -115,6 +115,9 @@ public:
     // Work items processed (photons, samples, ...), for items/s in the report.
     void addItems(std::int64_t n) { items_ += n; }
     std::int64_t items() const { return items_; }
+    // Named counters reported with the pass's statistics (e.g. path vertices); pass thread only.
+    void addCounter(const std::string& name, std::int64_t n) { counters_[name] += n; }
+    const std::map<std::string, std::int64_t>& counters() const { return counters_; }
     // Progress in [0, 1] of a long pass, shown as a bar on a terminal.
     void reportProgress(double fraction) const;
     void setProgressSink(std::function<void(const std::string&, double)> sink) { progress_ = std::move(sink); }
@@ -131,6 +134,7 @@ private:
     std::map<std::string, BufferHandle*> outputs_;
     std::string instance_;
     std::int64_t items_ = 0;
+    std::map<std::string, std::int64_t> counters_;
     std::function<void(const std::string&, double)> progress_;
 };
 

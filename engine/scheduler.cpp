@@ -306,6 +306,7 @@ RunResult execute(const ExecutionPlan& plan, const Scene& scene, const RayQuery&
             s.wallSeconds = 1e-9 * static_cast<double>(wall1 - wall0);
             s.cpuSeconds = 1e-9 * static_cast<double>(serialCpu + work.chunkCpuNs.load());
             s.items = ctx.items();
+            s.counters = ctx.counters();
             for (const auto& [slot, handle] : outputs) {
                 if (!handle->data) {
                     throw std::logic_error("pass '" + pass.node.instance + "' did not produce its output '" + slot + "'");

@@ -58,6 +58,7 @@ struct PassStats {
     double cpuSeconds = 0.0;    // summed over all threads that worked for the pass
     std::int64_t items = 0;
     std::size_t outputBytes = 0;
+    std::map<std::string, std::int64_t> counters;
 };
 
 struct RunOptions {

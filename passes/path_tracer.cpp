@@ -24,6 +24,8 @@
 #include "jobs/random.h"
 
 #include <algorithm>
+#include <array>
+#include <atomic>
 #include <cstdint>
 
 namespace fg {
@@ -69,8 +71,10 @@ private:
 };
 
 // Traces the wave of samples [firstSample, firstSample + count) in SoA stages.
-void traceWave(const PathTracerScene& pts, const Camera& camera, std::uint64_t seed, const Settings& settings,
-               std::uint64_t firstSample, std::size_t count, PathBuffer& paths) {
+// Returns the number of path segments traced (closest-hit queries).
+std::int64_t traceWave(const PathTracerScene& pts, const Camera& camera, std::uint64_t seed, const Settings& settings,
+                       std::uint64_t firstSample, std::size_t count, PathBuffer& paths) {
+    std::int64_t segments = 0;
     paths.resize(count);
     auto rays = paths.column<PathRay>();
     auto hits = paths.column<PathHit>();
@@ -105,6 +109,7 @@ void traceWave(const PathTracerScene& pts, const Camera& camera, std::uint64_t s
 
     std::vector<std::uint8_t> alive(count);
     while (!active.empty()) {
+        segments += static_cast<std::int64_t>(active.size());
         // Stage: closest hits for all live paths, as ray streams.
         jobs::parallelForChunks(active.size(), kGrain, [&](jobs::IndexRange r) {
             const auto ids = std::span<const std::uint32_t>(active).subspan(r.begin, r.size());
@@ -138,10 +143,12 @@ void traceWave(const PathTracerScene& pts, const Camera& camera, std::uint64_t s
         // Compaction keeps the order of paths, so nothing depends on scheduling.
         std::erase_if(active, [&](std::uint32_t p) { return alive[p] == 0; });
     }
+    return segments;
 }
 
-void traceTile(const PathTracerScene& pts, const Camera& camera, std::uint64_t seed, const Settings& settings,
-               std::uint64_t firstSample, std::size_t count, PathBuffer& paths) {
+std::int64_t traceTile(const PathTracerScene& pts, const Camera& camera, std::uint64_t seed, const Settings& settings,
+                       std::uint64_t firstSample, std::size_t count, PathBuffer& paths) {
+    std::atomic<std::int64_t> segments{0};
     paths.resize(count);
     auto radiance = paths.column<PathRadiance>();
     auto raster = paths.column<PathRaster>();
@@ -150,6 +157,7 @@ void traceTile(const PathTracerScene& pts, const Camera& camera, std::uint64_t s
     // One chunk = whole pixels, so each pixel's samples run back to back.
     const std::size_t pixelGrain = std::max<std::size_t>(1, kGrain / spp);
     jobs::parallelForChunks(count / spp, pixelGrain, [&](jobs::IndexRange pixels) {
+        std::int64_t chunkSegments = 0;
         for (std::size_t localPixel = pixels.begin; localPixel != pixels.end; ++localPixel) {
             const std::int64_t start = jobs::wallNanos();
             for (std::uint64_t s = 0; s < spp; ++s) {
@@ -167,6 +175,7 @@ void traceTile(const PathTracerScene& pts, const Camera& camera, std::uint64_t s
                 bool pathAlive = true;
                 while (pathAlive) {
                     const Hit hit = pts.rays.intersect(state.ray);
+                    ++chunkSegments;
                     ShadowRequest shadow;
                     pathAlive = advancePath(pts, settings.limits, hit, state, shadow);
                     if (shadow.pending) L += shadow.contribution * shadowTransmittance(pts, shadow);
@@ -176,7 +185,9 @@ void traceTile(const PathTracerScene& pts, const Camera& camera, std::uint64_t s
             const float perSample = static_cast<float>(jobs::wallNanos() - start) / static_cast<float>(spp);
             for (std::uint64_t s = 0; s < spp; ++s) timeNs[localPixel * spp + s] = perSample;
         }
+        segments += chunkSegments;
     });
+    return segments.load();
 }
 
 class PathTracerPass final : public Pass {
@@ -210,11 +221,10 @@ public:
         for (std::size_t firstPixel = 0; firstPixel < pixelCount; firstPixel += pixelsPerWave) {
             const std::size_t pixels = std::min(pixelsPerWave, pixelCount - firstPixel);
             const std::uint64_t firstSample = static_cast<std::uint64_t>(firstPixel) * spp;
-            if (settings.wavefront) {
-                traceWave(pts, camera, ctx.seed(), settings, firstSample, pixels * spp, paths);
-            } else {
-                traceTile(pts, camera, ctx.seed(), settings, firstSample, pixels * spp, paths);
-            }
+            const std::int64_t segments =
+                settings.wavefront ? traceWave(pts, camera, ctx.seed(), settings, firstSample, pixels * spp, paths)
+                                   : traceTile(pts, camera, ctx.seed(), settings, firstSample, pixels * spp, paths);
+            ctx.addCounter("path_segments", segments);
             // A non-finite sample would poison every pixel its filter reaches.
             for (Rgb& L : paths.column<PathRadiance>())
                 if (!isFinite(L)) L = Rgb(0.0f);
