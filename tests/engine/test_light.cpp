@@ -145,107 +145,6 @@ double cornerFormFactor(double a, double b, double h) {
     return (x / sx * std::atan(y / sx) + y / sy * std::atan(x / sy)) / (2.0 * M_PI);
 }
 
-// The chi-square test of tests/support integrates each cell's expected count
-// with an 8 x 8 Simpson rule, which misjudges the cells that a light's
-// silhouette (or an environment map's pixel edge) cuts through: at 10^5 samples
-// those errors alone fail the test. The densities of area lights are
-// discontinuous by nature, so this variant bins identically but integrates each
-// cell adaptively (midpoint rule on a quadtree refined where the estimate moves),
-// and lets cells whose integral is tiny or zero join the pooled cell instead of
-// failing outright, since a silhouette can cross a cell between all of the
-// integration points. The statistic and its p-value are the support's.
-double midpointIntegral(const test::DirectionPdf& pdf, double t0, double t1, double p0, double p1) {
-    constexpr int kGrid = 6;
-    const double ht = (t1 - t0) / kGrid, hp = (p1 - p0) / kGrid;
-    double sum = 0.0;
-    for (int i = 0; i < kGrid; ++i) {
-        const double theta = t0 + (i + 0.5) * ht;
-        const double sinT = std::sin(theta), cosT = std::cos(theta);
-        for (int j = 0; j < kGrid; ++j) {
-            const double phi = p0 + (j + 0.5) * hp;
-            sum += pdf(Vec3(float(sinT * std::cos(phi)), float(sinT * std::sin(phi)), float(cosT))) * sinT;
-        }
-    }
-    return sum * ht * hp;
-}
-
-// Refines to at least `minDepth` levels, then wherever the estimate still moves by more than `tolerance`.
-double adaptiveIntegral(const test::DirectionPdf& pdf, double t0, double t1, double p0, double p1, double coarse,
-                        double tolerance, int depth, int minDepth) {
-    const double tm = 0.5 * (t0 + t1), pm = 0.5 * (p0 + p1);
-    const double q[4] = {midpointIntegral(pdf, t0, tm, p0, pm), midpointIntegral(pdf, tm, t1, p0, pm),
-                         midpointIntegral(pdf, t0, tm, pm, p1), midpointIntegral(pdf, tm, t1, pm, p1)};
-    const double fine = q[0] + q[1] + q[2] + q[3];
-    if (depth == 0 || (minDepth <= 0 && std::abs(fine - coarse) <= tolerance)) return fine;
-    const double half = 0.5 * tolerance;
-    return adaptiveIntegral(pdf, t0, tm, p0, pm, q[0], half, depth - 1, minDepth - 1) +
-           adaptiveIntegral(pdf, tm, t1, p0, pm, q[1], half, depth - 1, minDepth - 1) +
-           adaptiveIntegral(pdf, t0, tm, pm, p1, q[2], half, depth - 1, minDepth - 1) +
-           adaptiveIntegral(pdf, tm, t1, pm, p1, q[3], half, depth - 1, minDepth - 1);
-}
-
-test::Chi2Result chi2SphereTestFine(const test::DirectionSampler& sample, const test::DirectionPdf& pdf,
-                                    const test::Chi2Config& config, int minDepth = 2) {
-    const int nt = config.thetaBins, np = config.phiBins;
-    std::vector<double> observed(static_cast<std::size_t>(nt * np), 0.0), expected(observed.size(), 0.0);
-    jobs::Rng rng(config.seed, jobs::streamKey("chi2-fine"), 0);
-    for (std::size_t i = 0; i < config.samples; ++i) {
-        const std::optional<Vec3> w = sample(rng.uniform2());
-        if (!w) continue;
-        const Vec3 d = glm::normalize(*w);
-        if (!isFinite(d)) return {false, 0, 0, 0, "sampler returned a non-finite direction"};
-        const double theta = std::acos(std::clamp(double(d.z), -1.0, 1.0));
-        double phi = std::atan2(double(d.y), double(d.x));
-        if (phi < 0) phi += 2.0 * M_PI;
-        const int ti = std::min(nt - 1, static_cast<int>(theta / M_PI * nt));
-        const int pi = std::min(np - 1, static_cast<int>(phi / (2.0 * M_PI) * np));
-        observed[static_cast<std::size_t>(ti * np + pi)] += 1.0;
-    }
-    const double n = double(config.samples);
-    for (int ti = 0; ti < nt; ++ti)
-        for (int pi = 0; pi < np; ++pi) {
-            const double t0 = M_PI * ti / nt, t1 = M_PI * (ti + 1) / nt;
-            const double p0 = 2.0 * M_PI * pi / np, p1 = 2.0 * M_PI * (pi + 1) / np;
-            const double coarse = midpointIntegral(pdf, t0, t1, p0, p1);
-            // Integration error well below the counting noise of the cell.
-            const double tolerance = 0.02 * std::sqrt(std::max(coarse * n, 1.0)) / n;
-            const std::size_t k = static_cast<std::size_t>(ti * np + pi);
-            expected[k] = n * adaptiveIntegral(pdf, t0, t1, p0, p1, coarse, tolerance, 5, minDepth);
-            // A silhouette grazing the cell between all integration points: resolve it on a much finer grid.
-            if (observed[k] > 0.0 && expected[k] < std::max(config.minExpected, 0.5 * observed[k]))
-                expected[k] = n * adaptiveIntegral(pdf, t0, t1, p0, p1, coarse, tolerance, 5, 5);
-        }
-
-    std::vector<std::size_t> order(observed.size());
-    for (std::size_t k = 0; k < order.size(); ++k) order[k] = k;
-    std::sort(order.begin(), order.end(), [&](auto x, auto y) { return expected[x] < expected[y]; });
-    double statistic = 0.0, pooledExpected = 0.0, pooledObserved = 0.0;
-    int bins = 0;
-    for (std::size_t k : order) {
-        if (expected[k] < config.minExpected) {
-            pooledExpected += expected[k];
-            pooledObserved += observed[k];
-        } else {
-            statistic += (observed[k] - expected[k]) * (observed[k] - expected[k]) / expected[k];
-            ++bins;
-        }
-    }
-    if (pooledExpected > 0.0 || pooledObserved > 0.0) {
-        statistic += (pooledObserved - pooledExpected) * (pooledObserved - pooledExpected) /
-                     std::max(pooledExpected, config.minExpected);
-        ++bins;
-    }
-    test::Chi2Result result;
-    result.statistic = statistic;
-    result.degreesOfFreedom = std::max(1, bins - 1);
-    result.pValue = test::chi2Survival(statistic, result.degreesOfFreedom);
-    const double alpha = 1.0 - std::pow(1.0 - config.significance, 1.0 / config.testCount);
-    result.passed = result.pValue >= alpha;
-    result.message = "chi2 = " + std::to_string(statistic) + ", dof = " + std::to_string(result.degreesOfFreedom) +
-                     ", p = " + std::to_string(result.pValue) + " (reject below " + std::to_string(alpha) + ")";
-    return result;
-}
-
 // ---------------------------------------------------------------------------
 // Area lights.
 
@@ -262,7 +161,7 @@ TEST(AreaLight, RectangleSamplingMatchesPdfChi2) {
         test::Chi2Config config;
         config.testCount = static_cast<int>(refs.size());
         config.samples = 300'000;
-        const auto result = chi2SphereTestFine(
+        const auto result = test::chi2SphereTest(
             [&](const Vec2& u) -> std::optional<Vec3> {
                 const auto s = light->sampleLi(ref, u);
                 if (!s) return std::nullopt;
@@ -292,7 +191,7 @@ TEST(AreaLight, SphereSamplingMatchesPdfChi2) {
         test::Chi2Config config;
         config.testCount = static_cast<int>(cases.size());
         config.samples = 300'000;
-        const auto result = chi2SphereTestFine(
+        const auto result = test::chi2SphereTest(
             [&](const Vec2& u) -> std::optional<Vec3> {
                 const auto s = light->sampleLi(c.ref, u);
                 if (!s) return std::nullopt;
@@ -611,7 +510,7 @@ TEST(SpotLight, EmissionFollowsFalloffChi2) {
         test::Chi2Config config;
         config.testCount = static_cast<int>(cases.size());
         config.samples = 300'000;
-        const auto result = chi2SphereTestFine(
+        const auto result = test::chi2SphereTest(
             [&](const Vec2& u) -> std::optional<Vec3> {
                 const auto e = light->sampleEmission(Vec2(0.5f), u);
                 if (!e) return std::nullopt;
@@ -731,13 +630,14 @@ TEST(EnvironmentMap, SamplingMatchesPdfChi2) {
     config.thetaBins = 32;
     config.phiBins = 64;
     config.samples = 1'000'000;
-    const auto result = chi2SphereTestFine(
+    config.minRefinement = 0;
+    const auto result = test::chi2SphereTest(
         [&](const Vec2& u) -> std::optional<Vec3> {
             const auto s = light->sampleLi(Vec3(0.0f), u);
             if (!s) return std::nullopt;
             return s->wi;
         },
-        [&](const Vec3& w) -> double { return light->pdfLi(Vec3(0.0f), Vec3(0.0f), Vec3(0.0f), w); }, config, 0);
+        [&](const Vec3& w) -> double { return light->pdfLi(Vec3(0.0f), Vec3(0.0f), Vec3(0.0f), w); }, config);
     EXPECT_TRUE(result.passed) << result.message;
 }
 

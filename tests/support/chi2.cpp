@@ -44,27 +44,37 @@ double gammaQFraction(double a, double x) {
 
 double squared(double x) { return x * x; }
 
-Vec3 sphericalDirection(double theta, double phi) {
-    return Vec3(static_cast<float>(std::sin(theta) * std::cos(phi)),
-                static_cast<float>(std::sin(theta) * std::sin(phi)), static_cast<float>(std::cos(theta)));
-}
-
-// Integral of pdf * sin(theta) over one cell by composite Simpson's rule in 2D.
-double integrateCell(const DirectionPdf& pdf, double t0, double t1, double p0, double p1) {
-    constexpr int kSteps = 8;  // even
-    const double ht = (t1 - t0) / kSteps, hp = (p1 - p0) / kSteps;
+// Midpoint rule on a 6 x 6 grid over one (theta, phi) cell of pdf * sin(theta).
+double midpointIntegral(const DirectionPdf& pdf, double t0, double t1, double p0, double p1) {
+    constexpr int kGrid = 6;
+    const double ht = (t1 - t0) / kGrid, hp = (p1 - p0) / kGrid;
     double sum = 0.0;
-    for (int i = 0; i <= kSteps; ++i) {
-        const double wt = (i == 0 || i == kSteps) ? 1.0 : (i % 2 ? 4.0 : 2.0);
-        const double theta = t0 + i * ht;
-        const double sinT = std::sin(theta);
-        for (int j = 0; j <= kSteps; ++j) {
-            const double wp = (j == 0 || j == kSteps) ? 1.0 : (j % 2 ? 4.0 : 2.0);
-            const double phi = p0 + j * hp;
-            sum += wt * wp * pdf(sphericalDirection(theta, phi)) * sinT;
+    for (int i = 0; i < kGrid; ++i) {
+        const double theta = t0 + (i + 0.5) * ht;
+        const double sinT = std::sin(theta), cosT = std::cos(theta);
+        for (int j = 0; j < kGrid; ++j) {
+            const double phi = p0 + (j + 0.5) * hp;
+            sum += pdf(Vec3(static_cast<float>(sinT * std::cos(phi)), static_cast<float>(sinT * std::sin(phi)),
+                            static_cast<float>(cosT))) *
+                   sinT;
         }
     }
-    return sum * ht * hp / 9.0;
+    return sum * ht * hp;
+}
+
+// Refines to at least `minDepth` levels, then wherever the estimate still moves by more than `tolerance`.
+double adaptiveIntegral(const DirectionPdf& pdf, double t0, double t1, double p0, double p1, double coarse,
+                        double tolerance, int depth, int minDepth) {
+    const double tm = 0.5 * (t0 + t1), pm = 0.5 * (p0 + p1);
+    const double q[4] = {midpointIntegral(pdf, t0, tm, p0, pm), midpointIntegral(pdf, tm, t1, p0, pm),
+                         midpointIntegral(pdf, t0, tm, pm, p1), midpointIntegral(pdf, tm, t1, pm, p1)};
+    const double fine = q[0] + q[1] + q[2] + q[3];
+    if (depth == 0 || (minDepth <= 0 && std::abs(fine - coarse) <= tolerance)) return fine;
+    const double half = 0.5 * tolerance;
+    return adaptiveIntegral(pdf, t0, tm, p0, pm, q[0], half, depth - 1, minDepth - 1) +
+           adaptiveIntegral(pdf, tm, t1, p0, pm, q[1], half, depth - 1, minDepth - 1) +
+           adaptiveIntegral(pdf, t0, tm, pm, p1, q[2], half, depth - 1, minDepth - 1) +
+           adaptiveIntegral(pdf, tm, t1, pm, p1, q[3], half, depth - 1, minDepth - 1);
 }
 
 }  // namespace
@@ -97,11 +107,21 @@ Chi2Result chi2SphereTest(const DirectionSampler& sample, const DirectionPdf& pd
     }
 
     std::vector<double> expected(observed.size());
-    for (int ti = 0; ti < nt; ++ti)
-        for (int pi = 0; pi < np; ++pi)
-            expected[static_cast<std::size_t>(ti * np + pi)] =
-                config.samples * integrateCell(pdf, M_PI * ti / nt, M_PI * (ti + 1) / nt,
-                                               2.0 * M_PI * pi / np, 2.0 * M_PI * (pi + 1) / np);
+    const double n = static_cast<double>(config.samples);
+    for (int ti = 0; ti < nt; ++ti) {
+        for (int pi = 0; pi < np; ++pi) {
+            const double t0 = M_PI * ti / nt, t1 = M_PI * (ti + 1) / nt;
+            const double p0 = 2.0 * M_PI * pi / np, p1 = 2.0 * M_PI * (pi + 1) / np;
+            const double coarse = midpointIntegral(pdf, t0, t1, p0, p1);
+            // Integration error well below the counting noise of the cell.
+            const double tolerance = 0.02 * std::sqrt(std::max(coarse * n, 1.0)) / n;
+            const auto k = static_cast<std::size_t>(ti * np + pi);
+            expected[k] = n * adaptiveIntegral(pdf, t0, t1, p0, p1, coarse, tolerance, 5, config.minRefinement);
+            // A discontinuity crossing the cell between all integration points: resolve it on a much finer grid.
+            if (observed[k] > 0.0 && expected[k] < std::max(config.minExpected, 0.5 * observed[k]))
+                expected[k] = n * adaptiveIntegral(pdf, t0, t1, p0, p1, coarse, tolerance, 5, 5);
+        }
+    }
 
     // Cells sorted by expectation; the smallest are pooled until the pool is large enough.
     std::vector<std::size_t> order(observed.size());
@@ -125,13 +145,8 @@ Chi2Result chi2SphereTest(const DirectionSampler& sample, const DirectionPdf& pd
             ++bins;
         }
     }
-    if (pooledExpected > 0.0) {
-        if (pooledExpected < config.minExpected && bins > 0) {
-            // Too small to stand alone: fold into the statistic only if samples landed there.
-            statistic += squared(pooledObserved - pooledExpected) / std::max(pooledExpected, 1.0);
-        } else {
-            statistic += squared(pooledObserved - pooledExpected) / pooledExpected;
-        }
+    if (pooledExpected > 0.0 || pooledObserved > 0.0) {
+        statistic += squared(pooledObserved - pooledExpected) / std::max(pooledExpected, config.minExpected);
         ++bins;
     }
 

@@ -1,8 +1,12 @@
 // Chi-square goodness-of-fit test for direction sampling routines, in the style
 // of Mitsuba's and pbrt-v4's test suites: samples are binned on a (theta, phi)
 // grid over the sphere, expected counts come from integrating the routine's own
-// density over each cell (Simpson's rule), cells with low expectation are pooled,
-// and the p-value is compared with a Sidak-corrected significance level.
+// density over each cell, cells with low expectation are pooled, and the
+// p-value is compared with a Sidak-corrected significance level.
+// Densities of area lights, environment-map pixels and horizons are
+// discontinuous, so cells are integrated adaptively (midpoint rule on a
+// quadtree refined where the estimate still moves) until the integration error
+// is far below the cell's counting noise.
 #pragma once
 
 #include "engine/math.h"
@@ -22,6 +26,7 @@ struct Chi2Config {
     double significance = 0.01;
     int testCount = 1;  // number of tests in the family, for the Sidak correction
     std::uint64_t seed = 1;
+    int minRefinement = 2;  // quadtree levels every cell is refined to before the adaptive test
 };
 
 struct Chi2Result {
