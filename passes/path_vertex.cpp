@@ -12,6 +12,9 @@ namespace fg {
 
 namespace {
 
+// Relative length by which shadow rays stop short of the point they test.
+constexpr float kShadowEpsilon = 1e-3f;
+
 // Transmittance over a segment that may be infinitely long.
 Rgb segmentTransmittance(const HomogeneousMedium& medium, float distance) {
     if (std::isinf(distance)) {
@@ -46,12 +49,17 @@ void queueLightSample(const PathTracerScene& pts, const Vec3& p, const Vec3& ng,
     shadow.contribution = beta * f * ls->value * (weight / lightPdf);
     const bool onSurface = shape != nullptr;
     shadow.ray.origin = onSurface ? offsetRayOrigin(p, ng, ls->wi) : p;
-    shadow.ray.direction = ls->wi;
     if (std::isinf(ls->distance) || ls->distance >= kInfinity) {
+        shadow.ray.direction = ls->wi;
         shadow.ray.tMax = kInfinity;
     } else {
-        // Stop short of the light's own surface.
-        shadow.ray.tMax = ls->distance * (1.0f - 1e-4f) - glm::length(shadow.ray.origin - p);
+        // Aim from the offset origin at the sampled point and stop just short of
+        // it: the light's own surface must not count as a blocker, even for
+        // grazing directions where the normal offset changes the distance most.
+        const Vec3 toLight = ls->p - shadow.ray.origin;
+        const float distance = glm::length(toLight);
+        shadow.ray.direction = toLight / distance;
+        shadow.ray.tMax = distance * (1.0f - kShadowEpsilon);
     }
     shadow.medium = onSurface ? mediumAfterCrossing(*shape, ng, ls->wi, medium) : medium;
     shadow.pending = true;

@@ -4,6 +4,7 @@
 #include "engine/scene.h"
 #include "tests/support/render_helpers.h"
 
+#include <glm/gtc/matrix_transform.hpp>
 #include <gtest/gtest.h>
 
 #include <cmath>
