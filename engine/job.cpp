@@ -28,7 +28,11 @@ public:
     std::string source(const toml::node& node, const std::string& keyPath) const {
         if (const auto it = overrideSources_.find(keyPath); it != overrideSources_.end()) return it->second;
         const auto line = node.source().begin.line;
-        return line > 0 ? path_ + ":" + std::to_string(line) : path_;
+        if (line > 0) return path_ + ":" + std::to_string(line);
+        // A table that is not in the file was made by an override of a key inside it.
+        for (const auto& [key, origin] : overrideSources_)
+            if (key.rfind(keyPath + ".", 0) == 0) return origin;
+        return path_;
     }
     [[noreturn]] void fail(const toml::node& node, const std::string& keyPath, const std::string& message) const {
         throw InputError(source(node, keyPath) + ": " + message);

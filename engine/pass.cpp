@@ -1,4 +1,6 @@
-// Pass parameters, the context a running pass sees, and registry look-ups.
+// Pass parameters and the context a running pass sees. The registry look-ups
+// live in passes/registry.cpp, next to the table, so that the scheduler links
+// without pulling in every registered pass.
 #include "engine/pass.h"
 
 #include <sstream>
@@ -42,8 +44,18 @@ const std::string& PassParams::getString(const std::string& name) const { return
 PassContext::PassContext(const Scene& scene, const RayQuery& rays, const FilmSettings& film, std::uint64_t seed,
                          const PassParams& params, std::map<std::string, BufferHandle*> inputs,
                          std::map<std::string, BufferHandle*> outputs, std::string instanceName)
+    : PassContext(scene, &rays, film, seed, params, std::move(inputs), std::move(outputs), std::move(instanceName)) {}
+
+PassContext::PassContext(const Scene& scene, const RayQuery* rays, const FilmSettings& film, std::uint64_t seed,
+                         const PassParams& params, std::map<std::string, BufferHandle*> inputs,
+                         std::map<std::string, BufferHandle*> outputs, std::string instanceName)
     : scene_(scene), rays_(rays), film_(film), seed_(seed), params_(params), inputs_(std::move(inputs)),
       outputs_(std::move(outputs)), instance_(std::move(instanceName)) {}
+
+const RayQuery& PassContext::rays() const {
+    if (!rays_) throw std::logic_error("pass '" + instance_ + "' traces rays, but the run has no ray queries");
+    return *rays_;
+}
 
 void PassContext::reportProgress(double fraction) const {
     if (progress_) progress_(instance_, fraction);
@@ -57,18 +69,6 @@ BufferHandle* PassContext::checked(const std::map<std::string, BufferHandle*>& s
         throw std::logic_error(std::string(kind) + " '" + slot + "' is " + it->second->type + ", not " + type);
     }
     return it->second;
-}
-
-const PassRegistration* findPass(const std::string& name) {
-    for (const auto& r : passRegistry())
-        if (r.spec.name == name) return &r;
-    return nullptr;
-}
-
-const Pipeline* findPipeline(const std::string& name) {
-    for (const auto& p : builtinPipelines())
-        if (p.name == name) return &p;
-    return nullptr;
 }
 
 }  // namespace fg

@@ -89,9 +89,14 @@ public:
     PassContext(const Scene& scene, const RayQuery& rays, const FilmSettings& film, std::uint64_t seed,
                 const PassParams& params, std::map<std::string, BufferHandle*> inputs,
                 std::map<std::string, BufferHandle*> outputs, std::string instanceName);
+    // Without ray queries (rays may be null), for pipelines whose passes trace no rays.
+    PassContext(const Scene& scene, const RayQuery* rays, const FilmSettings& film, std::uint64_t seed,
+                const PassParams& params, std::map<std::string, BufferHandle*> inputs,
+                std::map<std::string, BufferHandle*> outputs, std::string instanceName);
 
     const Scene& scene() const { return scene_; }
-    const RayQuery& rays() const { return rays_; }
+    // Throws std::logic_error when the context was made without ray queries.
+    const RayQuery& rays() const;
     const FilmSettings& filmSettings() const { return film_; }
     std::uint64_t seed() const { return seed_; }
     const PassParams& params() const { return params_; }
@@ -126,7 +131,7 @@ private:
     static BufferHandle* checked(const std::map<std::string, BufferHandle*>& slots, const std::string& slot,
                                  const char* type, const char* kind);
     const Scene& scene_;
-    const RayQuery& rays_;
+    const RayQuery* rays_;
     const FilmSettings& film_;
     std::uint64_t seed_;
     const PassParams& params_;

@@ -27,26 +27,42 @@ std::string slotBuffer(const std::map<std::string, std::string>& bindings, const
     throw InputError(source + ": " + message);
 }
 
+// Range bounds as a reader wrote them: 1048576, not 1.04858e+06.
+void writeBound(std::ostream& out, double bound) {
+    if (std::abs(bound) < 1e15 && std::floor(bound) == bound) out << static_cast<std::int64_t>(bound);
+    else out << bound;
+}
+
+std::string rangeText(const ParamSpec& spec) {
+    std::ostringstream out;
+    out << '[';
+    writeBound(out, spec.minValue);
+    out << ", ";
+    writeBound(out, spec.maxValue);
+    out << ']';
+    return out.str();
+}
+
 ParamValue convertSetting(const ParamSpec& spec, const ParamSetting& setting, const std::string& instance) {
     const std::string where = "parameter '" + instance + "." + spec.name + "'";
     const ParamValue& v = setting.value;
     switch (spec.type) {
     case ParamType::Int: {
-        std::int64_t value = 0;
+        // The range is checked on the number as written, before any conversion:
+        // casting a double beyond the int64 range is undefined.
+        double number = 0.0;
         if (const auto* i = std::get_if<std::int64_t>(&v)) {
-            value = *i;
-        } else if (const auto* d = std::get_if<double>(&v); d && std::floor(*d) == *d) {
-            value = static_cast<std::int64_t>(*d);
+            number = static_cast<double>(*i);
+        } else if (const auto* d = std::get_if<double>(&v); d && std::isfinite(*d) && std::floor(*d) == *d) {
+            number = *d;
         } else {
             fail(setting.source, where + " must be an integer, got " + toString(v));
         }
-        if (static_cast<double>(value) < spec.minValue || static_cast<double>(value) > spec.maxValue) {
-            std::ostringstream msg;
-            msg << where << " = " << value << " is outside its valid range [" << spec.minValue << ", "
-                << spec.maxValue << "]";
-            fail(setting.source, msg.str());
-        }
-        return value;
+        constexpr double kInt64Limit = 9.2e18;
+        if (number < spec.minValue || number > spec.maxValue || std::abs(number) > kInt64Limit)
+            fail(setting.source, where + " = " + toString(v) + " is outside its valid range " + rangeText(spec));
+        if (const auto* i = std::get_if<std::int64_t>(&v)) return *i;
+        return static_cast<std::int64_t>(number);
     }
     case ParamType::Float: {
         double value = 0.0;
@@ -57,12 +73,8 @@ ParamValue convertSetting(const ParamSpec& spec, const ParamSetting& setting, co
         } else {
             fail(setting.source, where + " must be a number, got " + toString(v));
         }
-        if (!std::isfinite(value) || value < spec.minValue || value > spec.maxValue) {
-            std::ostringstream msg;
-            msg << where << " = " << value << " is outside its valid range [" << spec.minValue << ", "
-                << spec.maxValue << "]";
-            fail(setting.source, msg.str());
-        }
+        if (!std::isfinite(value) || value < spec.minValue || value > spec.maxValue)
+            fail(setting.source, where + " = " + toString(v) + " is outside its valid range " + rangeText(spec));
         return value;
     }
     case ParamType::Bool:
@@ -199,9 +211,29 @@ ExecutionPlan ExecutionPlan::build(const Pipeline& pipeline, const JobParams& pa
         }
     }
     if (plan.order_.size() != n) {
+        // What Kahn leaves over is the cycles plus everything downstream of them;
+        // peel off passes that feed no other leftover pass to name only the cycles.
+        std::vector<bool> onCycle(n);
+        for (std::size_t i = 0; i < n; ++i) onCycle[i] = indegree[i] > 0;
+        for (bool peeled = true; peeled;) {
+            peeled = false;
+            for (std::size_t i = 0; i < n; ++i) {
+                if (!onCycle[i]) continue;
+                bool feedsLeftover = false;
+                for (std::size_t j = 0; j < n && !feedsLeftover; ++j) {
+                    const auto& deps = plan.passes_[j].dependencies;
+                    feedsLeftover =
+                        onCycle[j] && std::find(deps.begin(), deps.end(), static_cast<int>(i)) != deps.end();
+                }
+                if (!feedsLeftover) {
+                    onCycle[i] = false;
+                    peeled = true;
+                }
+            }
+        }
         std::string cycle;
         for (std::size_t i = 0; i < n; ++i)
-            if (indegree[i] > 0) cycle += (cycle.empty() ? "" : ", ") + plan.passes_[i].node.instance;
+            if (onCycle[i]) cycle += (cycle.empty() ? "" : ", ") + plan.passes_[i].node.instance;
         fail(origin, "pipeline '" + pipeline.name + "' has a dependency cycle through passes: " + cycle);
     }
 
@@ -246,6 +278,10 @@ std::string ExecutionPlan::toDot() const {
 }
 
 RunResult execute(const ExecutionPlan& plan, const Scene& scene, const RayQuery& rays, const RunOptions& options) {
+    return execute(plan, scene, &rays, options);
+}
+
+RunResult execute(const ExecutionPlan& plan, const Scene& scene, const RayQuery* rays, const RunOptions& options) {
     const auto& passes = plan.passes();
     const std::size_t n = passes.size();
 

@@ -74,5 +74,7 @@ struct RunResult {
 };
 
 RunResult execute(const ExecutionPlan& plan, const Scene& scene, const RayQuery& rays, const RunOptions& options);
+// As above; `rays` may be null when no pass of the plan traces rays.
+RunResult execute(const ExecutionPlan& plan, const Scene& scene, const RayQuery* rays, const RunOptions& options);
 
 }  // namespace fg

@@ -80,8 +80,13 @@ public:
         resize(size_ + capacity);
     }
     std::size_t claim(std::size_t n) {
-        const std::size_t slot = appendCursor_.fetch_add(n, std::memory_order_relaxed);
-        return slot + n <= size_ ? slot : kNoSlot;
+        // A failed claim must not move the cursor: commitAppend() trims to it, and
+        // slots past it were never written.
+        std::size_t slot = appendCursor_.load(std::memory_order_relaxed);
+        do {
+            if (slot > size_ || n > size_ - slot) return kNoSlot;
+        } while (!appendCursor_.compare_exchange_weak(slot, slot + n, std::memory_order_relaxed));
+        return slot;
     }
     void commitAppend() { resize(std::min(appendCursor_.load(), size_)); }
 

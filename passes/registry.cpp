@@ -17,4 +17,16 @@ const std::vector<Pipeline>& builtinPipelines() {
     return pipelines;
 }
 
+const PassRegistration* findPass(const std::string& name) {
+    for (const auto& r : passRegistry())
+        if (r.spec.name == name) return &r;
+    return nullptr;
+}
+
+const Pipeline* findPipeline(const std::string& name) {
+    for (const auto& p : builtinPipelines())
+        if (p.name == name) return &p;
+    return nullptr;
+}
+
 }  // namespace fg
