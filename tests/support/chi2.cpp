@@ -52,11 +52,17 @@ Vec3 sphericalDirection(double theta, double phi) {
 // Integral of pdf * sin(theta) over one cell by composite Simpson's rule in 2D.
 double integrateCell(const DirectionPdf& pdf, double t0, double t1, double p0, double p1) {
     constexpr int kSteps = 8;  // even
-    const double ht = (t1 - t0) / kSteps, hp = (p1 - p0) / kSteps;
+    // The theta nodes are inset by a negligible fraction of the cell so that a
+    // density with a jump across a cell edge (the horizon, theta = pi/2, where
+    // reflection and transmission lobes meet) is evaluated on the cell's own
+    // side: cos(pi/2) rounds to a tiny positive float, which would otherwise
+    // count the upper hemisphere's density into the cell below the horizon.
+    const double inset = 1e-4 * (t1 - t0);
+    const double ht = (t1 - t0 - 2.0 * inset) / kSteps, hp = (p1 - p0) / kSteps;
     double sum = 0.0;
     for (int i = 0; i <= kSteps; ++i) {
         const double wt = (i == 0 || i == kSteps) ? 1.0 : (i % 2 ? 4.0 : 2.0);
-        const double theta = t0 + i * ht;
+        const double theta = t0 + inset + i * ht;
         const double sinT = std::sin(theta);
         for (int j = 0; j <= kSteps; ++j) {
             const double wp = (j == 0 || j == kSteps) ? 1.0 : (j % 2 ? 4.0 : 2.0);
@@ -64,7 +70,8 @@ double integrateCell(const DirectionPdf& pdf, double t0, double t1, double p0, d
             sum += wt * wp * pdf(sphericalDirection(theta, phi)) * sinT;
         }
     }
-    return sum * ht * hp / 9.0;
+    // Rescaled to the full cell width; the missing slivers are O(inset).
+    return sum * ht * hp / 9.0 * (t1 - t0) / (t1 - t0 - 2.0 * inset);
 }
 
 }  // namespace
