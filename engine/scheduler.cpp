@@ -17,6 +17,9 @@ namespace fg {
 
 namespace {
 
+// Serial (non-chunk) CPU time of pass bodies that finished on this thread.
+thread_local std::int64_t tPassSerialCpu = 0;
+
 std::string slotBuffer(const std::map<std::string, std::string>& bindings, const std::string& slot) {
     const auto it = bindings.find(slot);
     return it == bindings.end() ? slot : it->second;
@@ -326,14 +329,18 @@ RunResult execute(const ExecutionPlan& plan, const Scene& scene, const RayQuery*
             const std::int64_t wall0 = jobs::wallNanos();
             const std::int64_t cpu0 = jobs::threadCpuNanos();
             const std::int64_t chunkCpu0 = jobs::chunkCpuOnThisThread();
+            const std::int64_t nestedCpu0 = tPassSerialCpu;
             {
                 jobs::ScopedContext scope(&work);
                 auto instance = pass.registration->create();
                 instance->run(ctx);
             }
             const std::int64_t wall1 = jobs::wallNanos();
-            const std::int64_t serialCpu =
-                (jobs::threadCpuNanos() - cpu0) - (jobs::chunkCpuOnThisThread() - chunkCpu0);
+            // This thread may have run chunks (booked to their own passes) and, while
+            // waiting, whole other passes: both are taken out of this pass's own time.
+            const std::int64_t serialCpu = (jobs::threadCpuNanos() - cpu0) -
+                                           (jobs::chunkCpuOnThisThread() - chunkCpu0) - (tPassSerialCpu - nestedCpu0);
+            tPassSerialCpu += serialCpu;
 
             PassStats& s = stats[i];
             s.instance = pass.node.instance;
