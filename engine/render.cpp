@@ -23,22 +23,37 @@ namespace {
 
 namespace fs = std::filesystem;
 
+// Writes and removes a probe file: permission bits alone do not tell (root,
+// ACLs, read-only mounts).
+bool canCreateFileIn(const fs::path& dir) {
+    const fs::path probe = dir / (".fluxgraph-write-test-" + std::to_string(::getpid()));
+    bool written = false;
+    {
+        std::ofstream out(probe);
+        written = out && (out << "x") && out.flush();
+    }
+    std::error_code ignored;
+    fs::remove(probe, ignored);
+    return written;
+}
+
 // Creates the output directory if needed and proves it is writable, before any
 // work is done, so that a long render never fails at the very end.
 void ensureWritableDirectory(const std::string& dir) {
     std::error_code ec;
     fs::create_directories(dir, ec);
     if (ec || !fs::is_directory(dir)) throw InputError(dir + ": cannot create output directory");
-    const fs::path probe = fs::path(dir) / (".fluxgraph-write-test-" + std::to_string(::getpid()));
-    {
-        std::ofstream out(probe);
-        if (!out || !(out << "x") || !out.flush()) {
-            std::error_code ignored;
-            fs::remove(probe, ignored);
-            throw InputError(dir + ": output directory is not writable");
-        }
-    }
-    fs::remove(probe, ec);
+    if (!canCreateFileIn(dir)) throw InputError(dir + ": output directory is not writable");
+}
+
+// The trace is written after the render; its destination is checked before.
+void ensureWritableProfilePath(const std::string& path) {
+    const fs::path parent = fs::path(path).has_parent_path() ? fs::path(path).parent_path() : fs::path(".");
+    std::error_code ec;
+    if (fs::is_directory(path, ec)) throw InputError(path + ": cannot write profile: is a directory");
+    if (!fs::is_directory(parent, ec))
+        throw InputError(path + ": cannot write profile: no directory " + parent.string());
+    if (!canCreateFileIn(parent)) throw InputError(path + ": cannot write profile: directory is not writable");
 }
 
 std::string jsonEscape(const std::string& s) {
@@ -118,6 +133,7 @@ ExecutionPlan validateJob(const Job& job) {
 RenderOutcome renderJob(const Job& job, const RenderOptions& options) {
     const ExecutionPlan plan = ExecutionPlan::build(job.pipeline, job.params, job.path);
     ensureWritableDirectory(job.output.directory);
+    if (!options.profilePath.empty()) ensureWritableProfilePath(options.profilePath);
 
     RenderOutcome outcome;
     const std::int64_t t0 = jobs::wallNanos();

@@ -1,0 +1,516 @@
+// End-to-end tests of the `fluxgraph` executable: each test spawns the real
+// binary through the shell, then checks its exit code, what it printed and
+// what it left on disk. Input errors must cost exactly one stderr line and
+// exit code 2 and leave no image behind; renders must be reproducible across
+// thread counts and carry their provenance in the EXR metadata.
+#include "engine/image_io.h"
+#include "engine/pass.h"
+
+#include <gtest/gtest.h>
+
+#include <sys/wait.h>
+
+#include <algorithm>
+#include <cctype>
+#include <cstdint>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <sstream>
+#include <string>
+#include <vector>
+
+namespace fg {
+namespace {
+
+namespace fs = std::filesystem;
+
+struct CommandResult {
+    int exitCode = -1;
+    std::string out;
+    std::string err;
+};
+
+std::string readText(const fs::path& path) {
+    std::ifstream in(path, std::ios::binary);
+    std::stringstream buffer;
+    buffer << in.rdbuf();
+    return buffer.str();
+}
+
+void writeText(const fs::path& path, const std::string& text) {
+    std::ofstream out(path, std::ios::binary);
+    out << text;
+    ASSERT_TRUE(out.good()) << path;
+}
+
+std::string shellQuote(const std::string& word) {
+    std::string quoted = "'";
+    for (char c : word) quoted += c == '\'' ? std::string("'\\''") : std::string(1, c);
+    return quoted + "'";
+}
+
+// A fresh, empty directory per test (ctest runs tests as separate processes, in parallel).
+fs::path scratchDirectory() {
+    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    const fs::path dir = fs::path(FLUXGRAPH_TEST_TMP) / "cli" / info->name();
+    fs::remove_all(dir);
+    fs::create_directories(dir);
+    return dir;
+}
+
+// Runs the binary with `dir` as working directory, so that anything written to
+// a relative path lands in the scratch directory; stdout and stderr are
+// captured in dir/logs, away from the output directories the tests inspect.
+CommandResult runFluxgraph(const fs::path& dir, const std::vector<std::string>& args) {
+    const fs::path logs = dir / "logs";
+    fs::create_directories(logs);
+    std::string command = "cd " + shellQuote(dir.string()) + " && " + shellQuote(FLUXGRAPH_BINARY);
+    for (const std::string& a : args) {
+        command += ' ';  // appended separately: GCC 12 warns (-Wrestrict, falsely) on " " + string here
+        command += shellQuote(a);
+    }
+    command += " </dev/null >" + shellQuote((logs / "stdout").string()) + " 2>" + shellQuote((logs / "stderr").string());
+    const int status = std::system(command.c_str());
+    CommandResult result;
+    if (status != -1 && WIFEXITED(status)) result.exitCode = WEXITSTATUS(status);
+    else if (status != -1 && WIFSIGNALED(status)) result.exitCode = 128 + WTERMSIG(status);
+    result.out = readText(logs / "stdout");
+    result.err = readText(logs / "stderr");
+    return result;
+}
+
+std::string sourcePath(const std::string& relative) { return (fs::path(FLUXGRAPH_SOURCE_DIR) / relative).string(); }
+std::string quickstartJob() { return sourcePath("data/jobs/quickstart.toml"); }
+std::string cornellScene() { return sourcePath("data/cornell-box/cornell-box.toml"); }
+
+// Small enough that a render takes well under a second, large enough that the
+// path tracer splits it into several chunks (so thread counts matter).
+std::vector<std::string> tinyRender(std::vector<std::string> args) {
+    for (const char* set : {"film.width=32", "film.height=32", "passes.pt.spp=2"}) {
+        args.push_back("--set");
+        args.push_back(set);
+    }
+    return args;
+}
+
+std::vector<std::string> listDirectory(const fs::path& dir) {
+    std::vector<std::string> names;
+    if (!fs::exists(dir)) return names;
+    for (const auto& entry : fs::directory_iterator(dir)) names.push_back(entry.path().filename().string());
+    std::sort(names.begin(), names.end());
+    return names;
+}
+
+// Every file below `dir`, recursively, relative to it (logs excluded).
+std::vector<std::string> filesBelow(const fs::path& dir) {
+    std::vector<std::string> names;
+    if (!fs::exists(dir)) return names;
+    for (const auto& entry : fs::recursive_directory_iterator(dir)) {
+        const std::string relative = fs::relative(entry.path(), dir).string();
+        if (relative.rfind("logs", 0) == 0) continue;
+        if (!entry.is_directory()) names.push_back(relative);
+    }
+    std::sort(names.begin(), names.end());
+    return names;
+}
+
+std::string joined(const std::vector<std::string>& names) {
+    std::string text;
+    for (const auto& n : names) text += (text.empty() ? "" : ", ") + n;
+    return text;
+}
+
+bool isImage(const std::string& name) {
+    const std::string ext = fs::path(name).extension().string();
+    return ext == ".exr" || ext == ".png";
+}
+
+// The input-error contract: exit code 2 and exactly one line on stderr.
+void expectInputError(const CommandResult& r) {
+    EXPECT_EQ(r.exitCode, 2) << "stderr: " << r.err;
+    EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << "stderr: " << r.err;
+    EXPECT_TRUE(!r.err.empty() && r.err.back() == '\n') << "stderr: " << r.err;
+    EXPECT_EQ(r.err.find("internal error"), std::string::npos) << "stderr: " << r.err;
+}
+
+const ParamSpec& ptParam(const std::string& name) {
+    const PassRegistration* pt = findPass("pt");
+    if (!pt) throw std::runtime_error("pass 'pt' is not registered");
+    for (const ParamSpec& p : pt->spec.params)
+        if (p.name == name) return p;
+    throw std::runtime_error("pass 'pt' has no parameter '" + name + "'");
+}
+
+std::map<std::string, std::string> asMap(const Metadata& metadata) {
+    return {metadata.begin(), metadata.end()};
+}
+
+// A minimal JSON syntax check (RFC 8259 grammar, no semantic checks), enough
+// to tell a well-formed trace from a truncated or mis-escaped one.
+class JsonChecker {
+public:
+    explicit JsonChecker(const std::string& text) : text_(text) {}
+    bool valid() {
+        skipSpace();
+        if (!value()) return false;
+        skipSpace();
+        return pos_ == text_.size();
+    }
+
+private:
+    void skipSpace() {
+        while (pos_ < text_.size() && std::isspace(static_cast<unsigned char>(text_[pos_]))) ++pos_;
+    }
+    bool consume(char c) {
+        skipSpace();
+        if (pos_ < text_.size() && text_[pos_] == c) {
+            ++pos_;
+            return true;
+        }
+        return false;
+    }
+    bool literal(const char* word) {
+        const std::size_t n = std::strlen(word);
+        if (text_.compare(pos_, n, word) != 0) return false;
+        pos_ += n;
+        return true;
+    }
+    bool string() {
+        if (!consume('"')) return false;
+        while (pos_ < text_.size()) {
+            const char c = text_[pos_++];
+            if (c == '"') return true;
+            if (static_cast<unsigned char>(c) < 0x20) return false;
+            if (c == '\\') {
+                if (pos_ >= text_.size()) return false;
+                const char e = text_[pos_++];
+                if (e == 'u') {
+                    for (int i = 0; i < 4; ++i)
+                        if (pos_ >= text_.size() || !std::isxdigit(static_cast<unsigned char>(text_[pos_++]))) return false;
+                } else if (std::strchr("\"\\/bfnrt", e) == nullptr) {
+                    return false;
+                }
+            }
+        }
+        return false;
+    }
+    bool number() {
+        const std::size_t start = pos_;
+        if (pos_ < text_.size() && text_[pos_] == '-') ++pos_;
+        std::size_t digits = 0;
+        while (pos_ < text_.size() && std::isdigit(static_cast<unsigned char>(text_[pos_]))) ++pos_, ++digits;
+        if (digits == 0) return false;
+        if (pos_ < text_.size() && text_[pos_] == '.') {
+            ++pos_;
+            digits = 0;
+            while (pos_ < text_.size() && std::isdigit(static_cast<unsigned char>(text_[pos_]))) ++pos_, ++digits;
+            if (digits == 0) return false;
+        }
+        if (pos_ < text_.size() && (text_[pos_] == 'e' || text_[pos_] == 'E')) {
+            ++pos_;
+            if (pos_ < text_.size() && (text_[pos_] == '+' || text_[pos_] == '-')) ++pos_;
+            digits = 0;
+            while (pos_ < text_.size() && std::isdigit(static_cast<unsigned char>(text_[pos_]))) ++pos_, ++digits;
+            if (digits == 0) return false;
+        }
+        return pos_ > start;
+    }
+    bool value() {
+        skipSpace();
+        if (pos_ >= text_.size()) return false;
+        const char c = text_[pos_];
+        if (c == '{') {
+            ++pos_;
+            if (consume('}')) return true;
+            do {
+                skipSpace();
+                if (!string() || !consume(':') || !value()) return false;
+            } while (consume(','));
+            return consume('}');
+        }
+        if (c == '[') {
+            ++pos_;
+            if (consume(']')) return true;
+            do {
+                if (!value()) return false;
+            } while (consume(','));
+            return consume(']');
+        }
+        if (c == '"') return string();
+        if (c == 't') return literal("true");
+        if (c == 'f') return literal("false");
+        if (c == 'n') return literal("null");
+        return number();
+    }
+
+    const std::string& text_;
+    std::size_t pos_ = 0;
+};
+
+std::size_t countOccurrences(const std::string& text, const std::string& needle) {
+    std::size_t count = 0;
+    for (std::size_t at = text.find(needle); at != std::string::npos; at = text.find(needle, at + needle.size())) ++count;
+    return count;
+}
+
+TEST(JsonChecker, AcceptsJsonAndRejectsBrokenText) {
+    EXPECT_TRUE(JsonChecker(R"({"a":[1,2.5,-3e2,"x\"y",true,null],"b":{}})").valid());
+    EXPECT_FALSE(JsonChecker(R"({"a":[1,2})").valid());
+    EXPECT_FALSE(JsonChecker(R"({"a":1,})").valid());
+    EXPECT_FALSE(JsonChecker("{\"a\":\"line\nbreak\"}").valid());
+}
+
+// ---------------------------------------------------------------- input errors
+
+TEST(Cli, MalformedJobNamesFileAndLine) {
+    const fs::path dir = scratchDirectory();
+    const std::string job = (dir / "broken.toml").string();
+    writeText(job, "scene = \"" + cornellScene() + "\"\npipeline = \"pt\"\nseed = = 1\n");
+    const CommandResult r = runFluxgraph(dir, {"render", job, "--out", (dir / "out").string()});
+    expectInputError(r);
+    EXPECT_EQ(r.err.rfind(job + ":3:", 0), 0u) << r.err;
+    EXPECT_TRUE(filesBelow(dir).size() == 1) << joined(filesBelow(dir));  // the job file only
+}
+
+TEST(Cli, MissingSceneIsNamedAndNothingIsWritten) {
+    const fs::path dir = scratchDirectory();
+    const std::string job = (dir / "job.toml").string();
+    writeText(job, "scene = \"no-such-scene.toml\"\npipeline = \"pt\"\n[film]\nwidth = 16\nheight = 16\n");
+    const fs::path out = dir / "out";
+    const CommandResult r = runFluxgraph(dir, {"render", job, "--out", out.string()});
+    expectInputError(r);
+    EXPECT_NE(r.err.find((dir / "no-such-scene.toml").string()), std::string::npos) << r.err;
+    const std::vector<std::string> written = listDirectory(out);
+    EXPECT_TRUE(std::none_of(written.begin(), written.end(), isImage)) << joined(written);
+    EXPECT_TRUE(written.empty()) << "left behind: " << joined(written);
+}
+
+TEST(Cli, OutputBelowARegularFileIsRejectedBeforeRendering) {
+    const fs::path dir = scratchDirectory();
+    writeText(dir / "afile", "not a directory\n");
+    const fs::path out = dir / "afile" / "sub";
+    const CommandResult r = runFluxgraph(dir, tinyRender({"render", quickstartJob(), "--out", out.string()}));
+    expectInputError(r);
+    EXPECT_NE(r.err.find(out.string()), std::string::npos) << r.err;
+    EXPECT_EQ(filesBelow(dir), std::vector<std::string>{"afile"});
+    EXPECT_EQ(readText(dir / "afile"), "not a directory\n");
+}
+
+TEST(Cli, NegativeSampleCountReportsTheValidRange) {
+    const fs::path dir = scratchDirectory();
+    const fs::path out = dir / "out";
+    const ParamSpec& spp = ptParam("spp");
+    std::ostringstream rangeText;
+    rangeText << '[' << static_cast<std::int64_t>(spp.minValue) << ", " << static_cast<std::int64_t>(spp.maxValue) << ']';
+    const std::string range = rangeText.str();
+    const CommandResult r = runFluxgraph(
+        dir, {"render", quickstartJob(), "--out", out.string(), "--set", "film.width=32", "--set", "film.height=32",
+              "--set", "passes.pt.spp=-4"});
+    expectInputError(r);
+    EXPECT_NE(r.err.find("spp"), std::string::npos) << r.err;
+    EXPECT_NE(r.err.find("-4"), std::string::npos) << r.err;
+    EXPECT_NE(r.err.find(range), std::string::npos) << "expected " << range << " in: " << r.err;
+    EXPECT_TRUE(filesBelow(dir).empty()) << joined(filesBelow(dir));
+}
+
+TEST(Cli, UnknownPassParameterNamesFileAndLine) {
+    const fs::path dir = scratchDirectory();
+    const std::string job = (dir / "job.toml").string();
+    writeText(job, "scene = \"" + cornellScene() +
+                       "\"\npipeline = \"pt\"\n\n[film]\nwidth = 16\nheight = 16\n\n[passes.pt]\nspp = 2\n"
+                       "samples_per_pixel = 8\n");
+    const CommandResult r = runFluxgraph(dir, {"render", job, "--out", (dir / "out").string()});
+    expectInputError(r);
+    EXPECT_EQ(r.err.rfind(job + ":10:", 0), 0u) << r.err;
+    EXPECT_NE(r.err.find("samples_per_pixel"), std::string::npos) << r.err;
+    EXPECT_EQ(filesBelow(dir), std::vector<std::string>{"job.toml"});
+}
+
+TEST(Cli, NegativeThreadCountIsAnInputError) {
+    const fs::path dir = scratchDirectory();
+    const CommandResult r =
+        runFluxgraph(dir, tinyRender({"render", quickstartJob(), "--out", (dir / "out").string(), "--threads", "-1"}));
+    expectInputError(r);
+    EXPECT_NE(r.err.find("threads"), std::string::npos) << r.err;
+    EXPECT_TRUE(filesBelow(dir).empty()) << joined(filesBelow(dir));
+}
+
+// The trace is written after the render, so its destination must be checked
+// before it: a bad --profile path may not cost a finished render's images.
+TEST(Cli, UnwritableProfilePathIsRejectedBeforeRendering) {
+    const fs::path dir = scratchDirectory();
+    const fs::path out = dir / "out";
+    for (const fs::path& trace : {dir / "no-such-directory" / "trace.json", out}) {
+        const CommandResult r = runFluxgraph(
+            dir, tinyRender({"render", quickstartJob(), "--quiet", "--out", out.string(), "--profile", trace.string()}));
+        expectInputError(r);
+        EXPECT_NE(r.err.find(trace.string()), std::string::npos) << r.err;
+        EXPECT_NE(r.err.find("profile"), std::string::npos) << r.err;
+        EXPECT_TRUE(filesBelow(dir).empty()) << "left behind: " << joined(filesBelow(dir));
+    }
+}
+
+TEST(Cli, ValidateReportsAMissingScene) {
+    const fs::path dir = scratchDirectory();
+    const std::string job = (dir / "job.toml").string();
+    writeText(job, "scene = \"missing/scene.toml\"\npipeline = \"pt\"\n");
+    const CommandResult r = runFluxgraph(dir, {"validate", job});
+    expectInputError(r);
+    EXPECT_NE(r.err.find((dir / "missing" / "scene.toml").string()), std::string::npos) << r.err;
+    EXPECT_TRUE(r.out.empty()) << r.out;
+}
+
+// ---------------------------------------------------------------- rendering
+
+TEST(Cli, ThreadCountDoesNotChangeThePixels) {
+    const fs::path dir = scratchDirectory();
+    Metadata meta1, meta2;
+    ImageChannels images[2];
+    Metadata* metas[2] = {&meta1, &meta2};
+    for (int t = 1; t <= 2; ++t) {
+        const fs::path out = dir / ("threads" + std::to_string(t));
+        const CommandResult r = runFluxgraph(
+            dir, tinyRender({"render", quickstartJob(), "--quiet", "--out", out.string(), "--threads", std::to_string(t)}));
+        ASSERT_EQ(r.exitCode, 0) << r.err;
+        EXPECT_EQ(listDirectory(out), (std::vector<std::string>{"quickstart.exr", "quickstart.png"}));
+        images[t - 1] = readExr((out / "quickstart.exr").string(), metas[t - 1]);
+    }
+    const ImageChannels& a = images[0];
+    const ImageChannels& b = images[1];
+    ASSERT_EQ(a.width, 32);
+    ASSERT_EQ(a.height, 32);
+    ASSERT_EQ(b.width, a.width);
+    ASSERT_EQ(b.height, a.height);
+    ASSERT_EQ(a.rgb.size(), b.rgb.size());
+    double energy = 0.0;
+    std::size_t differing = 0;
+    for (std::size_t i = 0; i < a.rgb.size(); ++i) {
+        for (int c = 0; c < 3; ++c) {
+            if (std::memcmp(&a.rgb[i][c], &b.rgb[i][c], sizeof(float)) != 0) ++differing;
+            energy += a.rgb[i][c];
+        }
+    }
+    EXPECT_EQ(differing, 0u) << "of " << 3 * a.rgb.size() << " channel values";
+    EXPECT_GT(energy, 0.0) << "a black image would make the comparison meaningless";
+
+    for (Metadata* meta : metas) {
+        const auto keys = asMap(*meta);
+        for (const char* key : {"job", "pipeline", "seed", "pass_timings", "version"})
+            EXPECT_TRUE(keys.count(key)) << "missing metadata key " << key;
+        EXPECT_EQ(keys.at("job"), readText(quickstartJob()));
+        EXPECT_EQ(keys.at("seed"), "1");
+        EXPECT_NE(keys.at("pipeline").find("pt"), std::string::npos) << keys.at("pipeline");
+        EXPECT_NE(keys.at("pass_timings").find("pt"), std::string::npos) << keys.at("pass_timings");
+        EXPECT_FALSE(keys.at("version").empty());
+    }
+    // The thread limit reached the renderer (otherwise both runs used the same pool).
+    EXPECT_EQ(asMap(meta1)["threads"], "1");
+    EXPECT_EQ(asMap(meta2)["threads"], "2");
+}
+
+TEST(Cli, SeedChangesThePixels) {
+    const fs::path dir = scratchDirectory();
+    ImageChannels images[2];
+    Metadata metas[2];
+    const std::string seeds[2] = {"1", "7"};
+    for (int i = 0; i < 2; ++i) {
+        const fs::path out = dir / ("seed" + seeds[i]);
+        const CommandResult r =
+            runFluxgraph(dir, tinyRender({"render", quickstartJob(), "--quiet", "--out", out.string(), "--seed", seeds[i]}));
+        ASSERT_EQ(r.exitCode, 0) << r.err;
+        images[i] = readExr((out / "quickstart.exr").string(), &metas[i]);
+        EXPECT_EQ(asMap(metas[i])["seed"], seeds[i]);
+    }
+    ASSERT_EQ(images[0].rgb.size(), images[1].rgb.size());
+    std::size_t differing = 0;
+    for (std::size_t i = 0; i < images[0].rgb.size(); ++i) differing += images[0].rgb[i] != images[1].rgb[i] ? 1 : 0;
+    // Two samples per pixel of a noisy estimate: nearly every lit pixel should change.
+    EXPECT_GT(differing, images[0].rgb.size() / 2) << differing << " of " << images[0].rgb.size() << " pixels differ";
+}
+
+TEST(Cli, SuccessfulRenderLeavesNoTemporaryFiles) {
+    const fs::path dir = scratchDirectory();
+    const fs::path out = dir / "out";
+    const CommandResult r = runFluxgraph(
+        dir, tinyRender({"render", quickstartJob(), "--out", out.string(), "--profile", (out / "trace.json").string()}));
+    ASSERT_EQ(r.exitCode, 0) << r.err;
+    const std::vector<std::string> names = listDirectory(out);
+    EXPECT_EQ(names, (std::vector<std::string>{"quickstart.exr", "quickstart.png", "trace.json"})) << joined(names);
+    for (const std::string& name : names) EXPECT_EQ(name.find(".tmp-"), std::string::npos) << name;
+    // The pass table and the list of written files go to stdout, not stderr.
+    EXPECT_NE(r.out.find("wrote " + (out / "quickstart.exr").string()), std::string::npos) << r.out;
+}
+
+TEST(Cli, ProfileWritesAChromeTrace) {
+    const fs::path dir = scratchDirectory();
+    const fs::path trace = dir / "trace.json";
+    const CommandResult r = runFluxgraph(
+        dir, tinyRender({"render", quickstartJob(), "--quiet", "--out", (dir / "out").string(), "--profile", trace.string()}));
+    ASSERT_EQ(r.exitCode, 0) << r.err;
+    ASSERT_TRUE(fs::exists(trace));
+    const std::string json = readText(trace);
+    EXPECT_TRUE(JsonChecker(json).valid()) << json.substr(0, 2000);
+    EXPECT_NE(json.find("\"traceEvents\""), std::string::npos);
+    EXPECT_EQ(countOccurrences(json, "\"name\":\"pt\",\"cat\":\"pass\""), 1u) << json.substr(0, 2000);
+    EXPECT_GE(countOccurrences(json, "\"cat\":\"chunk\""), 1u) << json.substr(0, 2000);
+    EXPECT_EQ(countOccurrences(json, "\"ph\":\"X\""), countOccurrences(json, "\"cat\":"));
+}
+
+// ---------------------------------------------------------------- inspection commands
+
+TEST(Cli, ValidateAcceptsTheQuickstartJob) {
+    const fs::path dir = scratchDirectory();
+    const CommandResult r = runFluxgraph(dir, {"validate", quickstartJob()});
+    EXPECT_EQ(r.exitCode, 0) << r.err;
+    EXPECT_TRUE(r.err.empty()) << r.err;
+    EXPECT_NE(r.out.find("ok"), std::string::npos) << r.out;
+    EXPECT_TRUE(filesBelow(dir).empty()) << joined(filesBelow(dir));
+}
+
+TEST(Cli, GraphPrintsADotDigraph) {
+    const fs::path dir = scratchDirectory();
+    const CommandResult r = runFluxgraph(dir, {"graph", quickstartJob()});
+    EXPECT_EQ(r.exitCode, 0) << r.err;
+    EXPECT_EQ(r.out.rfind("digraph", 0), 0u) << r.out;
+    EXPECT_NE(r.out.find("\"pt\""), std::string::npos) << r.out;
+    EXPECT_EQ(std::count(r.out.begin(), r.out.end(), '{'), std::count(r.out.begin(), r.out.end(), '}')) << r.out;
+    const std::size_t last = r.out.find_last_not_of(" \n");
+    ASSERT_NE(last, std::string::npos);
+    EXPECT_EQ(r.out[last], '}') << r.out;
+}
+
+TEST(Cli, PassesListsThePathTracerWithItsDefaults) {
+    const fs::path dir = scratchDirectory();
+    const CommandResult r = runFluxgraph(dir, {"passes"});
+    EXPECT_EQ(r.exitCode, 0) << r.err;
+    bool listed = false;
+    std::istringstream lines(r.out);
+    for (std::string line; std::getline(lines, line);) listed = listed || line.rfind("pt — ", 0) == 0;
+    EXPECT_TRUE(listed) << r.out;
+    const ParamSpec& spp = ptParam("spp");
+    const std::string line = "param spp : " + toString(spp.type) + " = " + toString(spp.defaultValue);
+    EXPECT_NE(r.out.find(line), std::string::npos) << "expected '" << line << "' in:\n" << r.out;
+}
+
+TEST(Cli, PipelinesListsPt) {
+    const fs::path dir = scratchDirectory();
+    const CommandResult r = runFluxgraph(dir, {"pipelines"});
+    EXPECT_EQ(r.exitCode, 0) << r.err;
+    bool found = false;
+    std::istringstream lines(r.out);
+    for (std::string line; std::getline(lines, line);) found = found || line.rfind("pt ", 0) == 0;
+    EXPECT_TRUE(found) << r.out;
+}
+
+TEST(Cli, MissingJobArgumentIsAnInputError) {
+    const fs::path dir = scratchDirectory();
+    const CommandResult r = runFluxgraph(dir, {"render"});
+    EXPECT_EQ(r.exitCode, 2) << r.err;
+    EXPECT_FALSE(r.err.empty());
+}
+
+}  // namespace
+}  // namespace fg
