@@ -3,6 +3,7 @@
 // without pulling in every registered pass.
 #include "engine/pass.h"
 
+#include <cmath>
 #include <sstream>
 #include <stdexcept>
 
@@ -28,6 +29,23 @@ std::string toString(const ParamValue& value) {
             else out << v;
         },
         value);
+    return out.str();
+}
+
+namespace {
+void writeBound(std::ostream& out, double bound) {
+    if (std::abs(bound) < 1e15 && std::floor(bound) == bound) out << static_cast<std::int64_t>(bound);
+    else out << bound;
+}
+}  // namespace
+
+std::string describeRange(const ParamSpec& spec) {
+    std::ostringstream out;
+    out << '[';
+    writeBound(out, spec.minValue);
+    out << ", ";
+    writeBound(out, spec.maxValue);
+    out << ']';
     return out.str();
 }
 

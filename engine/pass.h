@@ -51,6 +51,8 @@ struct PassSpec {
 
 std::string toString(ParamType type);
 std::string toString(const ParamValue& value);
+// "[1, 1048576]": a numeric parameter's valid range as a reader would write it.
+std::string describeRange(const ParamSpec& spec);
 
 // Resolved parameter values of one pass instance (defaults + job file + --set).
 class PassParams {

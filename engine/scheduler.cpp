@@ -30,22 +30,6 @@ std::string slotBuffer(const std::map<std::string, std::string>& bindings, const
     throw InputError(source + ": " + message);
 }
 
-// Range bounds as a reader wrote them: 1048576, not 1.04858e+06.
-void writeBound(std::ostream& out, double bound) {
-    if (std::abs(bound) < 1e15 && std::floor(bound) == bound) out << static_cast<std::int64_t>(bound);
-    else out << bound;
-}
-
-std::string rangeText(const ParamSpec& spec) {
-    std::ostringstream out;
-    out << '[';
-    writeBound(out, spec.minValue);
-    out << ", ";
-    writeBound(out, spec.maxValue);
-    out << ']';
-    return out.str();
-}
-
 ParamValue convertSetting(const ParamSpec& spec, const ParamSetting& setting, const std::string& instance) {
     const std::string where = "parameter '" + instance + "." + spec.name + "'";
     const ParamValue& v = setting.value;
@@ -63,7 +47,7 @@ ParamValue convertSetting(const ParamSpec& spec, const ParamSetting& setting, co
         }
         constexpr double kInt64Limit = 9.2e18;
         if (number < spec.minValue || number > spec.maxValue || std::abs(number) > kInt64Limit)
-            fail(setting.source, where + " = " + toString(v) + " is outside its valid range " + rangeText(spec));
+            fail(setting.source, where + " = " + toString(v) + " is outside its valid range " + describeRange(spec));
         if (const auto* i = std::get_if<std::int64_t>(&v)) return *i;
         return static_cast<std::int64_t>(number);
     }
@@ -77,7 +61,7 @@ ParamValue convertSetting(const ParamSpec& spec, const ParamSetting& setting, co
             fail(setting.source, where + " must be a number, got " + toString(v));
         }
         if (!std::isfinite(value) || value < spec.minValue || value > spec.maxValue)
-            fail(setting.source, where + " = " + toString(v) + " is outside its valid range " + rangeText(spec));
+            fail(setting.source, where + " = " + toString(v) + " is outside its valid range " + describeRange(spec));
         return value;
     }
     case ParamType::Bool:

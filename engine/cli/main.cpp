@@ -25,9 +25,7 @@ void printPasses() {
             std::cout << "  out  " << out.name << " : " << out.type << "  " << out.doc << "\n";
         for (const auto& p : s.params) {
             std::cout << "  param " << p.name << " : " << fg::toString(p.type) << " = " << fg::toString(p.defaultValue);
-            if (p.type == fg::ParamType::Int)
-                std::cout << "  [" << static_cast<long long>(p.minValue) << ", " << static_cast<long long>(p.maxValue) << "]";
-            if (p.type == fg::ParamType::Float) std::cout << "  [" << p.minValue << ", " << p.maxValue << "]";
+            if (p.type == fg::ParamType::Int || p.type == fg::ParamType::Float) std::cout << "  " << fg::describeRange(p);
             if (!p.choices.empty()) {
                 std::cout << "  {";
                 for (std::size_t i = 0; i < p.choices.size(); ++i) std::cout << (i ? "|" : "") << p.choices[i];
