@@ -6,5 +6,6 @@
 namespace fg {
 
 PassRegistration pathTracerPass();
+PassRegistration photonPass();
 
 }  // namespace fg

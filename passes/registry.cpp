@@ -6,6 +6,7 @@ namespace fg {
 const std::vector<PassRegistration>& passRegistry() {
     static const std::vector<PassRegistration> registry = {
         pathTracerPass(),
+        photonPass(),
     };
     return registry;
 }
