@@ -6,5 +6,16 @@
 namespace fg {
 
 PassRegistration pathTracerPass();
+PassRegistration eyePass();
+PassRegistration eyeIndexPass();
+PassRegistration photonIndexPass();
+PassRegistration gatherPass();
+PassRegistration gatherGlobalPass();
+PassRegistration splatPass();
+
+// The photon-mapping pipelines as data (also offered by builtinPipelines()
+// once a `photon` pass is registered).
+Pipeline spmPipeline();
+Pipeline pdsPipeline();
 
 }  // namespace fg
