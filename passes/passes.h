@@ -7,5 +7,15 @@ namespace fg {
 
 PassRegistration pathTracerPass();
 PassRegistration photonPass();
+PassRegistration eyePass();
+PassRegistration eyeIndexPass();
+PassRegistration photonIndexPass();
+PassRegistration gatherPass();
+PassRegistration gatherGlobalPass();
+PassRegistration splatPass();
+
+// The photon-mapping pipelines as data.
+Pipeline spmPipeline();
+Pipeline pdsPipeline();
 
 }  // namespace fg
