@@ -551,7 +551,7 @@ public:
     Entry* namedObject(std::string_view name) {
         Entry* e = findObject(name);
         if (e) e->used = true;
-        known_.emplace_back(name);
+        if (std::find(known_.begin(), known_.end(), name) == known_.end()) known_.emplace_back(name);
         return e;
     }
 
@@ -1383,6 +1383,10 @@ private:
         const bool extinctionForm = p.has("sigma_t") || p.has("albedo");
         const bool coefficientForm = p.has("sigma_s") || p.has("sigma_a");
         if (extinctionForm && coefficientForm) p.fail("give either sigma_t and albedo, or sigma_s and sigma_a");
+        // Mitsuba 0.x falls back to a measured material preset, which fluxgraph does not have.
+        if (p.version().legacy() && !extinctionForm && !coefficientForm) {
+            p.fail("give sigma_t and albedo, or sigma_s and sigma_a (material presets are not supported)");
+        }
         Rgb sigmaS, sigmaA;
         if (coefficientForm) {
             if (!p.has("sigma_s") || !p.has("sigma_a")) p.fail("sigma_s and sigma_a must be given together");

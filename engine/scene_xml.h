@@ -70,8 +70,9 @@
 //                 folded into them, anything else is an error (spheres stay analytic)
 //   all           to_world, flip_normals, one bsdf (default: diffuse 0.5), one area
 //                 emitter, media named interior / exterior
-//   Texture coordinates follow Mitsuba's meaning (v = 0 is the top image row) and are
-//   converted to fluxgraph's (v = 0 is the bottom row).
+//   Texture coordinates keep Mitsuba's meaning: OBJ's v is flipped as Mitsuba flips it
+//   (flip_tex_coords), and bitmaps are loaded upside down, because Mitsuba's v = 0 is the
+//   top image row where fluxgraph's bitmap lookup puts the bottom row.
 //
 // BSDFs
 //   diffuse          reflectance (texture, 0.5)
@@ -104,7 +105,8 @@
 //   envmap        filename, scale (1), to_world (rotation only)
 //
 // Media
-//   homogeneous   sigma_t (1) + albedo (0.75), or sigma_s + sigma_a; scale (1);
+//   homogeneous   sigma_t (1) + albedo (0.75), or sigma_s + sigma_a (0.x scenes must give
+//                 one of the two: their default is a material preset); scale (1);
 //                 phase isotropic or hg (g, default 0.8); accepted, no effect:
 //                 sample_emitters, has_spectral_extinction
 #pragma once
