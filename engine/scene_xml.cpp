@@ -938,7 +938,12 @@ private:
     // Guards against objects that reach themselves through references.
     struct Building {
         Building(std::set<const Node*>& active, const Node& node) : active_(active), node_(&node) {
-            if (!active_.insert(node_).second) fail(node, "<" + node.tag + "> refers to itself through <ref>s");
+            if (!active_.insert(node_).second) {
+                const std::string* type = node.attribute("type");
+                const std::string* id = node.attribute("id");
+                fail(node, node.tag + " " + inQuotes(type ? *type : "") + (id ? " (id " + inQuotes(*id) + ")" : "") +
+                               " refers to itself through <ref>s");
+            }
         }
         ~Building() { active_.erase(node_); }
         Building(const Building&) = delete;

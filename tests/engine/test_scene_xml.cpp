@@ -759,6 +759,10 @@ TEST(SceneXml, ErrorsNameFileLineAndPlugin) {
     expectErrorAt(dir, sceneText("    <texture type=\"checkerboard\" id=\"t\"/>\n    <shape type=\"rectangle\">\n"
                                  "        <ref id=\"t\"/>\n    </shape>\n"),
                   "<ref id=\"t\"/>", "shape 'rectangle'", "kind.xml");
+    // Objects that reach themselves through references.
+    const std::string cycle = sceneText("    <bsdf type=\"twosided\" id=\"a\"><ref id=\"b\"/></bsdf>\n"
+                                        "    <bsdf type=\"twosided\" id=\"b\"><ref id=\"a\"/></bsdf>\n");
+    expectErrorAt(dir, cycle, "id=\"a\"", "bsdf 'twosided'", "cycle.xml");
     // Misspelt attribute, unknown element, XML syntax, duplicate id, missing or old version.
     expectErrorAt(dir, sceneText("    <shape type=\"rectangle\">\n        <float nam=\"x\" value=\"1\"/>\n    </shape>\n"),
                   "nam=", "shape 'rectangle'", "attr.xml");
