@@ -7,6 +7,7 @@
 
 #include <toml++/toml.h>
 
+#include <charconv>
 #include <filesystem>
 #include <fstream>
 #include <map>
@@ -123,6 +124,13 @@ private:
     std::map<std::string, std::string> overrideSources_;
 };
 
+// Shortest decimal text that reads back as the same double ("0.1", not "0.100000").
+std::string shortestDecimal(double value) {
+    char buffer[64];
+    const auto [end, ec] = std::to_chars(buffer, buffer + sizeof(buffer), value);
+    return ec == std::errc() ? std::string(buffer, end) : std::to_string(value);
+}
+
 // Applies "a.b.c=value" to the tree; the value is parsed as a TOML value
 // (numbers, booleans, quoted strings), a bare word is taken as a string.
 void applyOverride(toml::table& root, const std::string& assignment) {
@@ -176,13 +184,31 @@ Job parseJob(const std::string& text, const std::string& path, const JobOverride
     job.path = path;
     job.text = text;
     job.overrides = overrides.sets;
-    r.checkKeys(root, "", {"scene", "pipeline", "seed", "threads", "film", "output", "passes"});
+    r.checkKeys(root, "", {"scene", "scene_defines", "pipeline", "seed", "threads", "film", "output", "passes"});
 
     const toml::node* sceneNode = root.get("scene");
     if (!sceneNode) throw InputError(path + ": missing required key 'scene'");
     const std::string scene = r.getString(root, "scene", "scene", "");
     const fs::path jobDir = fs::path(path).parent_path();
     job.scenePath = fs::path(scene).is_absolute() ? scene : (jobDir / scene).lexically_normal().string();
+
+    if (const toml::table* defines = r.getTable(root, "scene_defines", "scene_defines")) {
+        for (const auto& [key, value] : *defines) {
+            const std::string keyPath = "scene_defines." + std::string(key.str());
+            std::string valueText;
+            if (value.is_string()) valueText = **value.as_string();
+            else if (value.is_integer()) valueText = std::to_string(**value.as_integer());
+            else if (value.is_boolean()) valueText = **value.as_boolean() ? "true" : "false";
+            else if (value.is_floating_point()) valueText = shortestDecimal(**value.as_floating_point());
+            else r.fail(value, keyPath, "'" + keyPath + "' must be a string, number or boolean");
+            job.sceneDefines[std::string(key.str())] = valueText;
+        }
+    }
+    for (const std::string& define : overrides.defines) {
+        const auto eq = define.find('=');
+        if (eq == std::string::npos || eq == 0) throw InputError("--define " + define + ": expected NAME=VALUE");
+        job.sceneDefines[define.substr(0, eq)] = define.substr(eq + 1);
+    }
 
     job.seed = static_cast<std::uint64_t>(r.getInt(root, "seed", "seed", 1, 0, INT64_MAX));
     job.threads = static_cast<int>(r.getInt(root, "threads", "threads", 0, 0, 4096));

@@ -1,6 +1,8 @@
 // Job files: what to render and how. A job is TOML:
 //
-//   scene    = "../cornell-box/cornell-box.toml"  # relative to the job file
+//   scene    = "../cornell-box/cornell-box.toml"  # relative to the job file (.toml or Mitsuba .xml)
+//   scene_defines = { spp = "64" }  # optional: parameters of a Mitsuba scene (its $name /
+//                                   # <default>); strings, numbers or booleans; --define wins
 //   pipeline = "pt"                 # a built-in pipeline, or a [pipeline] table (below)
 //   seed     = 1                    # random streams are keyed by (seed, pass, item)
 //   threads  = 0                    # 0 = all hardware threads
@@ -41,6 +43,7 @@
 #include "engine/scheduler.h"
 
 #include <cstdint>
+#include <map>
 #include <optional>
 #include <string>
 #include <vector>
@@ -59,6 +62,7 @@ struct Job {
     std::string path;      // the job file
     std::string text;      // its full text, stored in the EXR metadata
     std::string scenePath; // resolved against the job file's directory
+    std::map<std::string, std::string> sceneDefines;  // scene_defines merged with --define
     Pipeline pipeline;
     JobParams params;
     FilmSettings film;
@@ -71,6 +75,7 @@ struct Job {
 
 struct JobOverrides {
     std::vector<std::string> sets;  // "passes.pt.spp=64", "film.width=128", ...
+    std::vector<std::string> defines;  // "--define name=value": scene parameters, override scene_defines
     std::optional<int> threads;
     std::optional<std::uint64_t> seed;
     std::optional<std::string> outputDirectory;

@@ -126,7 +126,7 @@ std::string pipelineDescription(const ExecutionPlan& plan) {
 
 ExecutionPlan validateJob(const Job& job) {
     ExecutionPlan plan = ExecutionPlan::build(job.pipeline, job.params, job.path);
-    loadScene(job.scenePath);
+    loadScene(job.scenePath, job.sceneDefines);
     return plan;
 }
 
@@ -137,7 +137,7 @@ RenderOutcome renderJob(const Job& job, const RenderOptions& options) {
 
     RenderOutcome outcome;
     const std::int64_t t0 = jobs::wallNanos();
-    const Scene scene = loadScene(job.scenePath);
+    const Scene scene = loadScene(job.scenePath, job.sceneDefines);
     const std::int64_t t1 = jobs::wallNanos();
     outcome.sceneSeconds = 1e-9 * static_cast<double>(t1 - t0);
 
@@ -181,6 +181,9 @@ RenderOutcome renderJob(const Job& job, const RenderOptions& options) {
     std::string overrides;
     for (const std::string& o : job.overrides) overrides += (overrides.empty() ? "" : " ") + o;
     if (!overrides.empty()) metadata.emplace_back("overrides", overrides);
+    std::string defines;
+    for (const auto& [name, value] : job.sceneDefines) defines += (defines.empty() ? "" : " ") + name + "=" + value;
+    if (!defines.empty()) metadata.emplace_back("scene_defines", defines);
 
     for (const std::string& result : job.pipeline.results) {
         const BufferHandle& handle = outcome.run.results.at(result);

@@ -1,8 +1,9 @@
 // The pinhole camera (look-at frame, vertical field of view, raster y pointing
-// down, as Mitsuba's perspective sensor with fov_axis = "y") and the scene-wide
-// bookkeeping done once after loading: bounds, the bounding sphere that
-// infinite lights need, and light selection in proportion to emitted power
-// (luminance of Light::power(), as pbrt-v3's PowerLightDistribution).
+// down, near and far clip planes, as Mitsuba's perspective sensor with
+// fov_axis = "y") and the scene-wide bookkeeping done once after loading:
+// bounds, the bounding sphere that infinite lights need, and light selection in
+// proportion to emitted power (luminance of Light::power(), as pbrt-v3's
+// PowerLightDistribution).
 #include "engine/scene.h"
 
 #include <cmath>
@@ -26,6 +27,7 @@ CameraFrame cameraFrame(const Camera& camera) {
     // and forward = +z, screen right is world -x, as in Mitsuba's look-at.
     frame.right = glm::normalize(glm::cross(frame.forward, camera.up));
     frame.up = glm::cross(frame.right, frame.forward);
+    if (camera.mirrored) frame.right = -frame.right;
     frame.tanHalfFovY = std::tan(0.5f * camera.fovYDegrees * kPi / 180.0f);
     frame.aspect = static_cast<float>(camera.width) / static_cast<float>(camera.height);
     return frame;
@@ -38,9 +40,13 @@ Ray Camera::generateRay(const Vec2& raster) const {
     const float x = (2.0f * raster.x / static_cast<float>(width) - 1.0f) * frame.tanHalfFovY * frame.aspect;
     const float y = (1.0f - 2.0f * raster.y / static_cast<float>(height)) * frame.tanHalfFovY;
     Ray ray;
-    ray.origin = eye;
     ray.direction = glm::normalize(frame.forward + x * frame.right + y * frame.up);
-    ray.tMax = kInfinity;
+    // Clip planes are perpendicular to the viewing axis, so the distances along
+    // this ray grow by 1 / cos of its angle to the axis.
+    const float invCos = 1.0f / glm::dot(ray.direction, frame.forward);
+    const float tNear = nearClip * invCos;
+    ray.origin = eye + tNear * ray.direction;
+    ray.tMax = farClip < kInfinity ? farClip * invCos - tNear : kInfinity;
     return ray;
 }
 

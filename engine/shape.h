@@ -38,6 +38,10 @@ TriangleMesh makeDiskMesh(int segments = 128);
 TriangleMesh makeCubeMesh();
 // Loads a Wavefront OBJ (all groups merged); throws InputError naming file and problem.
 TriangleMesh loadObjMesh(const std::string& path);
+// Loads a Stanford PLY (ASCII or binary, either byte order; polygons are
+// triangulated, point and line elements rejected). Texture coordinates are
+// returned as stored in the file; throws InputError naming file and problem.
+TriangleMesh loadPlyMesh(const std::string& path);
 
 struct ShapeSample {
     Vec3 p{0.0f};

@@ -79,6 +79,10 @@ std::shared_ptr<Texture> loadBitmapTexture(const std::string& path, const Vec2& 
     return std::make_shared<BitmapTexture>(readRgbImage(path), uvScale);
 }
 
+std::shared_ptr<Texture> makeBitmapTexture(RgbImage image, const Vec2& uvScale) {
+    return std::make_shared<BitmapTexture>(std::move(image), uvScale);
+}
+
 RgbImage readRgbImage(const std::string& path) {
     auto input = OIIO::ImageInput::open(path);
     if (!input) throw InputError(path, 0, "cannot read image: " + OIIO::geterror());

@@ -34,6 +34,8 @@ struct RgbImage {
     std::vector<Rgb> pixels;
     const Rgb& at(int x, int y) const { return pixels[static_cast<std::size_t>(y) * width + x]; }
 };
+// A bitmap texture over an image already in memory (same lookup as loadBitmapTexture).
+std::shared_ptr<Texture> makeBitmapTexture(RgbImage image, const Vec2& uvScale = Vec2(1.0f));
 // Reads any OpenImageIO format into linear RGB; throws InputError naming the file.
 RgbImage readRgbImage(const std::string& path);
 

@@ -64,6 +64,8 @@ int main(int argc, char** argv) {
     const auto addJobOptions = [&](CLI::App* cmd) {
         cmd->add_option("job", jobPath, "job file (TOML)")->required();
         cmd->add_option("--set", overrides.sets, "override a job value, e.g. passes.pt.spp=64 (repeatable)");
+        cmd->add_option("--define", overrides.defines,
+                        "set a parameter of a Mitsuba XML scene ($name), e.g. spp=64 (repeatable; wins over scene_defines)");
     };
     CLI::App* render = app.add_subcommand("render", "render a job");
     addJobOptions(render);

@@ -459,6 +459,42 @@ TEST(Cli, ProfileWritesAChromeTrace) {
     EXPECT_EQ(countOccurrences(json, "\"ph\":\"X\""), countOccurrences(json, "\"cat\":"));
 }
 
+// A Mitsuba XML scene whose resolution is a parameter: scene_defines in the
+// job sets it, --define overrides that, and an unknown define is an input error.
+TEST(Cli, DefinesReachAMitsubaScene) {
+    const fs::path dir = scratchDirectory();
+    writeText(dir / "scene.xml", R"(<scene version="3.0.0">
+    <default name="res" value="4"/>
+    <sensor type="perspective">
+        <float name="fov" value="60"/>
+        <transform name="to_world"><lookat origin="0, 0, 3" target="0, 0, 0" up="0, 1, 0"/></transform>
+        <film type="hdrfilm"><integer name="width" value="$res"/><integer name="height" value="$res"/></film>
+    </sensor>
+    <shape type="rectangle"><bsdf type="diffuse"/></shape>
+    <emitter type="point"><point name="position" value="0, 0, 2"/><rgb name="intensity" value="5"/></emitter>
+</scene>
+)");
+    const std::string job = (dir / "job.toml").string();
+    writeText(job, "scene = \"scene.xml\"\npipeline = \"pt\"\nscene_defines = { res = 8 }\n[passes.pt]\nspp = 2\n");
+    const fs::path out = dir / "out";
+    const CommandResult r = runFluxgraph(dir, {"render", job, "--quiet", "--out", out.string(), "--define", "res=12"});
+    ASSERT_EQ(r.exitCode, 0) << r.err;
+    Metadata meta;
+    const ImageChannels image = readExr((out / "job.exr").string(), &meta);
+    EXPECT_EQ(image.width, 12);
+    EXPECT_EQ(image.height, 12);
+    EXPECT_EQ(asMap(meta)["scene_defines"], "res=12");
+
+    const CommandResult v = runFluxgraph(dir, {"validate", job});
+    EXPECT_EQ(v.exitCode, 0) << v.err;
+    const CommandResult typo = runFluxgraph(dir, {"validate", job, "--define", "rez=12"});
+    expectInputError(typo);
+    EXPECT_NE(typo.err.find("rez"), std::string::npos) << typo.err;
+    const CommandResult malformed = runFluxgraph(dir, {"validate", job, "--define", "res"});
+    expectInputError(malformed);
+    EXPECT_NE(malformed.err.find("--define res"), std::string::npos) << malformed.err;
+}
+
 // ---------------------------------------------------------------- inspection commands
 
 TEST(Cli, ValidateAcceptsTheQuickstartJob) {
