@@ -269,6 +269,7 @@ Job parseJob(const std::string& text, const std::string& path, const JobOverride
         const bool hasW = film->get("width") != nullptr, hasH = film->get("height") != nullptr;
         if (hasW != hasH) r.fail(*film, "film", "give both film.width and film.height, or neither");
         job.filmSizeGiven = hasW;
+        job.filmFilterGiven = film->get("filter") != nullptr;
         job.film.width = static_cast<int>(r.getInt(*film, "width", "film.width", 256, 1, 16384));
         job.film.height = static_cast<int>(r.getInt(*film, "height", "film.height", 256, 1, 16384));
         const std::string filter = r.getString(*film, "filter", "film.filter", "box");

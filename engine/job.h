@@ -66,7 +66,8 @@ struct Job {
     Pipeline pipeline;
     JobParams params;
     FilmSettings film;
-    bool filmSizeGiven = false;  // otherwise the scene camera's resolution is used
+    bool filmSizeGiven = false;    // otherwise the scene camera's resolution is used
+    bool filmFilterGiven = false;  // otherwise the scene's filter hint (if any) is used
     int threads = 0;
     std::uint64_t seed = 1;
     OutputSettings output;

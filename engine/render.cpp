@@ -122,6 +122,35 @@ std::string pipelineDescription(const ExecutionPlan& plan) {
     return text;
 }
 
+// Scene files may carry rendering hints (Mitsuba's sample_count, max_depth,
+// rfilter). They fill in what the job leaves unsaid: a pass parameter named
+// `spp` or `max_depth` that the job does not set, and the film filter when the
+// job has no [film] filter. The job file always wins.
+ExecutionPlan planWithSceneHints(const Job& job, const Scene& scene, FilmSettings& film) {
+    JobParams params = job.params;
+    const RenderHints& hints = scene.hints;
+    const std::string source = job.scenePath + " (scene hint)";
+    for (const PipelineNode& node : job.pipeline.nodes) {
+        const PassRegistration* registration = findPass(node.pass);
+        if (!registration) continue;  // build() reports it
+        auto& values = params.values[node.instance];
+        for (const ParamSpec& p : registration->spec.params) {
+            if (values.count(p.name)) continue;
+            if (p.name == "spp" && hints.samplesPerPixel > 0)
+                values[p.name] = {std::int64_t{hints.samplesPerPixel}, source};
+            if (p.name == "max_depth" && hints.maxDepth > 0)
+                values[p.name] = {std::int64_t{hints.maxDepth}, source};
+        }
+        if (values.empty()) params.values.erase(node.instance);
+    }
+    if (hints.filter && !job.filmFilterGiven) {
+        film.filter = *hints.filter;
+        if (hints.filterRadius > 0.0f) film.filterRadius = hints.filterRadius;
+        if (hints.gaussianSigma > 0.0f) film.gaussianSigma = hints.gaussianSigma;
+    }
+    return ExecutionPlan::build(job.pipeline, params, job.path);
+}
+
 }  // namespace
 
 ExecutionPlan validateJob(const Job& job) {
@@ -131,7 +160,8 @@ ExecutionPlan validateJob(const Job& job) {
 }
 
 RenderOutcome renderJob(const Job& job, const RenderOptions& options) {
-    const ExecutionPlan plan = ExecutionPlan::build(job.pipeline, job.params, job.path);
+    // Validated before anything slow happens; rebuilt below with the scene's hints.
+    ExecutionPlan::build(job.pipeline, job.params, job.path);
     ensureWritableDirectory(job.output.directory);
     if (!options.profilePath.empty()) ensureWritableProfilePath(options.profilePath);
 
@@ -146,6 +176,7 @@ RenderOutcome renderJob(const Job& job, const RenderOptions& options) {
         film.width = scene.camera.width;
         film.height = scene.camera.height;
     }
+    const ExecutionPlan plan = planWithSceneHints(job, scene, film);
     const jobs::ThreadLimit threadLimit(job.threads);
     const RayQuery rays(scene);
     outcome.accelSeconds = 1e-9 * static_cast<double>(jobs::wallNanos() - t1);

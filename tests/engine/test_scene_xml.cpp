@@ -6,6 +6,7 @@
 #include "engine/error.h"
 #include "engine/image_io.h"
 #include "engine/job.h"
+#include "engine/render.h"
 #include "engine/scene_loader.h"
 #include "engine/scene_toml.h"
 #include "engine/spectrum.h"
@@ -804,6 +805,37 @@ TEST(SceneXml, JobSceneDefinesAndDefineOverrides) {
     } catch (const InputError& e) {
         EXPECT_TRUE(contains(e.what(), "/jobs/job.toml:3")) << e.what();
     }
+}
+
+}  // namespace
+}  // namespace fg
+
+namespace fg {
+namespace {
+
+// A scene's sample_count and max_depth fill in pass parameters the job leaves
+// unset; values in the job file win.
+TEST(SceneXml, RenderHintsFillUnsetPassParameters) {
+    const fs::path dir = scratchDir();
+    writeFile(dir / "scene.xml", R"(<scene version="3.0.0">
+  <integrator type="path"><integer name="max_depth" value="3"/></integrator>
+  <sensor type="perspective">
+    <float name="fov" value="40"/>
+    <sampler type="independent"><integer name="sample_count" value="3"/></sampler>
+    <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="6"/></film>
+  </sensor>
+  <emitter type="constant"><rgb name="radiance" value="1, 1, 1"/></emitter>
+</scene>)");
+    const auto render = [&](const std::string& extra) {
+        Job job = parseJob("scene = \"scene.xml\"\npipeline = \"pt\"\n[output]\ndirectory = \"" + (dir / "out").string() +
+                               "\"\npng = false\nexr = false\n" + extra,
+                           (dir / "job.toml").string());
+        return renderJob(job, {});
+    };
+    const RenderOutcome fromHints = render("");
+    EXPECT_EQ(fromHints.run.stats.front().items, 8 * 6 * 3);
+    const RenderOutcome fromJob = render("[passes.pt]\nspp = 5\n");
+    EXPECT_EQ(fromJob.run.stats.front().items, 8 * 6 * 5);
 }
 
 }  // namespace
