@@ -164,6 +164,7 @@ RenderOutcome renderJob(const Job& job, const RenderOptions& options) {
     ExecutionPlan::build(job.pipeline, job.params, job.path);
     ensureWritableDirectory(job.output.directory);
     if (!options.profilePath.empty()) ensureWritableProfilePath(options.profilePath);
+    if (!options.statsPath.empty()) ensureWritableProfilePath(options.statsPath);
 
     RenderOutcome outcome;
     const std::int64_t t0 = jobs::wallNanos();
@@ -236,13 +237,19 @@ RenderOutcome renderJob(const Job& job, const RenderOptions& options) {
             outcome.files.push_back(base.string() + ".png");
         }
     }
-    if (!options.profilePath.empty()) {
-        const std::string json = chromeTraceJson(recorder.take());
-        writeAtomically(options.profilePath, [&](const std::string& tmp) {
+    const auto writeText = [](const std::string& path, const std::string& text) {
+        writeAtomically(path, [&](const std::string& tmp) {
             std::ofstream out(tmp, std::ios::binary);
-            if (!(out << json) || !out.flush()) throw InputError(options.profilePath + ": cannot write profile");
+            if (!(out << text) || !out.flush()) throw InputError(path + ": cannot write");
         });
+    };
+    if (!options.profilePath.empty()) {
+        writeText(options.profilePath, chromeTraceJson(recorder.take()));
         outcome.files.push_back(options.profilePath);
+    }
+    if (!options.statsPath.empty()) {
+        outcome.files.push_back(options.statsPath);
+        writeText(options.statsPath, statsJson(outcome));
     }
     return outcome;
 }
@@ -262,6 +269,28 @@ std::string formatPassTable(const RenderOutcome& outcome) {
     }
     out << std::setprecision(3) << "scene load " << outcome.sceneSeconds << " s, Embree build " << outcome.accelSeconds
         << " s, passes " << outcome.run.wallSeconds << " s\n";
+    return out.str();
+}
+
+std::string statsJson(const RenderOutcome& outcome) {
+    std::ostringstream out;
+    out << std::setprecision(9) << "{\"scene_seconds\": " << outcome.sceneSeconds
+        << ", \"accel_seconds\": " << outcome.accelSeconds << ", \"passes_seconds\": " << outcome.run.wallSeconds
+        << ", \"passes\": [";
+    for (std::size_t i = 0; i < outcome.run.stats.size(); ++i) {
+        const PassStats& s = outcome.run.stats[i];
+        out << (i ? "," : "") << "\n  {\"instance\": \"" << jsonEscape(s.instance) << "\", \"pass\": \""
+            << jsonEscape(s.pass) << "\", \"start_seconds\": " << s.startSeconds
+            << ", \"wall_seconds\": " << s.wallSeconds << ", \"cpu_seconds\": " << s.cpuSeconds
+            << ", \"items\": " << s.items << ", \"output_bytes\": " << s.outputBytes << ", \"counters\": {";
+        bool first = true;
+        for (const auto& [name, value] : s.counters) {
+            out << (first ? "" : ", ") << "\"" << jsonEscape(name) << "\": " << value;
+            first = false;
+        }
+        out << "}}";
+    }
+    out << "\n]}\n";
     return out.str();
 }
 

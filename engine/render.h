@@ -15,6 +15,7 @@ namespace fg {
 struct RenderOptions {
     bool showProgress = false;     // a progress bar on stderr
     std::string profilePath;       // Chrome trace-event JSON, empty = none
+    std::string statsPath;         // per-pass statistics as JSON (statsJson), empty = none
 };
 
 struct RenderOutcome {
@@ -31,6 +32,9 @@ RenderOutcome renderJob(const Job& job, const RenderOptions& options);
 
 // Human-readable per-pass table (wall, CPU, items, items/s, bytes).
 std::string formatPassTable(const RenderOutcome& outcome);
+// The run's statistics as JSON: per pass (instance, pass, start, wall, cpu,
+// items, output bytes, counters) plus scene-load and Embree-build times.
+std::string statsJson(const RenderOutcome& outcome);
 // Chrome trace-event JSON of the given slices (times relative to the earliest).
 std::string chromeTraceJson(const std::vector<jobs::TraceSlice>& slices);
 

@@ -58,7 +58,7 @@ int main(int argc, char** argv) {
     fg::JobOverrides overrides;
     int threads = -1;
     long long seed = -1;
-    std::string outDir, profilePath;
+    std::string outDir, profilePath, statsPath;
     bool quiet = false;
 
     const auto addJobOptions = [&](CLI::App* cmd) {
@@ -73,6 +73,7 @@ int main(int argc, char** argv) {
     render->add_option("--seed", seed, "random seed");
     render->add_option("--out", outDir, "output directory");
     render->add_option("--profile", profilePath, "write a Chrome trace-event JSON (open in ui.perfetto.dev)");
+    render->add_option("--stats", statsPath, "write per-pass statistics and counters as JSON");
     render->add_flag("--quiet,-q", quiet, "no progress bar and no pass table");
     CLI::App* validate = app.add_subcommand("validate", "check a job, its pipeline and its scene without rendering");
     addJobOptions(validate);
@@ -127,6 +128,7 @@ int main(int argc, char** argv) {
         fg::RenderOptions options;
         options.showProgress = !quiet && ::isatty(STDERR_FILENO);
         options.profilePath = profilePath;
+        options.statsPath = statsPath;
         const fg::RenderOutcome outcome = fg::renderJob(job, options);
         if (!quiet) {
             std::cout << fg::formatPassTable(outcome);
