@@ -276,6 +276,8 @@ std::size_t KdTree::nearest(const Vec3& center, std::size_t k, float maxRadius, 
                             std::span<float> outDist2) const {
     k = std::min({k, outIndices.size(), outDist2.size()});
     if (k == 0 || points_.empty() || !(maxRadius >= 0.0f)) return 0;
+    // A NaN distance would pass every "too far?" test and poison the heap.
+    if (!std::isfinite(center.x) || !std::isfinite(center.y) || !std::isfinite(center.z)) return 0;
     NeighbourHeap heap(outIndices.data(), outDist2.data(), k);
     // Until k candidates are held, anything within maxRadius qualifies; then only
     // what beats the worst held one. Equal distances must still be examined

@@ -305,6 +305,13 @@ TEST(KdTree, EmptySetAndDegenerateArguments) {
     EXPECT_EQ(tree.nearest(points[3], 0, 1.0f, indices, dist2), 0u);
     EXPECT_EQ(tree.nearest(points[3], 4, -1.0f, indices, dist2), 0u);
     EXPECT_EQ(tree.nearest(points[3], 4, std::nanf(""), indices, dist2), 0u);
+    const Vec3 nanCenter(0.5f, std::nanf(""), 0.5f);
+    EXPECT_EQ(tree.nearest(nanCenter, 4, 10.0f, indices, dist2), 0u);
+    EXPECT_EQ(tree.nearest(Vec3(0.5f, 0.5f, -std::numeric_limits<float>::infinity()), 4,
+                           std::numeric_limits<float>::infinity(), indices, dist2),
+              0u);
+    tree.forEachInRadius(nanCenter, 10.0f, [&](std::uint32_t, float) { visited = true; });
+    EXPECT_FALSE(visited);
     // k is capped by the shorter output span.
     EXPECT_EQ(tree.nearest(points[3], 100, 10.0f, std::span(indices), std::span(dist2).first(2)), 2u);
     EXPECT_EQ(indices[0], 3u);
