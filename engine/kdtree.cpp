@@ -18,9 +18,9 @@
 // Build. The split axis is the widest extent of the node's own bounding box
 // (not the parent's box cut at the plane, which drifts from the points on
 // clustered data such as photons on surfaces), and the split is the median
-// found by nth_element under the total order (coordinate, index). That order
-// makes the tree a function of the point set only: equal coordinates, and even
-// all-equal point sets, still split at a well-defined element. Subtrees above
+// found by nth_element under the total order (coordinate, index). Under that
+// order the median, and so the set of points on each side, is unique even
+// with equal coordinates or all-equal point sets. Subtrees above
 // a size threshold build their two halves as parallel tasks; each subtree is
 // built serially by whichever thread runs it, so the result does not depend
 // on scheduling. Points are copied with their index into a 16-byte build
