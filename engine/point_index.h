@@ -4,14 +4,14 @@
 // indexes, so it outlives the buffer it was built from, and may index a subset
 // of them (e.g. photons of some classes only), reporting the caller's indices.
 //
-// The search itself is delegated to one implementation (a uniform grid now);
+// The search itself is delegated to the balanced kd-tree (engine/kdtree.h);
 // any structure with the same build and the same two queries can replace it
 // without touching the passes.
 #pragma once
 
 #include "engine/math.h"
 #include "engine/pass.h"
-#include "engine/point_grid.h"
+#include "engine/kdtree.h"
 
 #include <cstdint>
 #include <span>
@@ -74,7 +74,7 @@ private:
 
     std::vector<Vec3> points_;
     std::vector<std::uint32_t> ids_;  // empty: the identity
-    PointGrid search_;
+    KdTree search_;
 };
 
 template <>

@@ -23,7 +23,7 @@ def main():
     binary = build / "tools" / "bench" / "fluxgraph_bench"
     if not binary.exists():
         sys.exit(f"{binary}: not built (cmake --build {build} -j2)")
-    out = subprocess.run([str(binary), "--benchmark_format=json"], check=True, capture_output=True, text=True).stdout
+    out = subprocess.run([str(binary), "--benchmark_format=json", "--benchmark_filter=BM_EmbreeClosestHit|BM_PathTracer"], check=True, capture_output=True, text=True).stdout
     results = json.loads(out)["benchmarks"]
 
     embree = {}
