@@ -181,6 +181,7 @@ RenderOutcome renderJob(const Job& job, const RenderOptions& options) {
     std::string overrides;
     for (const std::string& o : job.overrides) overrides += (overrides.empty() ? "" : " ") + o;
     if (!overrides.empty()) metadata.emplace_back("overrides", overrides);
+    if (!options.commandLine.empty()) metadata.emplace_back("command", options.commandLine);
 
     for (const std::string& result : job.pipeline.results) {
         const BufferHandle& handle = outcome.run.results.at(result);
@@ -194,7 +195,7 @@ RenderOutcome renderJob(const Job& job, const RenderOptions& options) {
         const std::string stem = job.pipeline.results.size() == 1 ? job.output.name : job.output.name + "-" + result;
         const fs::path base = fs::path(job.output.directory) / stem;
         if (job.output.exr) {
-            writeExr(base.string() + ".exr", channels, metadata);
+            writeExr(base.string() + ".exr", channels, metadata, job.output.half);
             outcome.files.push_back(base.string() + ".exr");
         }
         if (job.output.png) {
