@@ -389,4 +389,40 @@ SurfacePoint RayQuery::surface(const Ray& ray, const Hit& hit) const {
     return sp;
 }
 
+Vec3 RayQuery::shadingNormalDifferential(const Ray& ray, const Hit& hit, const Vec3& dp) const {
+    if (!hit.valid()) return Vec3(0.0f);
+    const Shape& shape = scene_.shapes[hit.shape];
+    if (const auto* sphere = std::get_if<Sphere>(&shape.geometry)) {
+        // n = (p - c) / r, so dn = dp / r; only the tangential part of dp moves along the sphere.
+        const Vec3 outward = surface(ray, hit).ng * (shape.flipNormals ? -1.0f : 1.0f);
+        const Vec3 tangential = dp - glm::dot(dp, outward) * outward;
+        return tangential * ((shape.flipNormals ? -1.0f : 1.0f) / sphere->radius);
+    }
+
+    const TriangleMesh& mesh = std::get<TriangleMesh>(shape.geometry);
+    if (mesh.normals.empty()) return Vec3(0.0f);
+    const std::size_t base = 3 * static_cast<std::size_t>(hit.primitive);
+    const std::uint32_t i0 = mesh.indices[base], i1 = mesh.indices[base + 1], i2 = mesh.indices[base + 2];
+    const float b1 = hit.barycentric.x, b2 = hit.barycentric.y, b0 = 1.0f - b1 - b2;
+    const Vec3 interpolated = b0 * mesh.normals[i0] + b1 * mesh.normals[i1] + b2 * mesh.normals[i2];
+    const float nLength = glm::length(interpolated);
+    if (!(nLength > 0.0f) || !std::isfinite(nLength)) return Vec3(0.0f);
+    const Vec3 ns = interpolated / nLength;
+    const Vec3 e1 = mesh.positions[i1] - mesh.positions[i0];
+    const Vec3 e2 = mesh.positions[i2] - mesh.positions[i0];
+    // surface() flips the interpolated normal into the geometric normal's hemisphere.
+    const float side = glm::dot(ns, glm::cross(e1, e2)) < 0.0f ? -1.0f : 1.0f;
+    // Barycentric changes of the offset: least squares of dp = e1 db1 + e2 db2
+    // (exact for a dp in the triangle's plane).
+    const float a11 = glm::dot(e1, e1), a12 = glm::dot(e1, e2), a22 = glm::dot(e2, e2);
+    const float r1 = glm::dot(e1, dp), r2 = glm::dot(e2, dp);
+    const float determinant = a11 * a22 - a12 * a12;
+    if (!(determinant > 0.0f)) return Vec3(0.0f);
+    const float db1 = (a22 * r1 - a12 * r2) / determinant;
+    const float db2 = (a11 * r2 - a12 * r1) / determinant;
+    const Vec3 dInterpolated = db1 * (mesh.normals[i1] - mesh.normals[i0]) + db2 * (mesh.normals[i2] - mesh.normals[i0]);
+    // Derivative of N / |N|: the part of dN perpendicular to the unit normal, over |N|.
+    return side * (dInterpolated - glm::dot(ns, dInterpolated) * ns) / nLength;
+}
+
 }  // namespace fg

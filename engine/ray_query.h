@@ -47,6 +47,11 @@ public:
     void occluded(std::span<const Ray> rays, std::span<std::uint8_t> occludedOut, float tMin = 0.0f) const;
 
     SurfacePoint surface(const Ray& ray, const Hit& hit) const;
+    // Derivative of the unit shading normal (as surface() reports it) when the
+    // hit point moves by the tangent offset dp: analytic for spheres, from the
+    // per-vertex normal interpolation for meshes with normals, zero for flat
+    // triangles. Ray differentials at curved specular surfaces need it (Igehy 1999).
+    Vec3 shadingNormalDifferential(const Ray& ray, const Hit& hit, const Vec3& dp) const;
     const Scene& scene() const { return scene_; }
 
 private:

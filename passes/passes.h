@@ -6,5 +6,16 @@
 namespace fg {
 
 PassRegistration pathTracerPass();
+PassRegistration photonPass();
+PassRegistration eyePass();
+PassRegistration eyeIndexPass();
+PassRegistration photonIndexPass();
+PassRegistration gatherPass();
+PassRegistration gatherGlobalPass();
+PassRegistration splatPass();
+
+// The photon-mapping pipelines as data.
+Pipeline spmPipeline();
+Pipeline pdsPipeline();
 
 }  // namespace fg

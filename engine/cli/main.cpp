@@ -1,6 +1,7 @@
 // The fluxgraph command line: render, validate, graph, passes, pipelines.
 // Input errors print one line "file:line: message" and exit with code 2,
 // leaving no output file behind; internal errors exit with code 1.
+#include "engine/cli/compare.h"
 #include "engine/error.h"
 #include "engine/job.h"
 #include "engine/pass.h"
@@ -95,6 +96,8 @@ int main(int argc, char** argv) {
     addJobOptions(graph);
     app.add_subcommand("passes", "list every registered pass with its inputs, outputs and parameters");
     app.add_subcommand("pipelines", "list the built-in pipelines");
+    fg::cli::CompareOptions compareOptions;
+    CLI::App* compare = fg::cli::addCompareSubcommand(app, compareOptions);
 
     try {
         app.parse(argc, argv);
@@ -116,6 +119,7 @@ int main(int argc, char** argv) {
             printPipelines();
             return 0;
         }
+        if (compare->parsed()) return fg::cli::runCompare(compareOptions);
         if (threads >= 0) overrides.threads = threads;
         if (seed >= 0) overrides.seed = static_cast<std::uint64_t>(seed);
         if (render->parsed() && render->count("--seed") && seed < 0) throw fg::InputError("--seed: must be non-negative");

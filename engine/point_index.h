@@ -1,0 +1,85 @@
+// The neighbour structure the density-estimation passes share, as a pipeline
+// buffer: built once from photon or eye-vertex positions by an index pass and
+// read by the gather and splat passes. It owns a copy of the positions it
+// indexes, so it outlives the buffer it was built from, and may index a subset
+// of them (e.g. photons of some classes only), reporting the caller's indices.
+//
+// The search itself is delegated to one implementation (a uniform grid now);
+// any structure with the same build and the same two queries can replace it
+// without touching the passes.
+#pragma once
+
+#include "engine/math.h"
+#include "engine/pass.h"
+#include "engine/point_grid.h"
+
+#include <cstdint>
+#include <span>
+#include <stdexcept>
+#include <vector>
+
+namespace fg {
+
+class PointIndex {
+public:
+    PointIndex() = default;
+    PointIndex(const PointIndex&) = delete;
+    PointIndex& operator=(const PointIndex&) = delete;
+    PointIndex(PointIndex&&) = default;
+    PointIndex& operator=(PointIndex&&) = default;
+
+    // Indexes every point; queries report positions in `points`.
+    void build(std::span<const Vec3> points) {
+        points_.assign(points.begin(), points.end());
+        ids_.clear();
+        search_.build(points_);
+    }
+    // Indexes points[ids[j]] for increasing ids; queries report those ids.
+    void build(std::span<const Vec3> points, std::vector<std::uint32_t> ids) {
+        for (std::size_t j = 0; j < ids.size(); ++j) {
+            if (ids[j] >= points.size() || (j > 0 && ids[j] <= ids[j - 1]))
+                throw std::invalid_argument("PointIndex: ids must be increasing indices into the points");
+        }
+        points_.resize(ids.size());
+        for (std::size_t j = 0; j < ids.size(); ++j) points_[j] = points[ids[j]];
+        ids_ = std::move(ids);
+        search_.build(points_);
+    }
+
+    std::size_t size() const { return points_.size(); }
+    bool empty() const { return points_.empty(); }
+    std::size_t bytes() const {
+        return points_.capacity() * sizeof(Vec3) + ids_.capacity() * sizeof(std::uint32_t) + search_.bytes();
+    }
+
+    // visit(id, distance²) for every indexed point with distance² <= radius².
+    template <class F>
+    void forEachInRadius(const Vec3& center, float radius, F&& visit) const {
+        search_.forEachInRadius(center, radius, [&](std::uint32_t local, float d2) { visit(id(local), d2); });
+    }
+
+    // The up to k nearest indexed points with distance² <= maxRadius² (which
+    // may be infinite), ordered by (distance², id); returns how many.
+    std::size_t nearest(const Vec3& center, std::size_t k, float maxRadius, std::span<std::uint32_t> outIds,
+                        std::span<float> outDist2) const {
+        const std::size_t found = search_.nearest(center, k, maxRadius, outIds, outDist2);
+        // Ids increase with the local index, so the order survives the mapping.
+        if (!ids_.empty())
+            for (std::size_t j = 0; j < found; ++j) outIds[j] = ids_[outIds[j]];
+        return found;
+    }
+
+private:
+    std::uint32_t id(std::uint32_t local) const { return ids_.empty() ? local : ids_[local]; }
+
+    std::vector<Vec3> points_;
+    std::vector<std::uint32_t> ids_;  // empty: the identity
+    PointGrid search_;
+};
+
+template <>
+struct BufferTypeName<PointIndex> {
+    static constexpr const char* value = "PointIndex";
+};
+
+}  // namespace fg

@@ -1,0 +1,220 @@
+// Eye pass (`eye`): the camera half of the photon pipelines. Each pixel sample
+// follows the camera ray through purely specular surfaces (the S* E part of
+// L S* D S* E) and stops at the first surface with a diffuse or glossy lobe,
+// where it stores an eye-path vertex: the map of eye vertices that photon
+// gathering reads and photon splatting writes to (Frisvad et al. 2014 §3.3,
+// after Herzog et al. 2007).
+//
+// Everything the photon maps do not carry is estimated here and written to
+// the `direct` film: emission seen directly or through the specular chain, and
+// direct lighting at the stored vertex — next-event estimation plus one BSDF
+// sample, combined with the power heuristic exactly as the path tracer's last
+// vertex does (the per-vertex code of path_vertex.h is reused, so `direct`
+// equals the `pt` pipeline with max_depth = 1 in expectation on scenes
+// without specular surfaces). Mixed materials (e.g. plastic) end the chain: their
+// specular lobe then only reflects emitters (through the BSDF-sampled ray),
+// not photon-mapped indirect light.
+//
+// The vertex throughput is the specular chain's weight divided by the sample
+// count, so photon estimates times throughput summed over a pixel's vertices
+// are that pixel's box-filtered mean. Vertices are stored in (pixel, sample)
+// order. Random numbers are keyed by (seed, "eye", sample index).
+#include "passes/passes.h"
+#include "passes/path_vertex.h"
+
+#include "engine/error.h"
+#include "engine/film.h"
+#include "engine/photon_buffers.h"
+#include "engine/ray_query.h"
+#include "engine/scene.h"
+#include "jobs/parallel.h"
+#include "jobs/random.h"
+
+#include <algorithm>
+#include <limits>
+
+namespace fg {
+
+namespace {
+
+// Samples traced per film round; bounds the temporary per-sample storage.
+constexpr std::size_t kWaveSamples = 1 << 18;
+// Specular chains end by their depth limit, never by Russian roulette, which
+// would only add noise to the vertex weights.
+constexpr int kNoRoulette = std::numeric_limits<int>::max();
+
+struct EyeRecord {
+    Vec3 position{0.0f};
+    Vec3 normal{0.0f};
+    Vec3 geometricNormal{0.0f};
+    Vec3 outgoing{0.0f};
+    Vec2 uv{0.0f};
+    Rgb throughput{0.0f};
+    std::uint32_t bsdf = 0;
+    bool valid = false;
+};
+
+// Traces one camera sample; returns the radiance for the `direct` film and fills `vertex`.
+Rgb traceEyeSample(const PathTracerScene& pts, const Camera& camera, Ray ray, jobs::Rng& rng, int maxSpecularDepth,
+                   float sampleWeight, EyeRecord& vertex) {
+    const Scene& scene = pts.scene;
+    Rgb beta(1.0f), radiance(0.0f);
+    PathHistory history = PathHistory::atCamera(camera.medium);
+    PathVertexState state{ray, beta, radiance, history, rng};
+    PathLimits chain;
+    chain.maxDepth = maxSpecularDepth;
+    chain.rrDepth = kNoRoulette;
+    vertex.valid = false;
+
+    for (;;) {
+        const Hit hit = pts.rays.intersect(state.ray);
+        if (hit.valid()) {
+            const Shape& shape = scene.shapes[hit.shape];
+            const Bsdf* bsdf = shape.bsdf >= 0 ? scene.bsdfs[static_cast<std::size_t>(shape.bsdf)].get() : nullptr;
+            if (bsdf && bsdf->hasSmoothLobe()) {
+                const SurfacePoint sp = pts.rays.surface(state.ray, hit);
+                vertex.position = sp.p;
+                vertex.normal = sp.ns;
+                vertex.geometricNormal = sp.ng;
+                vertex.outgoing = -glm::normalize(state.ray.direction);
+                vertex.uv = sp.uv;
+                vertex.throughput = beta * sampleWeight;
+                vertex.bsdf = static_cast<std::uint32_t>(shape.bsdf);
+                vertex.valid = true;
+
+                // The vertex as the last one of a path: emission, NEE and the
+                // BSDF-sampled ray's emission; the depth limit stops after that.
+                PathLimits last;
+                last.maxDepth = history.depth + 1;
+                last.rrDepth = kNoRoulette;
+                ShadowRequest shadow;
+                bool alive = advancePath(pts, last, hit, state, shadow);
+                if (shadow.pending) radiance += shadow.contribution * shadowTransmittance(pts, shadow);
+                while (alive) {
+                    ShadowRequest unused;  // no light is sampled past the depth limit
+                    alive = advancePath(pts, last, pts.rays.intersect(state.ray), state, unused);
+                }
+                return radiance;
+            }
+        }
+        // A miss (environment), a null boundary or a purely specular event.
+        ShadowRequest unused;  // specular surfaces sample no lights
+        if (!advancePath(pts, chain, hit, state, unused)) return radiance;
+    }
+}
+
+class EyePass final : public Pass {
+public:
+    void run(PassContext& ctx) override {
+        const Scene& scene = ctx.scene();
+        if (!scene.media.empty() || scene.camera.medium >= 0) {
+            throw InputError(scene.sourcePath, 0,
+                             "pass '" + ctx.instanceName() +
+                                 "': participating media are not supported by the photon pipelines; render this "
+                                 "scene with the pt pipeline");
+        }
+        const int spp = static_cast<int>(ctx.params().getInt("spp"));
+        const int maxSpecularDepth = static_cast<int>(ctx.params().getInt("max_specular_depth"));
+        const float sampleWeight = 1.0f / static_cast<float>(spp);
+
+        Camera camera = scene.camera;
+        camera.width = ctx.filmSettings().width;
+        camera.height = ctx.filmSettings().height;
+        const PathTracerScene pts(scene, ctx.rays());
+
+        Film& film = ctx.createOutput<Film>("direct", ctx.filmSettings());
+        EyeVertices& eye = ctx.createOutput<EyeVertices>("eye_vertices");
+        eye.samplesPerPixel = spp;
+        EyeVertexBuffer& out = eye.vertices;
+
+        const std::size_t pixelCount = film.pixelCount();
+        const auto samplesPerPixel = static_cast<std::size_t>(spp);
+        const std::size_t pixelsPerWave = std::max<std::size_t>(1, kWaveSamples / samplesPerPixel);
+        const std::uint64_t stream = jobs::streamKey("eye");
+        std::vector<Vec2> raster;
+        std::vector<Rgb> radiance;
+        std::vector<EyeRecord> records;
+        std::vector<std::size_t> slot;
+
+        for (std::size_t firstPixel = 0; firstPixel < pixelCount; firstPixel += pixelsPerWave) {
+            const std::size_t pixels = std::min(pixelsPerWave, pixelCount - firstPixel);
+            const std::size_t count = pixels * samplesPerPixel;
+            raster.resize(count);
+            radiance.resize(count);
+            records.resize(count);
+            const std::size_t pixelGrain = std::max<std::size_t>(1, 256 / samplesPerPixel);
+            jobs::parallelForChunks(pixels, pixelGrain, [&](jobs::IndexRange range) {
+                for (std::size_t local = range.begin; local != range.end; ++local) {
+                    const std::size_t pixel = firstPixel + local;
+                    const Vec2 corner(static_cast<float>(pixel % static_cast<std::size_t>(camera.width)),
+                                      static_cast<float>(pixel / static_cast<std::size_t>(camera.width)));
+                    for (std::size_t s = 0; s < samplesPerPixel; ++s) {
+                        const std::size_t i = local * samplesPerPixel + s;
+                        jobs::Rng rng(ctx.seed(), stream, static_cast<std::uint64_t>(pixel) * samplesPerPixel + s);
+                        raster[i] = corner + rng.uniform2();
+                        const Rgb L = traceEyeSample(pts, camera, camera.generateRay(raster[i]), rng, maxSpecularDepth,
+                                                     sampleWeight, records[i]);
+                        // A non-finite sample would poison every pixel its filter reaches.
+                        radiance[i] = isFinite(L) ? L : Rgb(0.0f);
+                    }
+                }
+            });
+            film.addRound({firstPixel, pixels, spp, raster, radiance});
+
+            // Append this wave's vertices in sample order.
+            slot.resize(count);
+            std::size_t stored = out.size();
+            const std::size_t before = stored;
+            for (std::size_t i = 0; i < count; ++i) {
+                slot[i] = stored;
+                if (records[i].valid) ++stored;
+            }
+            out.resize(stored);
+            const auto position = out.column<EyePosition>();
+            const auto normal = out.column<EyeNormal>();
+            const auto geometricNormal = out.column<EyeGeometricNormal>();
+            const auto outgoing = out.column<EyeOutgoing>();
+            const auto bsdf = out.column<EyeBsdf>();
+            const auto uv = out.column<EyeUv>();
+            const auto throughput = out.column<EyeThroughput>();
+            const auto pixelOf = out.column<EyePixel>();
+            jobs::parallelFor(count, 4096, [&](std::size_t i) {
+                const EyeRecord& r = records[i];
+                if (!r.valid) return;
+                const std::size_t v = slot[i];
+                position[v] = r.position;
+                normal[v] = r.normal;
+                geometricNormal[v] = r.geometricNormal;
+                outgoing[v] = r.outgoing;
+                bsdf[v] = r.bsdf;
+                uv[v] = r.uv;
+                throughput[v] = r.throughput;
+                pixelOf[v] = static_cast<std::uint32_t>(firstPixel + i / samplesPerPixel);
+            });
+            ctx.addCounter("eye_vertices", static_cast<std::int64_t>(stored - before));
+            ctx.addItems(static_cast<std::int64_t>(count));
+            ctx.reportProgress(static_cast<double>(firstPixel + pixels) / static_cast<double>(pixelCount));
+        }
+    }
+};
+
+}  // namespace
+
+PassRegistration eyePass() {
+    PassSpec spec;
+    spec.name = "eye";
+    spec.doc = "Camera paths through specular chains to the first diffuse/glossy vertex: stores the eye-vertex map "
+               "and renders emission plus direct lighting (NEE + MIS) at those vertices";
+    spec.outputs = {
+        {"eye_vertices", "EyeVertices", "first non-specular vertex of each camera sample, in (pixel, sample) order"},
+        {"direct", "Film", "emission seen through S* chains and direct lighting at the eye vertices"},
+    };
+    spec.params = {
+        {"spp", ParamType::Int, std::int64_t{4}, 1, 1 << 16, {}, "camera samples per pixel (jittered)"},
+        {"max_specular_depth", ParamType::Int, std::int64_t{16}, 0, 4096, {},
+         "specular bounces followed before a camera path is given up (0: only directly seen surfaces)"},
+    };
+    return {spec, [] { return std::make_unique<EyePass>(); }};
+}
+
+}  // namespace fg

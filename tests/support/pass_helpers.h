@@ -1,0 +1,44 @@
+// Helpers for tests that run single passes on hand-made buffers, or pipelines
+// built in the test (with test-only passes alongside the registered ones).
+#pragma once
+
+#include "engine/film.h"
+#include "engine/pass.h"
+#include "engine/scene.h"
+#include "engine/scheduler.h"
+
+#include <map>
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace fg::test {
+
+template <class T>
+BufferHandle makeBuffer(std::shared_ptr<T> data) {
+    BufferHandle handle;
+    handle.type = BufferTypeName<T>::value;
+    handle.bytes = [raw = data.get()] { return raw->bytes(); };
+    handle.data = std::move(data);
+    return handle;
+}
+
+template <class T>
+const T& bufferAs(const BufferHandle& handle) {
+    return *static_cast<const T*>(handle.data.get());
+}
+
+// Runs one pass with its parameter defaults overridden by `params` (name ->
+// value) on the given input buffers (slot -> buffer); returns its outputs by slot.
+std::map<std::string, BufferHandle> runPass(const PassRegistration& pass, const Scene& scene, const RayQuery* rays,
+                                            const FilmSettings& film, std::map<std::string, BufferHandle> inputs,
+                                            const std::map<std::string, ParamValue>& params = {},
+                                            std::uint64_t seed = 1);
+
+// Runs `pipeline` against `registry` ("instance.param" -> value) and returns
+// the buffer `result`.
+BufferHandle runPipeline(const Scene& scene, const Pipeline& pipeline, const std::vector<PassRegistration>& registry,
+                         const std::map<std::string, ParamValue>& params, const FilmSettings& film,
+                         const std::string& result, std::uint64_t seed = 1, int threads = 0);
+
+}  // namespace fg::test

@@ -1,0 +1,83 @@
+// Synthetic photon maps and eye vertices for the density-estimation tests,
+// and a stand-in `photon` pass that hands such maps to a pipeline.
+#pragma once
+
+#include "engine/math.h"
+#include "engine/pass.h"
+#include "engine/photon_buffers.h"
+#include "jobs/random.h"
+
+#include <functional>
+#include <memory>
+
+namespace fg::test {
+
+// Appends one photon (differentials default to zero) and returns its index.
+inline std::size_t addPhoton(PhotonMap& map, const Vec3& position, const Vec3& incident, const Rgb& power,
+                             const Vec3& normal = Vec3(0, 0, 1), std::uint8_t photonClass = PhotonClass::Global,
+                             const Vec3& du = Vec3(0.0f), const Vec3& dv = Vec3(0.0f)) {
+    PhotonBuffer& b = map.photons;
+    const std::size_t i = b.size();
+    b.resize(i + 1);
+    b.column<PhotonPosition>()[i] = position;
+    b.column<PhotonIncident>()[i] = incident;
+    b.column<PhotonPower>()[i] = power;
+    b.column<PhotonNormal>()[i] = normal;
+    b.column<PhotonClassColumn>()[i] = photonClass;
+    b.column<PhotonDu>()[i] = du;
+    b.column<PhotonDv>()[i] = dv;
+    return i;
+}
+
+// n photons uniformly on the square [-half, half]^2 of the plane z = 0, arriving
+// from cosine-distributed directions, carrying together irradiance E (per channel).
+inline void addUniformPlanePhotons(PhotonMap& map, std::size_t n, float half, const Rgb& irradiance,
+                                   std::uint8_t photonClass, std::uint64_t seed) {
+    const Rgb power = irradiance * (4.0f * half * half / static_cast<float>(n));
+    for (std::size_t i = 0; i < n; ++i) {
+        jobs::Rng rng(seed, jobs::streamKey("uniform-plane-photons"), i);
+        const Vec2 u = rng.uniform2();
+        const Vec3 position((2.0f * u.x - 1.0f) * half, (2.0f * u.y - 1.0f) * half, 0.0f);
+        addPhoton(map, position, sampleCosineHemisphere(rng.uniform2()), power, Vec3(0, 0, 1), photonClass);
+    }
+    map.emitted += n;
+}
+
+inline void addEyeVertex(EyeVertices& eye, const Vec3& position, std::uint32_t pixel, const Rgb& throughput,
+                         std::uint32_t bsdf = 0, const Vec3& normal = Vec3(0, 0, 1),
+                         const Vec3& outgoing = glm::normalize(Vec3(0.3f, 0.1f, 1.0f))) {
+    EyeVertexBuffer& b = eye.vertices;
+    const std::size_t i = b.size();
+    b.resize(i + 1);
+    b.column<EyePosition>()[i] = position;
+    b.column<EyeNormal>()[i] = normal;
+    b.column<EyeGeometricNormal>()[i] = normal;
+    b.column<EyeOutgoing>()[i] = outgoing;
+    b.column<EyeBsdf>()[i] = bsdf;
+    b.column<EyeUv>()[i] = Vec2(0.0f);
+    b.column<EyeThroughput>()[i] = throughput;
+    b.column<EyePixel>()[i] = pixel;
+}
+
+// A `photon` pass with the real pass's outputs whose maps come from `fill`.
+inline PassRegistration standInPhotonPass(std::function<void(PhotonMap& caustic, PhotonMap& global)> fill) {
+    class StandIn final : public Pass {
+    public:
+        explicit StandIn(std::function<void(PhotonMap&, PhotonMap&)> f) : fill_(std::move(f)) {}
+        void run(PassContext& ctx) override {
+            PhotonMap& caustic = ctx.createOutput<PhotonMap>("caustic_photons");
+            PhotonMap& global = ctx.createOutput<PhotonMap>("global_photons");
+            fill_(caustic, global);
+        }
+
+    private:
+        std::function<void(PhotonMap&, PhotonMap&)> fill_;
+    };
+    PassSpec spec;
+    spec.name = "photon";
+    spec.doc = "test photons";
+    spec.outputs = {{"caustic_photons", "PhotonMap", ""}, {"global_photons", "PhotonMap", ""}};
+    return {spec, [fill] { return std::make_unique<StandIn>(fill); }};
+}
+
+}  // namespace fg::test
