@@ -8,6 +8,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <filesystem>
 #include <string>
 #include <vector>
@@ -62,8 +63,8 @@ INSTANTIATE_TEST_SUITE_P(
                       ConvergenceCase{"water-wave", "pds", "photon.smoothing", 10.0},
                       ConvergenceCase{"gold-ring", "spm", "gather.k_caustic", std::int64_t{50}},
                       ConvergenceCase{"gold-ring", "pds", "photon.smoothing", 10.0}),
-    [](const auto& info) {
-        std::string name = info.param.scene + "_" + info.param.pipeline;
+    [](const ::testing::TestParamInfo<ConvergenceCase>& param) {
+        std::string name = param.param.scene + "_" + param.param.pipeline;
         std::replace(name.begin(), name.end(), '-', '_');
         return name;
     });
