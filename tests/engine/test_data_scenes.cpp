@@ -159,6 +159,22 @@ TEST_P(DataJob, Validates) {
     EXPECT_FALSE(job.pipeline.nodes.empty());
 }
 
+// Every job renders end to end (tiny film, few samples): nothing in data/ is only valid on paper.
+TEST_P(DataJob, Renders) {
+    JobOverrides overrides;
+    overrides.sets = {"film.width=12", "film.height=12", "output.exr=false", "output.png=false"};
+    overrides.outputDirectory = (fs::path(FLUXGRAPH_TEST_TMP) / "data_jobs").string();
+    Job job = loadJob(absolute(GetParam()), overrides);
+    // Sample counts and photon counts shrink to what a smoke test needs.
+    for (auto& [instance, values] : job.params.values) {
+        for (const char* key : {"spp", "photons", "volume_photons"})
+            if (values.count(key)) values[key].value = std::int64_t{key[0] == 's' ? 2 : 2000};
+    }
+    const RenderOutcome outcome = renderJob(job, {});
+    ASSERT_FALSE(outcome.run.stats.empty());
+    for (const PassStats& s : outcome.run.stats) EXPECT_GE(s.wallSeconds, 0.0) << s.instance;
+}
+
 INSTANTIATE_TEST_SUITE_P(Data, DataJob, ::testing::ValuesIn(dataFiles().jobs), testName);
 
 TEST(DataJobs, EveryFolderHasItsPtJobs) {
