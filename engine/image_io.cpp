@@ -92,6 +92,11 @@ void writeExr(const std::string& path, const ImageChannels& image, const Metadat
     OIIO::ImageSpec spec(image.width, image.height, channels, halfFloat ? OIIO::TypeDesc::HALF : OIIO::TypeDesc::FLOAT);
     spec.channelnames = {"R", "G", "B"};
     for (const auto& [name, values] : image.extra) spec.channelnames.push_back(name);
+    if (halfFloat && !image.extra.empty()) {
+        // Only the colour drops to half: AOVs such as time_ns exceed half's range (65504).
+        spec.channelformats.assign(static_cast<std::size_t>(channels), OIIO::TypeDesc::FLOAT);
+        for (int c = 0; c < 3; ++c) spec.channelformats[static_cast<std::size_t>(c)] = OIIO::TypeDesc::HALF;
+    }
     spec.attribute("compression", "zip");
     for (const auto& [key, value] : metadata) spec.attribute(std::string(kMetadataPrefix) + key, value);
 

@@ -290,7 +290,7 @@ Job parseJob(const std::string& text, const std::string& path, const JobOverride
 
     job.output.name = fs::path(path).stem().string();
     if (const toml::table* out = r.getTable(root, "output", "output")) {
-        r.checkKeys(*out, "output.", {"directory", "name", "exr", "png", "exposure"});
+        r.checkKeys(*out, "output.", {"directory", "name", "exr", "png", "exposure", "half"});
         job.output.directory = r.getString(*out, "directory", "output.directory", job.output.directory);
         job.output.name = r.getString(*out, "name", "output.name", job.output.name);
         if (job.output.name.empty() || job.output.name.find('/') != std::string::npos)
@@ -298,6 +298,7 @@ Job parseJob(const std::string& text, const std::string& path, const JobOverride
         job.output.exr = r.getBool(*out, "exr", "output.exr", true);
         job.output.png = r.getBool(*out, "png", "output.png", true);
         job.output.exposure = static_cast<float>(r.getFloat(*out, "exposure", "output.exposure", 0.0, -64.0, 64.0));
+        job.output.half = r.getBool(*out, "half", "output.half", false);
     }
     if (overrides.outputDirectory) job.output.directory = *overrides.outputDirectory;
 

@@ -20,6 +20,7 @@
 //   exr = true                      # linear float EXR with metadata and AOV channels
 //   png = true                      # sRGB preview
 //   exposure = 0.0                  # stops, PNG preview only
+//   half = false                    # EXR colour channels as 16-bit half floats (reference images)
 //
 //   [passes.pt]                     # parameters of the pass instance "pt"
 //   spp = 64
@@ -56,6 +57,7 @@ struct OutputSettings {
     bool exr = true;
     bool png = true;
     float exposure = 0.0f;
+    bool half = false;  // half-float EXR colour channels; the AOVs stay 32-bit
 };
 
 struct Job {

@@ -216,6 +216,7 @@ RenderOutcome renderJob(const Job& job, const RenderOptions& options) {
     std::string defines;
     for (const auto& [name, value] : job.sceneDefines) defines += (defines.empty() ? "" : " ") + name + "=" + value;
     if (!defines.empty()) metadata.emplace_back("scene_defines", defines);
+    if (!options.commandLine.empty()) metadata.emplace_back("command", options.commandLine);
 
     for (const std::string& result : job.pipeline.results) {
         const BufferHandle& handle = outcome.run.results.at(result);
@@ -229,7 +230,7 @@ RenderOutcome renderJob(const Job& job, const RenderOptions& options) {
         const std::string stem = job.pipeline.results.size() == 1 ? job.output.name : job.output.name + "-" + result;
         const fs::path base = fs::path(job.output.directory) / stem;
         if (job.output.exr) {
-            writeExr(base.string() + ".exr", channels, metadata);
+            writeExr(base.string() + ".exr", channels, metadata, job.output.half);
             outcome.files.push_back(base.string() + ".exr");
         }
         if (job.output.png) {

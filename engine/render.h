@@ -16,6 +16,7 @@ struct RenderOptions {
     bool showProgress = false;     // a progress bar on stderr
     std::string profilePath;       // Chrome trace-event JSON, empty = none
     std::string statsPath;         // per-pass statistics as JSON (statsJson), empty = none
+    std::string commandLine;       // how the render was started, for the EXR metadata; empty = not recorded
 };
 
 struct RenderOutcome {

@@ -48,6 +48,24 @@ void printPipelines() {
     }
 }
 
+// The arguments as one line a POSIX shell would split back into the same words.
+std::string shellCommandLine(int argc, char** argv) {
+    static constexpr const char* kPlain = "abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789-_./=:,+@%";
+    std::string line;
+    for (int i = 0; i < argc; ++i) {
+        const std::string arg = argv[i];
+        if (i > 0) line += ' ';
+        if (!arg.empty() && arg.find_first_not_of(kPlain) == std::string::npos) {
+            line += arg;
+            continue;
+        }
+        line += '\'';
+        for (char c : arg) line += c == '\'' ? std::string("'\\''") : std::string(1, c);
+        line += '\'';
+    }
+    return line;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -129,6 +147,7 @@ int main(int argc, char** argv) {
         options.showProgress = !quiet && ::isatty(STDERR_FILENO);
         options.profilePath = profilePath;
         options.statsPath = statsPath;
+        options.commandLine = shellCommandLine(argc, argv);
         const fg::RenderOutcome outcome = fg::renderJob(job, options);
         if (!quiet) {
             std::cout << fg::formatPassTable(outcome);

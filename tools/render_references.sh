@@ -1,0 +1,70 @@
+#!/usr/bin/env bash
+# Renders the path-traced reference of each scene in data/ with its pt.toml job
+# (128 x 128) at a high sample count: data/<scene>/reference/reference.exr,
+# half-float RGB (the time_ns / samples AOVs stay 32-bit), ZIP-compressed, with
+# the command line, job text, seed, overrides (the sample count) and pass
+# timings in its metadata; the sRGB preview goes to data/<scene>/preview.png.
+#
+#   tools/render_references.sh [--build DIR] [--divide N] [SCENE ...]
+#
+# --divide N renders with 1/N of the reference sample counts (a trial run; the
+# result is written to out/references/ instead of data/). The sample counts
+# below take a few minutes per scene on a 2-core machine.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+build=build
+divide=1
+scenes=()
+while (($#)); do
+  case "$1" in
+    --build) build="$2"; shift 2 ;;
+    --divide) divide="$2"; shift 2 ;;
+    -h|--help) sed -n '2,13p' "$0"; exit 0 ;;
+    *) scenes+=("$1"); shift ;;
+  esac
+done
+
+# Samples per pixel of each reference, and the preview's exposure (stops).
+declare -A spp=(
+  [cornell-box]=8192
+  [volumetric-caustic]=8192
+  [gold-ring]=32768
+  [water-wave]=32768
+  [metal-ring]=32768
+  [spot-fog]=16384
+)
+declare -A exposure=(
+  [cornell-box]=0
+  [volumetric-caustic]=0
+  [gold-ring]=0
+  [water-wave]=-0.5
+  [metal-ring]=0
+  [spot-fog]=1
+)
+if ((${#scenes[@]} == 0)); then
+  scenes=(cornell-box volumetric-caustic gold-ring water-wave metal-ring spot-fog)
+fi
+
+binary="$build/fluxgraph"
+[[ -x "$binary" ]] || { echo "render_references.sh: no $binary; build first (cmake --build $build)" >&2; exit 2; }
+
+for scene in "${scenes[@]}"; do
+  [[ -n "${spp[$scene]:-}" ]] || { echo "render_references.sh: unknown scene '$scene'" >&2; exit 2; }
+  samples=$(( spp[$scene] / divide ))
+  ((samples >= 1)) || samples=1
+  if ((divide == 1)); then
+    out="data/$scene/reference"
+    preview="data/$scene/preview.png"
+  else
+    out="out/references/$scene"
+    preview="$out/preview.png"
+  fi
+  echo "== $scene: $samples spp"
+  start=$(date +%s)
+  "$binary" render "data/$scene/pt.toml" --out "$out" \
+    --set passes.pt.spp="$samples" --set output.name=reference --set output.half=true \
+    --set output.exposure="${exposure[$scene]}"
+  mv "$out/reference.png" "$preview"
+  echo "== $scene: $(( $(date +%s) - start )) s -> $out/reference.exr, $preview"
+done
