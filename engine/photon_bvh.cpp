@@ -327,7 +327,7 @@ void PhotonBvh::build(std::span<const Vec3> centers, std::span<const float> radi
     if (n == 0) return;
 
     PhotonBvhBuildOptions checked = options;
-    checked.maxLeafSize = std::max<std::uint32_t>(1, options.maxLeafSize);
+    checked.maxLeafSize = std::clamp<std::uint32_t>(options.maxLeafSize, 1, kMaxLeafSize);
     checked.parallelThreshold = std::max<std::size_t>(checked.parallelThreshold, 2 * std::size_t(checked.maxLeafSize) + 2);
     const Builder builder(items, checked);
     const std::unique_ptr<BuildTree> tree = builder.build(0, static_cast<std::uint32_t>(n), 0);
@@ -362,12 +362,16 @@ void PhotonBvh::build(std::span<const Vec3> centers, std::span<const float> radi
     });
 
     spheres_.resize(n);
-    const auto center = spheres_.column<BvhSphereCenter>();
+    const auto x = spheres_.column<BvhSphereX>();
+    const auto y = spheres_.column<BvhSphereY>();
+    const auto z = spheres_.column<BvhSphereZ>();
     const auto radius = spheres_.column<BvhSphereRadius>();
     const auto id = spheres_.column<BvhSphereId>();
     jobs::parallelForChunks(n, kBlock, [&](jobs::IndexRange r) {
         for (std::size_t i = r.begin; i != r.end; ++i) {
-            center[i] = items[i].center;
+            x[i] = items[i].center.x;
+            y[i] = items[i].center.y;
+            z[i] = items[i].center.z;
             radius[i] = items[i].radius;
             id[i] = items[i].id;
         }
