@@ -78,6 +78,8 @@ namespace fg {
 namespace {
 
 constexpr std::size_t kGrain = 256;
+// Paths of the first batch when emission stops at a volume-photon target.
+constexpr double kPilotPaths = 16384.0;
 // Null boundaries crossed by one segment; the bound only guards against degenerate geometry.
 constexpr int kMaxNullCrossings = 1024;
 
@@ -428,15 +430,16 @@ public:
         for (std::uint64_t batchStart = 0; batchStart < settings.photons && !targetReached;) {
             std::uint64_t wanted = settings.batchSize;
             if (targetMode) {
-                // Enough paths for the photons still missing at the rate seen so far (plus a
-                // margin), so that a small target does not trace a whole batch in vain. The
-                // sizes depend only on earlier results, and the photons not on the sizes.
+                // A pilot batch, then enough paths for the photons still missing at the rate
+                // seen so far (plus a margin), so that paths are not traced in vain. The sizes
+                // depend only on earlier results, and the photons not on the sizes.
                 const std::uint64_t missing = settings.volumeTarget - volume.photons.size();
                 const double rate = volume.photons.empty() ? 0.0
                                                            : static_cast<double>(volume.photons.size()) /
                                                                  static_cast<double>(batchStart);
                 const double estimate = rate > 0.0 ? 1.1 * static_cast<double>(missing) / rate + 1024.0
-                                                   : static_cast<double>(std::max<std::uint64_t>(missing, 4096));
+                                                   : static_cast<double>(batchStart == 0 ? kPilotPaths
+                                                                                         : 8 * batchStart);
                 wanted = std::min<std::uint64_t>(settings.batchSize,
                                                  static_cast<std::uint64_t>(std::min(estimate, 1e15)));
             }

@@ -6,11 +6,14 @@
 #include "engine/beam_buffers.h"
 #include "engine/bsdf.h"
 #include "engine/error.h"
+#include "engine/image_compare.h"
+#include "engine/job.h"
 #include "engine/light.h"
 #include "engine/photon_buffers.h"
 #include "engine/photon_bvh.h"
 #include "engine/ray_query.h"
 #include "engine/scene.h"
+#include "engine/scene_loader.h"
 #include "engine/scheduler.h"
 #include "jobs/parallel.h"
 #include "passes/passes.h"
@@ -24,6 +27,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <filesystem>
 
 namespace fg {
 namespace {
@@ -491,6 +495,82 @@ TEST(Bre, IdenticalForOneAndTwoThreads) {
     EXPECT_NE(std::memcmp(pa.data(), pc.data(), pa.size() * sizeof(Rgb)), 0);
     EXPECT_EQ(one.pass("beam_query").counters.at("photons_tested"),
               two.pass("beam_query").counters.at("photons_tested"));
+}
+
+
+// ---------------------------------------------------------------------------
+// The test scenes against their path-traced references
+
+// Box-averages factor x factor blocks (the reference is rendered at 128 x 128;
+// the tests render the same view at a lower resolution).
+ImageChannels downsample(const ImageChannels& image, int factor) {
+    ImageChannels out;
+    out.width = image.width / factor;
+    out.height = image.height / factor;
+    out.rgb.assign(static_cast<std::size_t>(out.width) * out.height, Rgb(0.0f));
+    for (int y = 0; y < out.height * factor; ++y)
+        for (int x = 0; x < out.width * factor; ++x)
+            out.rgb[static_cast<std::size_t>(y / factor) * out.width + x / factor] +=
+                image.rgb[static_cast<std::size_t>(y) * image.width + x] / static_cast<float>(factor * factor);
+    return out;
+}
+
+// Renders data/<scene>/bre.toml at size x size (box filter) for each volume
+// photon count and returns the RMSE against the block-averaged reference.
+std::vector<double> breErrorsAgainstReference(const std::string& scene, const std::string& reference, int size,
+                                              std::int64_t spp, const std::vector<std::int64_t>& counts) {
+    const std::string dir = std::string(FLUXGRAPH_SOURCE_DIR) + "/data/" + scene;
+    const Job job = loadJob(dir + "/bre.toml");
+    const Scene sceneData = loadScene(job.scenePath, job.sceneDefines);
+    const ImageChannels full = readImageLinear(reference);
+    EXPECT_EQ(full.width % size, 0);
+    const ImageChannels target = downsample(full, full.width / size);
+    const RayQuery rays(sceneData);
+    std::vector<double> errors;
+    for (const std::int64_t count : counts) {
+        JobParams params = job.params;
+        params.values["photon"]["volume_photons"] = {count, "test"};
+        params.values["volume_eye"]["spp"] = {spp, "test"};
+        Pipeline pipeline = job.pipeline;
+        pipeline.results = {"image"};
+        const ExecutionPlan plan = ExecutionPlan::build(pipeline, params, job.path);
+        RunOptions options;
+        options.seed = job.seed;
+        options.film = boxFilm(size, size);
+        const RunResult result = execute(plan, sceneData, rays, options);
+        const Film& film = *static_cast<const Film*>(result.results.at("image").data.get());
+        ImageChannels image;
+        image.width = image.height = size;
+        image.rgb = film.resolve();
+        const ImageMetrics metrics = compareImages(image, target);
+        std::printf("bre %s: %lld volume photons, RMSE %.5f, relMSE %.5f\n", scene.c_str(),
+                    static_cast<long long>(count), metrics.rmse, metrics.relmse);
+        errors.push_back(metrics.rmse);
+    }
+    return errors;
+}
+
+std::string referenceOf(const std::string& scene) {
+    return std::string(FLUXGRAPH_SOURCE_DIR) + "/data/" + scene + "/reference/reference.exr";
+}
+
+TEST(BreScenes, VolumetricCausticConvergesTowardsTheReference) {
+    const std::string reference = referenceOf("volumetric-caustic");
+    if (!std::filesystem::exists(reference))
+        GTEST_SKIP() << "no path-traced reference " << reference << " yet (tools/render_references.sh renders it)";
+    const std::vector<double> errors =
+        breErrorsAgainstReference("volumetric-caustic", reference, 32, 8, {25000, 100000, 400000});
+    EXPECT_LT(errors[1], errors[0]);
+    EXPECT_LT(errors[2], errors[1]);
+}
+
+TEST(BreScenes, SpotFogConvergesTowardsTheReference) {
+    const std::string reference = referenceOf("spot-fog");
+    if (!std::filesystem::exists(reference))
+        GTEST_SKIP() << "no path-traced reference " << reference << " yet (tools/render_references.sh renders it)";
+    const std::vector<double> errors = breErrorsAgainstReference("spot-fog", reference, 32, 8, {20000, 80000, 320000});
+    EXPECT_LT(errors[1], errors[0]);
+    EXPECT_LT(errors[2], errors[1]);
 }
 
 }  // namespace
