@@ -135,8 +135,8 @@ def case_study(runner, scene_dir, out, quick):
     if not ref.exists():
         sys.exit(f"{ref}: missing (tools/render_references.sh {tag})")
     emitted = emitted_for(runner, scene, CAUSTIC_TARGET, tag)
-    ks = [10, 30, 100, 300] if quick else [10, 20, 30, 50, 75, 100, 150, 200, 300, 500, 800]
-    ss = [4, 8, 16, 32] if quick else [2, 3, 4, 6, 8, 11, 16, 23, 32, 45]
+    ks = [10, 30, 100, 300] if quick else [10, 20, 40, 80, 160, 320, 640]
+    ss = [4, 8, 16, 32] if quick else [2, 3, 4, 6, 8, 11, 16, 23, 32]
     spm = [run_spm(runner, scene, ref, emitted, k, tag) for k in ks]
     pds = [run_pds(runner, scene, ref, emitted, s, tag) for s in ss]
     spm_r, spm_s = best(spm, "rmse"), best(spm, "ssim", larger=True)
@@ -152,7 +152,7 @@ def case_study(runner, scene_dir, out, quick):
                     (f"k{row['k']}" if method == "spm" else f"s{row['s']}") + ".png", out / f"{tag}-{label}.png")
 
     # Photons SPM needs to match PDS at 20k.
-    growth = [1, 2, 5, 10] if quick else [1, 2, 5, 10, 20, 50]
+    growth = [1, 2, 5, 10] if quick else [1, 2, 5, 10, 20, 40]
     matched = {"rmse": None, "ssim": None}
     ladder = []
     for factor in growth:

@@ -29,10 +29,10 @@ done
 declare -A spp=(
   [cornell-box]=8192
   [volumetric-caustic]=8192
-  [gold-ring]=32768
-  [water-wave]=32768
-  [metal-ring]=32768
-  [spot-fog]=16384
+  [gold-ring]=16384
+  [water-wave]=16384
+  [metal-ring]=16384
+  [spot-fog]=8192
 )
 declare -A exposure=(
   [cornell-box]=0
