@@ -515,18 +515,32 @@ ImageChannels downsample(const ImageChannels& image, int factor) {
     return out;
 }
 
+struct ReferenceErrors {
+    std::vector<double> rmse;         // per pixel, over the crop
+    std::vector<double> energyError;  // |mean / reference mean - 1| over the crop, luminance
+};
+
 // Renders data/<scene>/bre.toml at size x size (box filter) for each volume
-// photon count and returns the RMSE against the block-averaged reference.
-std::vector<double> breErrorsAgainstReference(const std::string& scene, const std::string& reference, int size,
-                                              std::int64_t spp, const std::vector<std::int64_t>& counts) {
+// photon count and compares it with the block-averaged reference over `crop`.
+ReferenceErrors breErrorsAgainstReference(const std::string& scene, const std::string& reference, int size,
+                                          std::int64_t spp, const std::vector<std::int64_t>& counts,
+                                          const CropRect& crop) {
     const std::string dir = std::string(FLUXGRAPH_SOURCE_DIR) + "/data/" + scene;
     const Job job = loadJob(dir + "/bre.toml");
     const Scene sceneData = loadScene(job.scenePath, job.sceneDefines);
     const ImageChannels full = readImageLinear(reference);
     EXPECT_EQ(full.width % size, 0);
     const ImageChannels target = downsample(full, full.width / size);
+    const auto meanLuminance = [&](const ImageChannels& image) {
+        double sum = 0.0;
+        for (int y = crop.y; y < crop.y + crop.height; ++y)
+            for (int x = crop.x; x < crop.x + crop.width; ++x)
+                sum += luminance(image.rgb[static_cast<std::size_t>(y) * image.width + x]);
+        return sum / (crop.width * crop.height);
+    };
+    const double targetMean = meanLuminance(target);
     const RayQuery rays(sceneData);
-    std::vector<double> errors;
+    ReferenceErrors errors;
     for (const std::int64_t count : counts) {
         JobParams params = job.params;
         params.values["photon"]["volume_photons"] = {count, "test"};
@@ -542,10 +556,12 @@ std::vector<double> breErrorsAgainstReference(const std::string& scene, const st
         ImageChannels image;
         image.width = image.height = size;
         image.rgb = film.resolve();
-        const ImageMetrics metrics = compareImages(image, target);
-        std::printf("bre %s: %lld volume photons, RMSE %.5f, relMSE %.5f\n", scene.c_str(),
-                    static_cast<long long>(count), metrics.rmse, metrics.relmse);
-        errors.push_back(metrics.rmse);
+        const ImageMetrics metrics = compareImages(image, target, crop);
+        const double energy = std::abs(meanLuminance(image) / targetMean - 1.0);
+        std::printf("bre %s: %lld volume photons, RMSE %.5f, relMSE %.5f, mean off by %.2f %%\n", scene.c_str(),
+                    static_cast<long long>(count), metrics.rmse, metrics.relmse, 100.0 * energy);
+        errors.rmse.push_back(metrics.rmse);
+        errors.energyError.push_back(energy);
     }
     return errors;
 }
@@ -554,23 +570,37 @@ std::string referenceOf(const std::string& scene) {
     return std::string(FLUXGRAPH_SOURCE_DIR) + "/data/" + scene + "/reference/reference.exr";
 }
 
+// The reference (8192 paths per pixel) is still noisy where the volume
+// caustic is: paths that find the light through the sphere are rare and
+// bright, and their fireflies set an error floor (RMSE about 0.38 at 32 x 32)
+// that a converged estimate cannot go below. So the comparison is at 32 x 32
+// (4 x 4 blocks of the reference) and at photon counts where the estimate's
+// own error still shows above that floor; the rows with the light itself (a
+// few very bright pixels) are left out. Over five seeds the RMSE fell at every
+// step (0.396-0.408, 0.390-0.396, 0.384-0.390) and the mean luminance at 32k
+// photons was within 1.9-6.0 % of the reference's; from 100k photons on it
+// stays 2.3-2.7 % below it (see tools/bre_report.py).
 TEST(BreScenes, VolumetricCausticConvergesTowardsTheReference) {
     const std::string reference = referenceOf("volumetric-caustic");
     if (!std::filesystem::exists(reference))
         GTEST_SKIP() << "no path-traced reference " << reference << " yet (tools/render_references.sh renders it)";
-    const std::vector<double> errors =
-        breErrorsAgainstReference("volumetric-caustic", reference, 32, 8, {25000, 100000, 400000});
-    EXPECT_LT(errors[1], errors[0]);
-    EXPECT_LT(errors[2], errors[1]);
+    const ReferenceErrors errors = breErrorsAgainstReference("volumetric-caustic", reference, 32, 4,
+                                                             {2000, 8000, 32000}, CropRect{0, 4, 32, 28});
+    for (std::size_t i = 1; i < errors.rmse.size(); ++i) EXPECT_LT(errors.rmse[i], errors.rmse[i - 1]);
+    EXPECT_LT(errors.energyError.back(), 0.1);
 }
 
 TEST(BreScenes, SpotFogConvergesTowardsTheReference) {
     const std::string reference = referenceOf("spot-fog");
     if (!std::filesystem::exists(reference))
         GTEST_SKIP() << "no path-traced reference " << reference << " yet (tools/render_references.sh renders it)";
-    const std::vector<double> errors = breErrorsAgainstReference("spot-fog", reference, 32, 8, {20000, 80000, 320000});
-    EXPECT_LT(errors[1], errors[0]);
-    EXPECT_LT(errors[2], errors[1]);
+    const ReferenceErrors errors =
+        breErrorsAgainstReference("spot-fog", reference, 32, 4, {2000, 8000, 32000}, CropRect{0, 0, 32, 32});
+    for (std::size_t i = 1; i < errors.rmse.size(); ++i) {
+        EXPECT_LT(errors.rmse[i], errors.rmse[i - 1]);
+        EXPECT_LT(errors.energyError[i], errors.energyError[i - 1]);
+    }
+    EXPECT_LT(errors.energyError.back(), 0.06);
 }
 
 }  // namespace
