@@ -38,9 +38,10 @@ namespace fg {
 struct PhotonBvhBuildOptions {
     // Ranges of at most this many spheres become leaves (at most 64). Leaves
     // are tested branch-free, so larger ones than usual pay: beam queries on
-    // 1M volume photons (volumetric-caustic) took 1.70 s of CPU at 4, 1.38 at
-    // 8, 1.31 at 16, 1.23 at 24 and 1.31 at 32 (tools/bre_report.py).
-    std::uint32_t maxLeafSize = 16;
+    // 1M volume photons (volumetric-caustic, 128 x 128, 4 spp) took 1.76 s of
+    // CPU at 4, 1.53 at 8, 1.35 at 16, 1.26 at 24 and 1.27 at 32, and the
+    // build 0.59, 0.57, 0.44, 0.43 and 0.40 s (tools/bre_report.py --leaf-sweep).
+    std::uint32_t maxLeafSize = 24;
     // Bins per axis of the binned SAH split search (Wald 2007).
     std::uint32_t bins = 16;
     // Ranges with at least this many spheres are binned in parallel blocks and

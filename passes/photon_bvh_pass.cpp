@@ -54,7 +54,8 @@ PassRegistration photonBvhPass() {
     };
     spec.outputs = {{"bvh", "PhotonBvh", "sphere hierarchy; leaves refer back to photon indices"}};
     spec.params = {
-        {"leaf_size", ParamType::Int, std::int64_t{16}, 1, 64, {}, "largest number of spheres in a leaf"},
+        {"leaf_size", ParamType::Int, std::int64_t{PhotonBvhBuildOptions{}.maxLeafSize}, 1, 64, {},
+         "largest number of spheres in a leaf (measured best: 16-32)"},
         {"bins", ParamType::Int, std::int64_t{16}, 2, 64, {}, "bins per axis of the binned SAH split search"},
     };
     return {spec, [] { return std::make_unique<PhotonBvhPass>(); }};
