@@ -7,6 +7,7 @@
 #include "engine/bsdf.h"
 #include "engine/error.h"
 #include "engine/image_compare.h"
+#include "engine/kdtree.h"
 #include "engine/job.h"
 #include "engine/light.h"
 #include "engine/photon_buffers.h"
@@ -24,6 +25,7 @@
 #include <glm/gtc/matrix_transform.hpp>
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
@@ -270,6 +272,29 @@ TEST(PhotonRadius, BallsHoldKPhotonsOnAverage) {
         ASSERT_GT(interior, 3000);
         EXPECT_NEAR(sum / interior / static_cast<double>(k), 1.0, 0.03) << "k = " << k;
     }
+    // Each radius is exactly the distance to the k-th nearest other photon, by
+    // brute force, also on clustered photons with duplicates.
+    auto clustered = std::make_shared<PhotonMap>();
+    for (std::size_t i = 0; i < 4000; ++i) {
+        jobs::Rng rng(6, jobs::streamKey("clustered-volume"), i);
+        Vec3 p(rng.uniform(), rng.uniform(), rng.uniform());
+        if (i % 3 == 0) p = Vec3(0.2f) + 0.01f * p;  // a dense blob
+        if (i % 7 == 0) p.y = 0.5f;                  // a plane
+        if (i % 11 == 0 && i > 0) p = clustered->photons.column<PhotonPosition>()[i - 1];  // duplicates
+        test::addPhoton(*clustered, p, Vec3(0, 0, 1), Rgb(1.0f), Vec3(0.0f), PhotonClass::Volume);
+    }
+    const std::int64_t kExact = 12;
+    const auto exact = test::runPass(*pass, scene, nullptr, boxFilm(4, 4), {{"photons", test::makeBuffer(clustered)}},
+                                     {{"k", kExact}});
+    const auto exactRadii = test::bufferAs<PhotonRadii>(exact.at("radii")).radii.column<PhotonRadius>();
+    const auto points = clustered->photons.column<PhotonPosition>();
+    std::vector<float> d2(points.size());
+    for (std::size_t i = 0; i < points.size(); ++i) {
+        for (std::size_t j = 0; j < points.size(); ++j) d2[j] = KdTree::distance2(points[i], points[j]);
+        std::nth_element(d2.begin(), d2.begin() + kExact, d2.end());
+        ASSERT_EQ(exactRadii[i], std::sqrt(d2[static_cast<std::size_t>(kExact)])) << "photon " << i;
+    }
+
     // The scale multiplies, the clamp bounds.
     const auto base = test::runPass(*pass, scene, nullptr, boxFilm(4, 4), {{"photons", test::makeBuffer(map)}});
     const auto scaled = test::runPass(*pass, scene, nullptr, boxFilm(4, 4), {{"photons", test::makeBuffer(map)}},
