@@ -39,9 +39,10 @@ struct PhotonBvhBuildOptions {
     // Ranges of at most this many spheres become leaves (at most 64). Leaves
     // are tested branch-free, so larger ones than usual pay: beam queries on
     // 1M volume photons (volumetric-caustic, 128 x 128, 4 spp) took 1.76 s of
-    // CPU at 4, 1.53 at 8, 1.35 at 16, 1.26 at 24 and 1.27 at 32, and the
-    // build 0.59, 0.57, 0.44, 0.43 and 0.40 s (tools/bre_report.py --leaf-sweep).
-    std::uint32_t maxLeafSize = 24;
+    // CPU at 4, 1.33 at 8, 1.26 at 16, 1.18 at 24 and 1.14 at 32, and the
+    // build 0.59, 0.47, 0.42, 0.41 and 0.39 s (tools/bre_report.py
+    // --leaf-sweep; 32 beat 24 by 3-4 % in each of three sweeps).
+    std::uint32_t maxLeafSize = 32;
     // Bins per axis of the binned SAH split search (Wald 2007).
     std::uint32_t bins = 16;
     // Ranges with at least this many spheres are binned in parallel blocks and
