@@ -41,7 +41,8 @@ struct PhotonBvhBuildOptions {
     // 1M volume photons (volumetric-caustic, 128 x 128, 4 spp) took 1.76 s of
     // CPU at 4, 1.33 at 8, 1.26 at 16, 1.18 at 24 and 1.14 at 32, and the
     // build 0.59, 0.47, 0.42, 0.41 and 0.39 s (tools/bre_report.py
-    // --leaf-sweep; 32 beat 24 by 3-4 % in each of three sweeps).
+    // --leaf-sweep). 24 and 32 are within the noise of each other: 32 was
+    // 3-4 % faster in three sweeps, 3 % slower in a fourth.
     std::uint32_t maxLeafSize = 32;
     // Bins per axis of the binned SAH split search (Wald 2007).
     std::uint32_t bins = 16;
