@@ -110,8 +110,8 @@ public:
         if (!scene.media.empty() || scene.camera.medium >= 0) {
             throw InputError(scene.sourcePath, 0,
                              "pass '" + ctx.instanceName() +
-                                 "': participating media are not supported by the photon pipelines; render this "
-                                 "scene with the pt pipeline");
+                                 "': participating media are not supported by the surface photon pipelines; render "
+                                 "this scene with the bre (volumetric photon mapping) or pt pipeline");
         }
         const int spp = static_cast<int>(ctx.params().getInt("spp"));
         const int maxSpecularDepth = static_cast<int>(ctx.params().getInt("max_specular_depth"));

@@ -13,9 +13,14 @@ PassRegistration photonIndexPass();
 PassRegistration gatherPass();
 PassRegistration gatherGlobalPass();
 PassRegistration splatPass();
+PassRegistration volumeEyePass();
+PassRegistration photonRadiusPass();
+PassRegistration photonBvhPass();
+PassRegistration beamQueryPass();
 
 // The photon-mapping pipelines as data.
 Pipeline spmPipeline();
 Pipeline pdsPipeline();
+Pipeline brePipeline();
 
 }  // namespace fg

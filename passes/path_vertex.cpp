@@ -15,15 +15,6 @@ namespace {
 // Relative length by which shadow rays stop short of the point they test.
 constexpr float kShadowEpsilon = 1e-3f;
 
-// Transmittance over a segment that may be infinitely long.
-Rgb segmentTransmittance(const HomogeneousMedium& medium, float distance) {
-    if (std::isinf(distance)) {
-        const Rgb st = medium.sigmaT();
-        return {st.x > 0 ? 0.0f : 1.0f, st.y > 0 ? 0.0f : 1.0f, st.z > 0 ? 0.0f : 1.0f};
-    }
-    return medium.transmittance(distance);
-}
-
 float lightSelectionPmf(const Scene& scene, int light) {
     return scene.lightPower.discretePmf(static_cast<std::size_t>(light));
 }
@@ -119,6 +110,15 @@ bool advancePath(const PathTracerScene& pts, const PathLimits& limits, const Hit
             return russianRoulette(limits, s);
         }
     }
+
+    return advancePathAtSurface(pts, limits, hit, s, shadow);
+}
+
+bool advancePathAtSurface(const PathTracerScene& pts, const PathLimits& limits, const Hit& hit, PathVertexState& s,
+                          ShadowRequest& shadow) {
+    const Scene& scene = pts.scene;
+    PathHistory& h = s.history;
+    Rgb& beta = s.throughput;
 
     if (!hit.valid()) {
         for (int index : pts.infiniteLights) {

@@ -9,6 +9,7 @@
 #include "engine/scene.h"
 #include "jobs/random.h"
 
+#include <cmath>
 #include <cstdint>
 #include <span>
 #include <vector>
@@ -63,6 +64,12 @@ struct PathVertexState {
 // Consumes the hit of state.ray; returns false when the path ends. May fill `shadow`.
 bool advancePath(const PathTracerScene& pts, const PathLimits& limits, const Hit& hit, PathVertexState& state,
                  ShadowRequest& shadow);
+// advancePath without its first step, the free-flight sampling in the current
+// medium: the path reaches the hit (or escapes) with no medium event. For
+// callers that account for the medium along the segment themselves, e.g. by
+// its transmittance.
+bool advancePathAtSurface(const PathTracerScene& pts, const PathLimits& limits, const Hit& hit,
+                          PathVertexState& state, ShadowRequest& shadow);
 
 // Transmittance along a shadow ray: 0 if blocked by a non-null surface.
 Rgb shadowTransmittance(const PathTracerScene& pts, const ShadowRequest& shadow);
@@ -70,6 +77,16 @@ Rgb shadowTransmittance(const PathTracerScene& pts, const ShadowRequest& shadow)
 // Resolves the pending shadow rays of `paths` and adds their contributions to radiance[path].
 void resolveShadowRays(const PathTracerScene& pts, std::span<const std::uint32_t> paths,
                        std::span<const ShadowRequest> shadows, std::span<Rgb> radiance);
+
+// Transmittance over a segment that may be infinitely long (kInfinity or inf):
+// zero in channels that attenuate, one in the others.
+inline Rgb segmentTransmittance(const HomogeneousMedium& medium, float distance) {
+    if (std::isinf(distance) || distance >= kInfinity) {
+        const Rgb st = medium.sigmaT();
+        return {st.x > 0 ? 0.0f : 1.0f, st.y > 0 ? 0.0f : 1.0f, st.z > 0 ? 0.0f : 1.0f};
+    }
+    return medium.transmittance(distance);
+}
 
 // Medium on the side of a shape's surface that direction `dir` enters; shapes
 // that declare no media keep the current one.

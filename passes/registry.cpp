@@ -7,6 +7,7 @@ const std::vector<PassRegistration>& passRegistry() {
     static const std::vector<PassRegistration> registry = {
         pathTracerPass(), photonPass(),  eyePass(),          eyeIndexPass(),
         photonIndexPass(), gatherPass(), gatherGlobalPass(), splatPass(),
+        volumeEyePass(),   photonRadiusPass(), photonBvhPass(), beamQueryPass(),
     };
     return registry;
 }
@@ -44,11 +45,37 @@ Pipeline pdsPipeline() {
             {"image"}};
 }
 
+// Volumetric photon mapping with the beam radiance estimate (Jarosz et al.
+// 2008; the baseline of Jakob et al. 2011): camera segments through the media
+// and the surface vertices behind them, in parallel with photon tracing; the
+// surface part is standard photon mapping (direct light + caustic and global
+// photon gathering), the media part the beam query over the volume photons'
+// kernel spheres (pilot radii, then a BVH), added on top.
+Pipeline brePipeline() {
+    return {"bre",
+            "volumetric photon mapping: beam radiance estimate over volume photons (pilot radii + sphere BVH) for "
+            "media, standard photon mapping for surfaces",
+            {
+                {"volume_eye", "volume_eye", {}, {}, 0},
+                {"photon", "photon", {}, {}, 0},
+                {"caustic_index", "photon_index", {{"photons", "caustic_photons"}}, {{"index", "caustic_index"}}, 0},
+                {"global_index", "photon_index", {{"photons", "global_photons"}}, {{"index", "global_index"}}, 0},
+                {"gather", "gather", {}, {{"image", "surface_image"}}, 0},
+                {"photon_radius", "photon_radius", {{"photons", "volume_photons"}}, {{"radii", "photon_radii"}}, 0},
+                {"photon_bvh", "photon_bvh", {{"photons", "volume_photons"}, {"radii", "photon_radii"}},
+                 {{"bvh", "photon_bvh"}}, 0},
+                {"beam_query", "beam_query", {{"photons", "volume_photons"}, {"bvh", "photon_bvh"},
+                                              {"base", "surface_image"}}, {}, 0},
+            },
+            {"image"}};
+}
+
 const std::vector<Pipeline>& builtinPipelines() {
     static const std::vector<Pipeline> pipelines = {
         {"pt", "reference path tracer: surfaces and homogeneous media, NEE + MIS", {{"pt", "pt", {}, {}, 0}}, {"image"}},
         spmPipeline(),
         pdsPipeline(),
+        brePipeline(),
     };
     return pipelines;
 }
