@@ -62,9 +62,12 @@ for scene in "${scenes[@]}"; do
   fi
   echo "== $scene: $samples spp"
   start=$(date +%s)
-  "$binary" render "data/$scene/pt.toml" --out "$out" \
+  if ! "$binary" render "data/$scene/pt.toml" --out "$out" \
     --set passes.pt.spp="$samples" --set output.name=reference --set output.half=true \
-    --set output.exposure="${exposure[$scene]}"
+    --set output.exposure="${exposure[$scene]}"; then
+    echo "render_references.sh: rendering the reference of '$scene' failed" >&2
+    exit 1
+  fi
   mv "$out/reference.png" "$preview"
   echo "== $scene: $(( $(date +%s) - start )) s -> $out/reference.exr, $preview"
 done

@@ -3,6 +3,7 @@
 // scenes that come in both formats describe the same scene, and the procedural
 // meshes are what tools/make_geometry.py writes and have the shape they claim.
 #include "engine/error.h"
+#include "engine/image_io.h"
 #include "engine/job.h"
 #include "engine/render.h"
 #include "engine/scene_loader.h"
@@ -16,6 +17,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -411,6 +413,40 @@ TEST(DataMeshes, GeneratorReproducesTheCommittedFiles) {
         ++compared;
     }
     EXPECT_EQ(compared, 4u);
+}
+
+}  // namespace
+}  // namespace fg
+
+// ---------------------------------------------------------------- references match their jobs
+
+namespace fg {
+namespace {
+
+// A committed reference must be what tools/render_references.sh makes from the
+// scene's current pt.toml: same size, half-float colour, the recorded command
+// and sample count, and the job text it was rendered from.
+TEST(DataReferences, MatchTheirJobs) {
+    int checked = 0;
+    for (const auto& entry : fs::directory_iterator(fs::path(FLUXGRAPH_SOURCE_DIR) / "data")) {
+        const fs::path reference = entry.path() / "reference" / "reference.exr";
+        if (!fs::exists(reference)) continue;
+        const std::string name = entry.path().filename().string();
+        const fs::path jobPath = entry.path() / "pt.toml";
+        ASSERT_TRUE(fs::exists(jobPath)) << name;
+        Metadata metadata;
+        const ImageChannels image = readExr(reference.string(), &metadata);
+        const Job job = loadJob(jobPath.string());
+        EXPECT_EQ(image.width, job.film.width) << name;
+        EXPECT_EQ(image.height, job.film.height) << name;
+        std::map<std::string, std::string> meta(metadata.begin(), metadata.end());
+        EXPECT_NE(meta["command"].find("output.half=true"), std::string::npos) << name;
+        EXPECT_NE(meta["command"].find("passes.pt.spp="), std::string::npos) << name;
+        EXPECT_EQ(meta["job"], job.text) << name << ": the reference was rendered from another version of pt.toml";
+        EXPECT_FALSE(meta["pass_timings"].empty()) << name;
+        ++checked;
+    }
+    EXPECT_GE(checked, 6);
 }
 
 }  // namespace
