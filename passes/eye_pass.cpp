@@ -19,6 +19,7 @@
 // count, so photon estimates times throughput summed over a pixel's vertices
 // are that pixel's box-filtered mean. Vertices are stored in (pixel, sample)
 // order. Random numbers are keyed by (seed, "eye", sample index).
+#include "passes/eye_vertex_records.h"
 #include "passes/passes.h"
 #include "passes/path_vertex.h"
 
@@ -42,17 +43,6 @@ constexpr std::size_t kWaveSamples = 1 << 18;
 // Specular chains end by their depth limit, never by Russian roulette, which
 // would only add noise to the vertex weights.
 constexpr int kNoRoulette = std::numeric_limits<int>::max();
-
-struct EyeRecord {
-    Vec3 position{0.0f};
-    Vec3 normal{0.0f};
-    Vec3 geometricNormal{0.0f};
-    Vec3 outgoing{0.0f};
-    Vec2 uv{0.0f};
-    Rgb throughput{0.0f};
-    std::uint32_t bsdf = 0;
-    bool valid = false;
-};
 
 // Traces one camera sample; returns the radiance for the `direct` film and fills `vertex`.
 Rgb traceEyeSample(const PathTracerScene& pts, const Camera& camera, Ray ray, jobs::Rng& rng, int maxSpecularDepth,
@@ -161,37 +151,7 @@ public:
             });
             film.addRound({firstPixel, pixels, spp, raster, radiance});
 
-            // Append this wave's vertices in sample order.
-            slot.resize(count);
-            std::size_t stored = out.size();
-            const std::size_t before = stored;
-            for (std::size_t i = 0; i < count; ++i) {
-                slot[i] = stored;
-                if (records[i].valid) ++stored;
-            }
-            out.resize(stored);
-            const auto position = out.column<EyePosition>();
-            const auto normal = out.column<EyeNormal>();
-            const auto geometricNormal = out.column<EyeGeometricNormal>();
-            const auto outgoing = out.column<EyeOutgoing>();
-            const auto bsdf = out.column<EyeBsdf>();
-            const auto uv = out.column<EyeUv>();
-            const auto throughput = out.column<EyeThroughput>();
-            const auto pixelOf = out.column<EyePixel>();
-            jobs::parallelFor(count, 4096, [&](std::size_t i) {
-                const EyeRecord& r = records[i];
-                if (!r.valid) return;
-                const std::size_t v = slot[i];
-                position[v] = r.position;
-                normal[v] = r.normal;
-                geometricNormal[v] = r.geometricNormal;
-                outgoing[v] = r.outgoing;
-                bsdf[v] = r.bsdf;
-                uv[v] = r.uv;
-                throughput[v] = r.throughput;
-                pixelOf[v] = static_cast<std::uint32_t>(firstPixel + i / samplesPerPixel);
-            });
-            ctx.addCounter("eye_vertices", static_cast<std::int64_t>(stored - before));
+            appendEyeVertices(records, firstPixel, samplesPerPixel, out, slot, ctx);
             ctx.addItems(static_cast<std::int64_t>(count));
             ctx.reportProgress(static_cast<double>(firstPixel + pixels) / static_cast<double>(pixelCount));
         }

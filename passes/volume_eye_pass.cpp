@@ -27,6 +27,7 @@
 // Sample weights include 1/spp; vertices and segments are stored in (pixel,
 // sample) order, segments of one sample in path order. Random numbers are
 // keyed by (seed, "volume_eye", sample index).
+#include "passes/eye_vertex_records.h"
 #include "passes/passes.h"
 #include "passes/path_vertex.h"
 
@@ -50,17 +51,6 @@ constexpr std::size_t kWaveSamples = 1 << 18;
 constexpr int kNoRoulette = std::numeric_limits<int>::max();
 // Null boundaries crossed in a row; the bound only guards against degenerate geometry.
 constexpr int kMaxNullCrossings = 1024;
-
-struct EyeRecord {
-    Vec3 position{0.0f};
-    Vec3 normal{0.0f};
-    Vec3 geometricNormal{0.0f};
-    Vec3 outgoing{0.0f};
-    Vec2 uv{0.0f};
-    Rgb throughput{0.0f};
-    std::uint32_t bsdf = 0;
-    bool valid = false;
-};
 
 struct SegmentRecord {
     Vec3 origin;
@@ -217,7 +207,7 @@ public:
                 }
             });
             film.addRound({firstPixel, pixels, spp, raster, radiance});
-            appendVertices(records, firstPixel, samplesPerPixel, out, slot, ctx);
+            appendEyeVertices(records, firstPixel, samplesPerPixel, out, slot, ctx);
             appendSegments(chunkSegments, segmentBuffer, ctx);
             ctx.addItems(static_cast<std::int64_t>(count));
             ctx.reportProgress(static_cast<double>(firstPixel + pixels) / static_cast<double>(pixelCount));
@@ -225,42 +215,6 @@ public:
     }
 
 private:
-    static void appendVertices(const std::vector<EyeRecord>& records, std::size_t firstPixel,
-                               std::size_t samplesPerPixel, EyeVertexBuffer& out, std::vector<std::size_t>& slot,
-                               PassContext& ctx) {
-        const std::size_t count = records.size();
-        slot.resize(count);
-        std::size_t stored = out.size();
-        const std::size_t before = stored;
-        for (std::size_t i = 0; i < count; ++i) {
-            slot[i] = stored;
-            if (records[i].valid) ++stored;
-        }
-        out.resize(stored);
-        const auto position = out.column<EyePosition>();
-        const auto normal = out.column<EyeNormal>();
-        const auto geometricNormal = out.column<EyeGeometricNormal>();
-        const auto outgoing = out.column<EyeOutgoing>();
-        const auto bsdf = out.column<EyeBsdf>();
-        const auto uv = out.column<EyeUv>();
-        const auto throughput = out.column<EyeThroughput>();
-        const auto pixelOf = out.column<EyePixel>();
-        jobs::parallelFor(count, 4096, [&](std::size_t i) {
-            const EyeRecord& r = records[i];
-            if (!r.valid) return;
-            const std::size_t v = slot[i];
-            position[v] = r.position;
-            normal[v] = r.normal;
-            geometricNormal[v] = r.geometricNormal;
-            outgoing[v] = r.outgoing;
-            bsdf[v] = r.bsdf;
-            uv[v] = r.uv;
-            throughput[v] = r.throughput;
-            pixelOf[v] = static_cast<std::uint32_t>(firstPixel + i / samplesPerPixel);
-        });
-        ctx.addCounter("eye_vertices", static_cast<std::int64_t>(stored - before));
-    }
-
     static void appendSegments(const std::vector<std::vector<SegmentRecord>>& chunks, SegmentBuffer& out,
                                PassContext& ctx) {
         std::size_t total = 0;
