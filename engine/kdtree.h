@@ -82,6 +82,11 @@ public:
     template <class F>
     void forEachInRadius(const Vec3& center, float radius, F&& visit) const;
 
+    // Calls visit(index) for every point with lo <= point <= hi on all three
+    // axes (an axis-aligned box, bounds inclusive). Order of visits is unspecified.
+    template <class F>
+    void forEachInBox(const Vec3& lo, const Vec3& hi, F&& visit) const;
+
     // The up to k points nearest to `center` with distance² <= maxRadius²,
     // ordered by (distance², index), written to the front of outIndices and
     // outDist2; returns how many. k is capped by the sizes of both spans. A
@@ -138,6 +143,36 @@ void KdTree::forEachInRadius(const Vec3& center, float radius, F&& visit) const 
             const std::uint32_t index = order_[i];
             const float d2 = distance2(center, points_[index]);
             if (d2 <= radius2) visit(index, d2);
+        }
+    }
+}
+
+template <class F>
+void KdTree::forEachInBox(const Vec3& lo, const Vec3& hi, F&& visit) const {
+    if (points_.empty() || !(lo.x <= hi.x && lo.y <= hi.y && lo.z <= hi.z)) return;
+    Range stack[kMaxDepth];
+    int top = 0;
+    stack[top++] = Range{0, 0, static_cast<std::uint32_t>(order_.size())};
+    while (top > 0) {
+        Range range = stack[--top];
+        while (range.end - range.begin > leafSize_) {
+            const Split split = splits_[range.node];
+            const int axis = static_cast<int>(split.axis);
+            const std::uint32_t mid = range.begin + (range.end - range.begin) / 2;
+            const bool goLeft = lo[axis] <= split.value, goRight = hi[axis] >= split.value;
+            const Range left{2 * range.node + 1, range.begin, mid};
+            const Range right{2 * range.node + 2, mid, range.end};
+            if (goLeft && goRight) {
+                stack[top++] = right;
+                range = left;
+            } else {
+                range = goLeft ? left : right;
+            }
+        }
+        for (std::uint32_t i = range.begin; i != range.end; ++i) {
+            const std::uint32_t index = order_[i];
+            const Vec3& p = points_[index];
+            if (p.x >= lo.x && p.x <= hi.x && p.y >= lo.y && p.y <= hi.y && p.z >= lo.z && p.z <= hi.z) visit(index);
         }
     }
 }

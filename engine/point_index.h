@@ -58,6 +58,12 @@ public:
         search_.forEachInRadius(center, radius, [&](std::uint32_t local, float d2) { visit(id(local), d2); });
     }
 
+    // visit(id) for every indexed point inside the box [lo, hi] (bounds inclusive).
+    template <class F>
+    void forEachInBox(const Vec3& lo, const Vec3& hi, F&& visit) const {
+        search_.forEachInBox(lo, hi, [&](std::uint32_t local) { visit(id(local)); });
+    }
+
     // The up to k nearest indexed points with distance² <= maxRadius² (which
     // may be infinite), ordered by (distance², id); returns how many.
     std::size_t nearest(const Vec3& center, std::size_t k, float maxRadius, std::span<std::uint32_t> outIds,

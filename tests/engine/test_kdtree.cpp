@@ -224,6 +224,38 @@ TEST(KdTree, RangeQueriesMatchBruteForce) {
     }
 }
 
+TEST(KdTree, BoxQueriesMatchBruteForce) {
+    for (const PointSet& set : pointSets()) {
+        const std::vector<Vec3> centers = queryCenters(set.points, 300, 23);
+        for (std::uint32_t leaf : kLeafSizes) {
+            SCOPED_TRACE(set.name + ", leaf size " + std::to_string(leaf));
+            const KdTree tree(set.points, {.maxLeafSize = leaf});
+            jobs::Rng rng = makeRng(24);
+            std::size_t nonEmpty = 0;
+            for (std::size_t q = 0; q < centers.size(); ++q) {
+                // Flat, thin, cubic and empty boxes; on the lattice, faces through points.
+                Vec3 half(set.scale * 3.0f * rng.uniform(), set.scale * 3.0f * rng.uniform(),
+                          set.scale * 3.0f * rng.uniform());
+                if (q % 4 == 0) half[static_cast<int>(q % 3)] = 0.0f;
+                if (q % 7 == 1) half = Vec3(set.scale * float(q % 3));
+                Vec3 lo = centers[q] - half, hi = centers[q] + half;
+                if (q % 11 == 2) std::swap(lo.x, hi.x);  // inverted: finds nothing unless flat
+                std::vector<std::uint32_t> expected, actual;
+                for (std::size_t i = 0; i < set.points.size(); ++i) {
+                    const Vec3& p = set.points[i];
+                    if (p.x >= lo.x && p.x <= hi.x && p.y >= lo.y && p.y <= hi.y && p.z >= lo.z && p.z <= hi.z)
+                        expected.push_back(static_cast<std::uint32_t>(i));
+                }
+                tree.forEachInBox(lo, hi, [&](std::uint32_t index) { actual.push_back(index); });
+                std::sort(actual.begin(), actual.end());
+                ASSERT_EQ(actual, expected) << "query " << q;
+                nonEmpty += !expected.empty();
+            }
+            EXPECT_GT(nonEmpty, centers.size() / 4);
+        }
+    }
+}
+
 TEST(KdTree, NearestQueriesMatchBruteForce) {
     const float unlimited = std::numeric_limits<float>::infinity();
     for (const PointSet& set : pointSets()) {
