@@ -58,6 +58,8 @@ public:
         return reflectance_->eval(uv) * (kInvPi * wi.z);
     }
 
+    std::optional<Rgb> constantReflectance(const Vec2& uv) const override { return reflectance_->eval(uv) * kInvPi; }
+
     float pdf(const Vec3& wo, const Vec3& wi, const Vec2&) const override {
         if (wo.z <= 0.0f || wi.z <= 0.0f) return 0.0f;
         return cosineHemispherePdf(wi.z);

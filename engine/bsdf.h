@@ -52,6 +52,14 @@ public:
     virtual std::optional<BsdfSample> sample(const Vec3& wo, const Vec2& uv, float uLobe, const Vec2& u,
                                              TransportMode mode) const = 0;
 
+    // f_r itself when it is one constant for every pair of directions on the
+    // reflecting side (wo.z > 0, wi.z > 0: a Lambertian BRDF), so that callers
+    // evaluating one shading point many times can cache it; nullopt otherwise.
+    virtual std::optional<Rgb> constantReflectance(const Vec2& uv) const {
+        (void)uv;
+        return std::nullopt;
+    }
+
     bool isNull() const { return lobes() == BsdfLobe::Null; }
     bool hasSmoothLobe() const { return (lobes() & (BsdfLobe::Diffuse | BsdfLobe::Glossy)) != 0; }
     bool isPurelySpecular() const { return !hasSmoothLobe() && !isNull(); }

@@ -184,7 +184,8 @@ Job parseJob(const std::string& text, const std::string& path, const JobOverride
     job.path = path;
     job.text = text;
     job.overrides = overrides.sets;
-    r.checkKeys(root, "", {"scene", "scene_defines", "pipeline", "seed", "threads", "film", "output", "passes"});
+    r.checkKeys(root, "", {"scene", "scene_defines", "pipeline", "seed", "threads", "stream_batches", "film", "output",
+                           "passes"});
 
     const toml::node* sceneNode = root.get("scene");
     if (!sceneNode) throw InputError(path + ": missing required key 'scene'");
@@ -263,6 +264,8 @@ Job parseJob(const std::string& text, const std::string& path, const JobOverride
     } else {
         r.fail(*pipelineNode, "pipeline", "'pipeline' must be a pipeline name or a [pipeline] table");
     }
+
+    job.pipeline.streamBatches = r.getBool(root, "stream_batches", "stream_batches", true);
 
     if (const toml::table* film = r.getTable(root, "film", "film")) {
         r.checkKeys(*film, "film.", {"width", "height", "filter", "filter_radius", "gaussian_sigma"});

@@ -3,6 +3,7 @@
 // without pulling in every registered pass.
 #include "engine/pass.h"
 
+#include <algorithm>
 #include <cmath>
 #include <sstream>
 #include <stdexcept>
@@ -77,6 +78,15 @@ const RayQuery& PassContext::rays() const {
 
 void PassContext::reportProgress(double fraction) const {
     if (progress_) progress_(instance_, fraction);
+}
+
+bool PassContext::streamed(const std::string& outputSlot) const {
+    return std::find(streamedOutputs_.begin(), streamedOutputs_.end(), outputSlot) != streamedOutputs_.end();
+}
+
+void PassContext::emitErased(const std::string& slot, std::shared_ptr<void> batch, std::size_t bytes) {
+    if (!batchSink_) throw std::logic_error("pass '" + instance_ + "' emitted a batch, but nothing reads its batches");
+    batchSink_(slot, std::move(batch), bytes);
 }
 
 BufferHandle* PassContext::checked(const std::map<std::string, BufferHandle*>& slots, const std::string& slot,

@@ -10,6 +10,7 @@
 #include <cstdint>
 #include <functional>
 #include <map>
+#include <stdexcept>
 #include <memory>
 #include <string>
 #include <typeindex>
@@ -39,6 +40,10 @@ struct SlotSpec {
     std::string name;
     std::string type;  // e.g. "Film", "PhotonBuffer"; must match between producer and consumer
     std::string doc;
+    // Output: the pass can hand the buffer over in batches (PassContext::emitBatch).
+    // Input: the pass reads it in Pass::consumeBatch, one batch at a time. A buffer
+    // whose producer and every reader say so is streamed: never stored whole.
+    bool streamable = false;
 };
 
 struct PassSpec {
@@ -106,7 +111,10 @@ public:
 
     template <class T>
     const T& input(const std::string& slot) const {
-        return *static_cast<const T*>(checked(inputs_, slot, BufferTypeName<T>::value, "input")->data.get());
+        const BufferHandle* handle = checked(inputs_, slot, BufferTypeName<T>::value, "input");
+        if (!handle->data)
+            throw std::logic_error("input '" + slot + "' of '" + instance_ + "' is streamed: read it in consumeBatch");
+        return *static_cast<const T*>(handle->data.get());
     }
     // Creates the output buffer (constructed from args) and returns it.
     template <class T, class... Args>
@@ -125,6 +133,24 @@ public:
     // Named counters reported with the pass's statistics (e.g. path vertices); pass thread only.
     void addCounter(const std::string& name, std::int64_t n) { counters_[name] += n; }
     const std::map<std::string, std::int64_t>& counters() const { return counters_; }
+    // Streamed outputs. When the scheduler streams an output (its producer slot and
+    // every reader's slot are streamable), the pass must not createOutput() it but
+    // hand it over with emitBatch(), as often as it likes; each batch is given to
+    // every reader's consumeBatch() before emitBatch returns, then dropped.
+    bool streamed(const std::string& outputSlot) const;
+    template <class T>
+    void emitBatch(const std::string& slot, std::shared_ptr<const T> batch) {
+        checked(outputs_, slot, BufferTypeName<T>::value, "output");
+        if (!streamed(slot)) throw std::logic_error("output '" + slot + "' of '" + instance_ + "' is not streamed");
+        const std::size_t bytes = batch->bytes();
+        emitErased(slot, std::const_pointer_cast<void>(std::static_pointer_cast<const void>(std::move(batch))), bytes);
+    }
+    using BatchSink = std::function<void(const std::string& slot, std::shared_ptr<void> batch, std::size_t bytes)>;
+    void setBatchSink(std::vector<std::string> streamedOutputs, BatchSink sink) {
+        streamedOutputs_ = std::move(streamedOutputs);
+        batchSink_ = std::move(sink);
+    }
+
     // Progress in [0, 1] of a long pass, shown as a bar on a terminal.
     void reportProgress(double fraction) const;
     void setProgressSink(std::function<void(const std::string&, double)> sink) { progress_ = std::move(sink); }
@@ -132,6 +158,7 @@ public:
 private:
     static BufferHandle* checked(const std::map<std::string, BufferHandle*>& slots, const std::string& slot,
                                  const char* type, const char* kind);
+    void emitErased(const std::string& slot, std::shared_ptr<void> batch, std::size_t bytes);
     const Scene& scene_;
     const RayQuery* rays_;
     const FilmSettings& film_;
@@ -143,11 +170,20 @@ private:
     std::int64_t items_ = 0;
     std::map<std::string, std::int64_t> counters_;
     std::function<void(const std::string&, double)> progress_;
+    std::vector<std::string> streamedOutputs_;
+    BatchSink batchSink_;
 };
 
 class Pass {
 public:
     virtual ~Pass() = default;
+    // Called once per batch of each streamable input before run(): the batch is
+    // context.input<T>(slot) for the duration of the call. A stored (not streamed)
+    // input arrives as one batch holding the whole buffer.
+    virtual void consumeBatch(PassContext& context, const std::string& slot) {
+        (void)context;
+        (void)slot;
+    }
     virtual void run(PassContext& context) = 0;
 };
 
@@ -175,6 +211,7 @@ struct Pipeline {
     std::string doc;
     std::vector<PipelineNode> nodes;
     std::vector<std::string> results;  // buffers the run must produce (the images written out)
+    bool streamBatches = true;  // stream buffers whose producer and readers allow it (job key stream_batches)
 };
 
 // Built-in pipelines (passes/pipelines.cpp).

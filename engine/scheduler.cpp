@@ -236,7 +236,91 @@ ExecutionPlan ExecutionPlan::build(const Pipeline& pipeline, const JobParams& pa
         for (int d : plan.passes_[static_cast<std::size_t>(i)].dependencies) stack.push_back(d);
     }
     for (std::size_t i = 0; i < n; ++i) plan.passes_[i].culled = !needed[i];
+    if (pipeline.streamBatches) plan.chooseStreams();
     return plan;
+}
+
+bool ExecutionPlan::streamed(const std::string& buffer) const {
+    const auto it = producer_.find(buffer);
+    if (it == producer_.end()) return false;
+    const PlannedPass& p = passes_[static_cast<std::size_t>(it->second)];
+    for (const std::string& slot : p.streamedOutputs)
+        if (slotBuffer(p.node.outputBindings, slot) == buffer) return true;
+    return false;
+}
+
+// Tasks after fusing stream readers into their producers' tasks must still
+// form a DAG: a reader whose other inputs come from downstream of the
+// producer cannot run inside it.
+bool ExecutionPlan::fusedTasksAcyclic() const {
+    const std::size_t n = passes_.size();
+    const auto task = [&](std::size_t i) {
+        return passes_[i].streamHost >= 0 ? static_cast<std::size_t>(passes_[i].streamHost) : i;
+    };
+    std::vector<std::set<std::size_t>> successors(n);
+    std::vector<int> indegree(n, 0);
+    for (std::size_t i = 0; i < n; ++i) {
+        if (passes_[i].culled) continue;
+        for (int d : passes_[i].dependencies) {
+            const std::size_t from = task(static_cast<std::size_t>(d)), to = task(i);
+            if (from != to && successors[from].insert(to).second) ++indegree[to];
+        }
+    }
+    std::vector<std::size_t> ready;
+    std::size_t tasks = 0, visited = 0;
+    for (std::size_t i = 0; i < n; ++i) {
+        if (passes_[i].culled || task(i) != i) continue;
+        ++tasks;
+        if (indegree[i] == 0) ready.push_back(i);
+    }
+    while (!ready.empty()) {
+        const std::size_t t = ready.back();
+        ready.pop_back();
+        ++visited;
+        for (std::size_t s : successors[t])
+            if (--indegree[s] == 0) ready.push_back(s);
+    }
+    return visited == tasks;
+}
+
+void ExecutionPlan::chooseStreams() {
+    for (int i : order_) {
+        PlannedPass& producer = passes_[static_cast<std::size_t>(i)];
+        if (producer.culled || producer.streamHost >= 0) continue;
+        for (const SlotSpec& out : producer.registration->spec.outputs) {
+            if (!out.streamable) continue;
+            const std::string buffer = slotBuffer(producer.node.outputBindings, out.name);
+            if (std::find(pipeline_.results.begin(), pipeline_.results.end(), buffer) != pipeline_.results.end())
+                continue;
+            std::vector<std::size_t> readers;
+            bool allStreamable = true;
+            for (std::size_t j = 0; j < passes_.size(); ++j) {
+                const PlannedPass& reader = passes_[j];
+                if (reader.culled) continue;
+                for (const SlotSpec& in : reader.registration->spec.inputs) {
+                    if (slotBuffer(reader.node.inputBindings, in.name) != buffer) continue;
+                    if (readers.empty() || readers.back() != j) readers.push_back(j);
+                    allStreamable = allStreamable && in.streamable;
+                }
+            }
+            // A reader that streams its own outputs, or is already fed by another producer, stays separate.
+            const bool hostable = std::all_of(readers.begin(), readers.end(), [&](std::size_t j) {
+                const PlannedPass& reader = passes_[j];
+                return (reader.streamHost < 0 || reader.streamHost == i) && reader.streamedOutputs.empty();
+            });
+            if (readers.empty() || !allStreamable || !hostable) continue;
+            std::vector<int> previousHosts;
+            for (std::size_t j : readers) {
+                previousHosts.push_back(passes_[j].streamHost);
+                passes_[j].streamHost = i;
+            }
+            if (fusedTasksAcyclic()) {
+                producer.streamedOutputs.push_back(out.name);
+            } else {
+                for (std::size_t k = 0; k < readers.size(); ++k) passes_[readers[k]].streamHost = previousHosts[k];
+            }
+        }
+    }
 }
 
 std::string ExecutionPlan::toDot() const {
@@ -251,8 +335,10 @@ std::string ExecutionPlan::toDot() const {
         for (const SlotSpec& in : p.registration->spec.inputs) {
             const std::string buffer = slotBuffer(p.node.inputBindings, in.name);
             const PlannedPass& from = passes_[static_cast<std::size_t>(producer_.at(buffer))];
+            const bool isStreamed = streamed(buffer);
             dot << "  \"" << from.node.instance << "\" -> \"" << p.node.instance << "\" [label=\"" << buffer
-                << " : " << in.type << "\"];\n";
+                << " : " << in.type << (isStreamed ? " (batches)" : "") << "\"" << (isStreamed ? ", style=bold" : "")
+                << "];\n";
         }
     }
     for (const std::string& result : pipeline_.results) {
@@ -267,6 +353,50 @@ std::string ExecutionPlan::toDot() const {
 RunResult execute(const ExecutionPlan& plan, const Scene& scene, const RayQuery& rays, const RunOptions& options) {
     return execute(plan, scene, &rays, options);
 }
+
+namespace {
+
+// One pass instance while it runs: its context, its time so far (possibly in
+// several pieces: the batches it consumed inside its producer's task, then its
+// own run) and the stand-in handles its streamed inputs point at.
+struct PassRun {
+    std::unique_ptr<Pass> instance;
+    std::unique_ptr<PassContext> ctx;
+    std::map<std::string, BufferHandle*> inputs, outputs;
+    std::map<std::string, BufferHandle> streamedInputs;  // slot -> handle holding the current batch
+    jobs::WorkContext work;
+    std::int64_t firstStart = -1;
+    std::int64_t wallNs = 0;
+    std::int64_t serialCpuNs = 0;
+    std::int64_t batchWallNs = 0;  // wall time of readers' batches run inside this pass
+    std::size_t largestBatchBytes = 0;
+    std::int64_t batches = 0;
+};
+
+// Runs body() booked to `run`: wall time, and this thread's CPU time less the
+// chunks it ran (booked to their own passes) and less nested timed bodies.
+template <class Body>
+void timed(PassRun& run, const std::string& label, Body&& body) {
+    const std::int64_t wall0 = jobs::wallNanos();
+    const std::int64_t cpu0 = jobs::threadCpuNanos();
+    const std::int64_t chunkCpu0 = jobs::chunkCpuOnThisThread();
+    const std::int64_t nestedCpu0 = tPassSerialCpu;
+    {
+        jobs::ScopedContext scope(&run.work);
+        body();
+    }
+    const std::int64_t wall1 = jobs::wallNanos();
+    const std::int64_t serialCpu =
+        (jobs::threadCpuNanos() - cpu0) - (jobs::chunkCpuOnThisThread() - chunkCpu0) - (tPassSerialCpu - nestedCpu0);
+    tPassSerialCpu += serialCpu;
+    run.serialCpuNs += serialCpu;
+    run.wallNs += wall1 - wall0;
+    if (run.firstStart < 0) run.firstStart = wall0;
+    if (jobs::TraceRecorder::instance().enabled())
+        jobs::TraceRecorder::instance().record({label, "pass", jobs::threadSlot(), wall0, wall1, 0});
+}
+
+}  // namespace
 
 RunResult execute(const ExecutionPlan& plan, const Scene& scene, const RayQuery* rays, const RunOptions& options) {
     const auto& passes = plan.passes();
@@ -287,78 +417,132 @@ RunResult execute(const ExecutionPlan& plan, const Scene& scene, const RayQuery*
     }
     std::mutex bufferMutex;  // guards freeing against concurrent lookups
 
+    // Readers each pass hosts (streams), in topological order.
+    std::vector<std::vector<std::size_t>> hosted(n);
+    for (int i : plan.topologicalOrder()) {
+        const PlannedPass& p = passes[static_cast<std::size_t>(i)];
+        if (!p.culled && p.streamHost >= 0) hosted[static_cast<std::size_t>(p.streamHost)].push_back(static_cast<std::size_t>(i));
+    }
+
     RunResult result;
     std::vector<PassStats> stats(n);
+    std::vector<PassRun> runs(n);
     const std::int64_t runStart = jobs::wallNanos();
+
+    const auto prepare = [&](std::size_t i) {
+        const PlannedPass& pass = passes[i];
+        PassRun& run = runs[i];
+        {
+            std::lock_guard lock(bufferMutex);
+            for (const SlotSpec& in : pass.registration->spec.inputs) {
+                const std::string buffer = slotBuffer(pass.node.inputBindings, in.name);
+                if (plan.streamed(buffer)) {
+                    BufferHandle& standIn = run.streamedInputs[in.name];
+                    standIn.type = in.type;
+                    run.inputs[in.name] = &standIn;
+                } else {
+                    run.inputs[in.name] = &buffers.at(buffer);
+                }
+            }
+            for (const SlotSpec& out : pass.registration->spec.outputs)
+                run.outputs[out.name] = &buffers.at(slotBuffer(pass.node.outputBindings, out.name));
+        }
+        run.ctx = std::make_unique<PassContext>(scene, rays, options.film, options.seed, pass.params, run.inputs,
+                                                run.outputs, pass.node.instance);
+        if (options.progress) run.ctx->setProgressSink(options.progress);
+        run.work.label = pass.node.instance;
+        run.instance = pass.registration->create();
+        // Stored inputs a pass could also read in batches arrive as one batch.
+        for (const SlotSpec& in : pass.registration->spec.inputs) {
+            if (in.streamable && !plan.streamed(slotBuffer(pass.node.inputBindings, in.name)))
+                timed(run, pass.node.instance, [&] { run.instance->consumeBatch(*run.ctx, in.name); });
+        }
+    };
+
+    const auto finish = [&](std::size_t i) {
+        const PlannedPass& pass = passes[i];
+        PassRun& run = runs[i];
+        PassStats& s = stats[i];
+        s.instance = pass.node.instance;
+        s.pass = pass.node.pass;
+        s.startSeconds = 1e-9 * static_cast<double>(run.firstStart - runStart);
+        s.wallSeconds = 1e-9 * static_cast<double>(run.wallNs - run.batchWallNs);
+        s.cpuSeconds = 1e-9 * static_cast<double>(run.serialCpuNs + run.work.chunkCpuNs.load());
+        s.items = run.ctx->items();
+        s.counters = run.ctx->counters();
+        s.batchesEmitted = run.batches;
+        s.outputBytes = run.largestBatchBytes;
+        for (const auto& [slot, handle] : run.outputs) {
+            if (std::find(pass.streamedOutputs.begin(), pass.streamedOutputs.end(), slot) != pass.streamedOutputs.end())
+                continue;
+            if (!handle->data)
+                throw std::logic_error("pass '" + pass.node.instance + "' did not produce its output '" + slot + "'");
+            s.outputBytes += handle->bytes ? handle->bytes() : 0;
+        }
+        run.ctx.reset();
+        run.instance.reset();
+
+        // Free every input this pass was the last reader of.
+        std::lock_guard lock(bufferMutex);
+        for (const SlotSpec& in : pass.registration->spec.inputs) {
+            const std::string buffer = slotBuffer(pass.node.inputBindings, in.name);
+            if (--readers[buffer] == 0 && !results.count(buffer)) buffers[buffer].data.reset();
+        }
+        // Outputs nobody reads (side outputs of a needed pass) go at once.
+        for (const SlotSpec& out : pass.registration->spec.outputs) {
+            const std::string buffer = slotBuffer(pass.node.outputBindings, out.name);
+            if (readers[buffer] == 0 && !results.count(buffer)) buffers[buffer].data.reset();
+        }
+    };
+
     jobs::TaskGraph graph;
     std::vector<int> taskOf(n, -1);
     for (std::size_t i = 0; i < n; ++i) {
         const PlannedPass& p = passes[i];
-        if (p.culled) continue;
+        if (p.culled || p.streamHost >= 0) continue;
         taskOf[i] = graph.addTask([&, i] {
             const PlannedPass& pass = passes[i];
-            std::map<std::string, BufferHandle*> inputs, outputs;
-            {
-                std::lock_guard lock(bufferMutex);
-                for (const SlotSpec& in : pass.registration->spec.inputs)
-                    inputs[in.name] = &buffers.at(slotBuffer(pass.node.inputBindings, in.name));
-                for (const SlotSpec& out : pass.registration->spec.outputs)
-                    outputs[out.name] = &buffers.at(slotBuffer(pass.node.outputBindings, out.name));
+            for (std::size_t reader : hosted[i]) prepare(reader);
+            prepare(i);
+            PassRun& run = runs[i];
+            if (!pass.streamedOutputs.empty()) {
+                run.ctx->setBatchSink(pass.streamedOutputs, [&, i](const std::string& slot, std::shared_ptr<void> batch,
+                                                                   std::size_t bytes) {
+                    PassRun& producer = runs[i];
+                    const std::string buffer = slotBuffer(passes[i].node.outputBindings, slot);
+                    const std::int64_t wall0 = jobs::wallNanos();
+                    for (std::size_t j : hosted[i]) {
+                        const PlannedPass& reader = passes[j];
+                        for (const SlotSpec& in : reader.registration->spec.inputs) {
+                            if (slotBuffer(reader.node.inputBindings, in.name) != buffer) continue;
+                            BufferHandle& standIn = runs[j].streamedInputs.at(in.name);
+                            standIn.data = batch;
+                            timed(runs[j], reader.node.instance, [&] { runs[j].instance->consumeBatch(*runs[j].ctx, in.name); });
+                            standIn.data.reset();
+                        }
+                    }
+                    producer.batchWallNs += jobs::wallNanos() - wall0;
+                    producer.largestBatchBytes = std::max(producer.largestBatchBytes, bytes);
+                    ++producer.batches;
+                });
             }
-            PassContext ctx(scene, rays, options.film, options.seed, pass.params, inputs, outputs, pass.node.instance);
-            if (options.progress) ctx.setProgressSink(options.progress);
-
-            jobs::WorkContext work;
-            work.label = pass.node.instance;
-            const std::int64_t wall0 = jobs::wallNanos();
-            const std::int64_t cpu0 = jobs::threadCpuNanos();
-            const std::int64_t chunkCpu0 = jobs::chunkCpuOnThisThread();
-            const std::int64_t nestedCpu0 = tPassSerialCpu;
-            {
-                jobs::ScopedContext scope(&work);
-                auto instance = pass.registration->create();
-                instance->run(ctx);
-            }
-            const std::int64_t wall1 = jobs::wallNanos();
-            // This thread may have run chunks (booked to their own passes) and, while
-            // waiting, whole other passes: both are taken out of this pass's own time.
-            const std::int64_t serialCpu = (jobs::threadCpuNanos() - cpu0) -
-                                           (jobs::chunkCpuOnThisThread() - chunkCpu0) - (tPassSerialCpu - nestedCpu0);
-            tPassSerialCpu += serialCpu;
-
-            PassStats& s = stats[i];
-            s.instance = pass.node.instance;
-            s.pass = pass.node.pass;
-            s.startSeconds = 1e-9 * static_cast<double>(wall0 - runStart);
-            s.wallSeconds = 1e-9 * static_cast<double>(wall1 - wall0);
-            s.cpuSeconds = 1e-9 * static_cast<double>(serialCpu + work.chunkCpuNs.load());
-            s.items = ctx.items();
-            s.counters = ctx.counters();
-            for (const auto& [slot, handle] : outputs) {
-                if (!handle->data) {
-                    throw std::logic_error("pass '" + pass.node.instance + "' did not produce its output '" + slot + "'");
-                }
-                s.outputBytes += handle->bytes ? handle->bytes() : 0;
-            }
-            if (jobs::TraceRecorder::instance().enabled())
-                jobs::TraceRecorder::instance().record({pass.node.instance, "pass", jobs::threadSlot(), wall0, wall1, s.items});
-
-            // Free every input this pass was the last reader of.
-            std::lock_guard lock(bufferMutex);
-            for (const SlotSpec& in : pass.registration->spec.inputs) {
-                const std::string buffer = slotBuffer(pass.node.inputBindings, in.name);
-                if (--readers[buffer] == 0 && !results.count(buffer)) buffers[buffer].data.reset();
-            }
-            // Outputs nobody reads (side outputs of a needed pass) go at once.
-            for (const SlotSpec& out : pass.registration->spec.outputs) {
-                const std::string buffer = slotBuffer(pass.node.outputBindings, out.name);
-                if (readers[buffer] == 0 && !results.count(buffer)) buffers[buffer].data.reset();
+            timed(run, pass.node.instance, [&] { run.instance->run(*run.ctx); });
+            finish(i);
+            for (std::size_t reader : hosted[i]) {
+                timed(runs[reader], passes[reader].node.instance, [&] { runs[reader].instance->run(*runs[reader].ctx); });
+                finish(reader);
             }
         });
     }
+    for (std::size_t i = 0; i < n; ++i)
+        if (passes[i].streamHost >= 0 && !passes[i].culled) taskOf[i] = taskOf[static_cast<std::size_t>(passes[i].streamHost)];
+    std::set<std::pair<int, int>> edges;
     for (std::size_t i = 0; i < n; ++i) {
         if (taskOf[i] < 0) continue;
-        for (int d : passes[i].dependencies) graph.addEdge(taskOf[static_cast<std::size_t>(d)], taskOf[i]);
+        for (int d : passes[i].dependencies) {
+            const int from = taskOf[static_cast<std::size_t>(d)], to = taskOf[i];
+            if (from != to && edges.insert({from, to}).second) graph.addEdge(from, to);
+        }
     }
     graph.run();
     result.wallSeconds = 1e-9 * static_cast<double>(jobs::wallNanos() - runStart);

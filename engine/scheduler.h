@@ -1,7 +1,10 @@
 // The pass scheduler: validates a pipeline against the pass registry and the
 // job's parameters before any work is done, culls passes whose outputs nobody
 // needs, runs the rest as one task graph (independent passes concurrently),
-// frees every buffer after its last reader and times every pass.
+// frees every buffer after its last reader and times every pass. A buffer
+// whose producer can emit it in batches and whose readers can all consume
+// batches is streamed: the readers run inside the producer's task and see
+// each batch as it is made, so the buffer is never held whole.
 #pragma once
 
 #include "engine/pass.h"
@@ -29,6 +32,11 @@ struct PlannedPass {
     PassParams params;
     std::vector<int> dependencies;  // indices of producer passes
     bool culled = false;
+    // Output slots handed to their readers batch by batch instead of stored.
+    std::vector<std::string> streamedOutputs;
+    // A reader of streamed buffers runs inside the task of their producer (this
+    // index): it consumes each batch as it is emitted, then runs; -1 otherwise.
+    int streamHost = -1;
 };
 
 class ExecutionPlan {
@@ -41,9 +49,13 @@ public:
     const Pipeline& pipeline() const { return pipeline_; }
     const std::vector<PlannedPass>& passes() const { return passes_; }
     std::vector<int> topologicalOrder() const { return order_; }
+    // Whether `buffer` is handed over batch by batch (never stored whole).
+    bool streamed(const std::string& buffer) const;
     std::string toDot() const;
 
 private:
+    void chooseStreams();
+    bool fusedTasksAcyclic() const;
     Pipeline pipeline_;
     std::vector<PlannedPass> passes_;
     std::vector<int> order_;
@@ -57,7 +69,8 @@ struct PassStats {
     double wallSeconds = 0.0;
     double cpuSeconds = 0.0;    // summed over all threads that worked for the pass
     std::int64_t items = 0;
-    std::size_t outputBytes = 0;
+    std::size_t outputBytes = 0;  // of streamed outputs: the largest batch
+    std::int64_t batchesEmitted = 0;
     std::map<std::string, std::int64_t> counters;
 };
 

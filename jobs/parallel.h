@@ -54,6 +54,23 @@ void parallelFor(std::size_t n, std::size_t grain, Body&& body) {
     });
 }
 
+// The `blocks` contiguous blocks deterministicReduce splits [0, n) into: block b
+// is [b * per, (b + 1) * per) clipped to n, per = ceil(n / blocks); trailing
+// blocks may be empty. body(b, IndexRange) runs once per block, in parallel.
+// For callers that keep one accumulator per block across several calls (e.g.
+// across batches) and merge them in block order at the end.
+template <class Body>
+void parallelForBlocks(std::size_t n, std::size_t blocks, Body&& body) {
+    if (blocks == 0 || n == 0) return;
+    const std::size_t per = (n + blocks - 1) / blocks;
+    parallelForChunks(blocks, 1, [&](IndexRange r) {
+        for (std::size_t b = r.begin; b != r.end; ++b) {
+            const IndexRange items{std::min(n, b * per), std::min(n, (b + 1) * per)};
+            if (items.size() > 0) body(b, items);
+        }
+    });
+}
+
 // Splits [0, n) into `blocks` contiguous blocks (fewer if n is small), reduces
 // each into a fresh accumulator made by init(), calling body(acc, IndexRange),
 // and merges them with merge(total, part) in block order on the calling thread.

@@ -49,6 +49,13 @@
 // source, pmf(light) N. Photons whose footprint has collapsed are discarded
 // and counted.
 //
+// Batches. Paths are traced batch_size at a time. An output whose readers all
+// consume batches (the splat) is streamed: each batch's photons are handed
+// over as a PhotonMap of their own and dropped, so no map of all photons is
+// ever held (Frisvad et al. 2014, §2: splatting needs no photon map). With a
+// volume-photon target the powers are final only at the end, so streamed
+// maps are then handed over once, whole.
+//
 // Surfaces without a BSDF or with a `null` one are crossed without an event.
 //
 // Determinism: path i draws from the stream (seed, "photon", i); a batch is
@@ -70,7 +77,9 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <memory>
 #include <optional>
+#include <utility>
 #include <vector>
 
 namespace fg {
@@ -412,19 +421,45 @@ public:
                                  std::to_string(settings.volumeTarget) + " needs store = \"volume\" or \"all\"");
         }
 
-        PhotonMap& caustic = ctx.createOutput<PhotonMap>("caustic_photons");
-        PhotonMap& global = ctx.createOutput<PhotonMap>("global_photons");
-        PhotonMap& volume = ctx.createOutput<PhotonMap>("volume_photons");
-        caustic.emitted = global.emitted = volume.emitted = settings.photons;
-        caustic.hasDifferentials = settings.differentials;
-        global.hasDifferentials = volume.hasDifferentials = false;
+        // A streamed map is handed over after every batch and begun afresh; with a
+        // volume-photon target the powers are only known at the end, so it is
+        // handed over once, whole.
+        const auto openMap = [&](const char* slot, bool differentials) {
+            const bool streamed = ctx.streamed(slot);
+            auto map = streamed ? std::make_shared<PhotonMap>() : std::shared_ptr<PhotonMap>();
+            PhotonMap& target = streamed ? *map : ctx.createOutput<PhotonMap>(slot);
+            target.emitted = settings.photons;
+            target.hasDifferentials = differentials;
+            return std::pair<std::shared_ptr<PhotonMap>, PhotonMap*>(map, &target);
+        };
+        auto [causticBatch, causticMap] = openMap("caustic_photons", settings.differentials);
+        auto [globalBatch, globalMap] = openMap("global_photons", false);
+        auto [volumeBatch, volumeMap] = openMap("volume_photons", false);
+        std::pair<const char*, std::shared_ptr<PhotonMap>*> streams[] = {
+            {"caustic_photons", &causticBatch}, {"global_photons", &globalBatch}, {"volume_photons", &volumeBatch}};
+        PhotonMap* maps[] = {causticMap, globalMap, volumeMap};
+        const auto handOver = [&] {
+            for (std::size_t k = 0; k < 3; ++k) {
+                std::shared_ptr<PhotonMap>& batch = *streams[k].second;
+                if (!batch) continue;
+                if (!batch->photons.empty()) {
+                    const auto next = std::make_shared<PhotonMap>();
+                    next->emitted = batch->emitted;
+                    next->hasDifferentials = batch->hasDifferentials;
+                    ctx.emitBatch<PhotonMap>(streams[k].first, std::exchange(batch, next));
+                }
+                maps[k] = batch.get();
+            }
+        };
         if (scene.lights.empty() || !(scene.lightPower.total() > 0.0f)) {
             ctx.addItems(static_cast<std::int64_t>(settings.photons));
             return;
         }
 
         const PhotonTracer tracer(scene, ctx.rays(), settings, ctx.seed());
-        std::int64_t storedCaustic = 0, storedGlobal = 0, storedDirect = 0, segments = 0;
+        std::int64_t storedCaustic = 0, storedGlobal = 0, storedDirect = 0, storedVolume = 0, singleScattering = 0;
+        std::int64_t segments = 0;
+        std::uint64_t collapsed = 0;
         std::uint64_t emitted = 0;
         bool targetReached = false;
         for (std::uint64_t batchStart = 0; batchStart < settings.photons && !targetReached;) {
@@ -433,10 +468,10 @@ public:
                 // A pilot batch, then enough paths for the photons still missing at the rate
                 // seen so far (plus a margin), so that paths are not traced in vain. The sizes
                 // depend only on earlier results, and the photons not on the sizes.
-                const std::uint64_t missing = settings.volumeTarget - volume.photons.size();
-                const double rate = volume.photons.empty() ? 0.0
-                                                           : static_cast<double>(volume.photons.size()) /
-                                                                 static_cast<double>(batchStart);
+                const std::uint64_t missing = settings.volumeTarget - static_cast<std::uint64_t>(storedVolume);
+                const double rate = storedVolume == 0 ? 0.0
+                                                      : static_cast<double>(storedVolume) /
+                                                            static_cast<double>(batchStart);
                 const double estimate = rate > 0.0 ? 1.1 * static_cast<double>(missing) / rate + 1024.0
                                                    : static_cast<double>(batchStart == 0 ? kPilotPaths
                                                                                          : 8 * batchStart);
@@ -454,20 +489,24 @@ public:
             for (const ChunkResult& chunk : chunks) {
                 std::size_t takeVolume = chunk.volume.size();
                 std::uint64_t lastPath = ~std::uint64_t(0);
-                if (targetMode && volume.photons.size() + takeVolume >= settings.volumeTarget) {
-                    takeVolume = settings.volumeTarget - volume.photons.size();
+                if (targetMode && static_cast<std::uint64_t>(storedVolume) + takeVolume >= settings.volumeTarget) {
+                    takeVolume = static_cast<std::size_t>(settings.volumeTarget - static_cast<std::uint64_t>(storedVolume));
                     lastPath = chunk.volume[takeVolume - 1].path;
                     emitted = lastPath + 1;
                     targetReached = true;
                 }
                 const std::size_t takeCaustic = recordsUpTo(chunk.caustic, lastPath);
                 const std::size_t takeGlobal = recordsUpTo(chunk.global, lastPath);
-                append(caustic.photons, chunk.caustic, takeCaustic);
-                append(global.photons, chunk.global, takeGlobal);
-                append(volume.photons, chunk.volume, takeVolume);
-                caustic.collapsedFootprints += static_cast<std::uint64_t>(chunk.collapsedCaustic);
-                global.collapsedFootprints += static_cast<std::uint64_t>(chunk.collapsedGlobal);
+                append(maps[0]->photons, chunk.caustic, takeCaustic);
+                append(maps[1]->photons, chunk.global, takeGlobal);
+                append(maps[2]->photons, chunk.volume, takeVolume);
+                maps[0]->collapsedFootprints += static_cast<std::uint64_t>(chunk.collapsedCaustic);
+                maps[1]->collapsedFootprints += static_cast<std::uint64_t>(chunk.collapsedGlobal);
+                collapsed += static_cast<std::uint64_t>(chunk.collapsedCaustic + chunk.collapsedGlobal);
                 storedCaustic += static_cast<std::int64_t>(takeCaustic);
+                storedVolume += static_cast<std::int64_t>(takeVolume);
+                for (std::size_t k = 0; k < takeVolume; ++k)
+                    singleScattering += (chunk.volume[k].photonClass & PhotonClass::Direct) != 0;
                 for (std::size_t k = 0; k < takeGlobal; ++k)
                     ++(chunk.global[k].photonClass == PhotonClass::Direct ? storedDirect : storedGlobal);
                 segments += chunk.segments;
@@ -475,25 +514,24 @@ public:
             }
             ctx.addItems(static_cast<std::int64_t>(count));
             batchStart += count;
-            ctx.reportProgress(targetMode ? static_cast<double>(volume.photons.size()) /
+            if (!targetMode) handOver();
+            ctx.reportProgress(targetMode ? static_cast<double>(storedVolume) /
                                                 static_cast<double>(settings.volumeTarget)
                                           : static_cast<double>(batchStart) / static_cast<double>(settings.photons));
         }
-        for (PhotonMap* map : {&caustic, &global, &volume}) {
+        for (PhotonMap* map : maps) {
             renormalise(*map, settings.photons, emitted);
             map->emitted = emitted;
         }
+        handOver();
 
-        std::int64_t singleScattering = 0;
-        for (std::uint8_t c : volume.photons.column<PhotonClassColumn>()) singleScattering += (c & PhotonClass::Direct) != 0;
         ctx.addCounter("caustic_photons", storedCaustic);
         ctx.addCounter("global_photons", storedGlobal);
         ctx.addCounter("direct_photons", storedDirect);
-        ctx.addCounter("volume_photons", static_cast<std::int64_t>(volume.photons.size()));
+        ctx.addCounter("volume_photons", storedVolume);
         ctx.addCounter("single_scattering_photons", singleScattering);
         ctx.addCounter("emitted_paths", static_cast<std::int64_t>(emitted));
-        ctx.addCounter("collapsed_footprints",
-                       static_cast<std::int64_t>(caustic.collapsedFootprints + global.collapsedFootprints));
+        ctx.addCounter("collapsed_footprints", static_cast<std::int64_t>(collapsed));
         ctx.addCounter("photon_segments", segments);
     }
 };
@@ -506,11 +544,12 @@ PassRegistration photonPass() {
     spec.doc = "Photon tracing from all lights (by power) through surfaces and homogeneous media, with Russian "
                "roulette and optional photon differentials";
     spec.outputs = {
-        {"caustic_photons", "PhotonMap", "photons at smooth surfaces after only specular events (L S+ D), with footprints"},
+        {"caustic_photons", "PhotonMap", "photons at smooth surfaces after only specular events (L S+ D), with footprints",
+         true},
         {"global_photons", "PhotonMap",
-         "photons at smooth surfaces after a non-specular event (and direct photons with store_direct)"},
+         "photons at smooth surfaces after a non-specular event (and direct photons with store_direct)", true},
         {"volume_photons", "PhotonMap",
-         "photons at scattering events in media (class Volume); power includes sigma_s: Eq. 3 needs no sigma_s"},
+         "photons at scattering events in media (class Volume); power includes sigma_s: Eq. 3 needs no sigma_s", true},
     };
     spec.params = {
         {"photons", ParamType::Int, std::int64_t{1000000}, 1, 1e15, {},

@@ -22,16 +22,24 @@
 // differentials are orthogonal; for skewed footprints it falls short and
 // would miss vertices inside the ellipse, so the exact radius is used.
 //
+// The eye index is searched in the ellipse's bounding box (widened along the
+// photon's normal up to the radius), and candidates are held to the radius
+// too, so the vertices splatted are those of the sphere query, found with far
+// fewer candidates for flat, elongated footprints.
+//
 // Photons whose footprint has collapsed (zero area, or a normal lying in the
 // footprint's plane: Eq. 12 singular) are skipped and counted. The optional
 // topological-bias test of §3.3 discards vertices farther than
 // `max_normal_distance` from the photon's tangent plane, |n_p . (x - x_p)|.
 //
-// f_r is Bsdf::eval / |cos theta_i| (eval includes the cosine). The splat is
-// parallel over photons in fixed blocks whose per-pixel accumulators are
-// merged in block order (jobs::deterministicReduce); the block count depends
-// on the photon and pixel counts only, so the image is the same for any
-// thread count.
+// f_r is Bsdf::eval / |cos theta_i| (eval includes the cosine).
+//
+// Photons arrive in batches (§2: splatting needs no photon map; the photon
+// pass streams its batches here and drops them). Each batch is split into a
+// fixed number of blocks, block b splatting into per-pixel accumulator b, and
+// the accumulators are merged in block order at the end. The block count
+// depends on the pixel count only, so the image is the same for any thread
+// count (and for a stored map, given whole, as one batch).
 #include "passes/passes.h"
 #include "passes/photon_estimate.h"
 
@@ -56,6 +64,7 @@ struct Footprint {
     Vec3 row0{0.0f}, row1{0.0f};  // M_p
     float area = 0.0f;            // A_p
     float searchRadius = 0.0f;    // major semi-axis
+    Vec3 boxHalfExtent{0.0f};     // of the box around the ellipse that the eye index is searched in
 };
 
 std::optional<Footprint> photonFootprint(const Vec3& du, const Vec3& dv, const Vec3& normal) {
@@ -75,6 +84,20 @@ std::optional<Footprint> photonFootprint(const Vec3& du, const Vec3& dv, const V
     const double major2 = 0.5 * (sumSquares + std::sqrt(std::max(0.0, sumSquares * sumSquares - 4.0 * product * product)));
     // Widened a little: the filter-space test, not the range, decides.
     f.searchRadius = static_cast<float>(std::sqrt(major2) * (1.0 + 1e-4));
+    // Vertices that pass the filter-space test are x_p + alpha a + beta b + gamma n
+    // with alpha^2 + beta^2 < 1 (a, b = D_u x / 2, D_v x / 2; M_p maps n to 0), and
+    // within the search radius: |gamma| <= r / cos(n, a x b). Their box is the
+    // ellipse's own, sqrt(a_i^2 + b_i^2) on axis i, widened by the normal
+    // offsets, and never wider than the radius' cube. For a footprint on an
+    // axis-aligned floor it is far smaller than the sphere's.
+    const Vec3 unitNormal = glm::normalize(normal);
+    const float normalCosine = std::abs(glm::dot(unitNormal, spanned)) / rayArea;
+    for (int axis = 0; axis < 3; ++axis) {
+        const float ellipse = 0.5f * std::sqrt(sqr(du[axis]) + sqr(dv[axis]));
+        const float offNormal = normalCosine > 0.25f ? f.searchRadius * std::abs(unitNormal[axis]) / normalCosine
+                                                     : f.searchRadius;
+        f.boxHalfExtent[axis] = std::min(f.searchRadius, (ellipse + offNormal) * (1.0f + 1e-4f));
+    }
     if (!std::isfinite(f.searchRadius) || !std::isfinite(f.row0.x + f.row0.y + f.row0.z + f.row1.x + f.row1.y + f.row1.z))
         return std::nullopt;
     return f;
@@ -89,26 +112,31 @@ struct SplatAccumulator {
 
 class PhotonSplatPass final : public Pass {
 public:
-    void run(PassContext& ctx) override {
-        const Scene& scene = ctx.scene();
-        const EyeVertices& eyeVertices = ctx.input<EyeVertices>("eye_vertices");
-        const PointIndex& eyeIndex = ctx.input<PointIndex>("eye_index");
+    // One batch of caustic photons (all of them when the map is stored): block b
+    // of the batch splats into accumulator b, which lives for the whole pass.
+    void consumeBatch(PassContext& ctx, const std::string& slot) override {
+        if (slot != "caustic_photons") return;
         const PhotonMap& caustics = ctx.input<PhotonMap>("caustic_photons");
-        const Film& direct = ctx.input<Film>("direct");
-        const float maxNormalDistance = static_cast<float>(ctx.params().getFloat("max_normal_distance"));
-
-        if (!caustics.photons.empty() && !caustics.hasDifferentials) {
+        if (caustics.photons.empty()) return;
+        if (!caustics.hasDifferentials) {
             throw InputError("pass '" + ctx.instanceName() +
                              "': the caustic photon map carries no photon differentials, which splatting needs; "
                              "enable them in the photon pass");
         }
-        const EyeVertexView eye(eyeVertices.vertices);
+        const Scene& scene = ctx.scene();
+        const EyeVertexView eye(ctx.input<EyeVertices>("eye_vertices").vertices);
+        const PointIndex& eyeIndex = ctx.input<PointIndex>("eye_index");
         if (eyeIndex.size() != eye.size())
             throw std::logic_error("splat: the eye index was not built from these eye vertices");
-        Film& image = ctx.createOutput<Film>("image", direct);
-        const std::size_t pixelCount = image.pixelCount();
-        for (std::uint32_t pixel : eye.pixel)
-            if (pixel >= pixelCount) throw std::logic_error("splat: eye vertex outside the film");
+        const std::size_t pixelCount = ctx.input<Film>("direct").pixelCount();
+        if (blocks_.empty()) {
+            for (std::uint32_t pixel : eye.pixel)
+                if (pixel >= pixelCount) throw std::logic_error("splat: eye vertex outside the film");
+            const std::size_t blockBytes = std::max<std::size_t>(1, pixelCount * sizeof(Rgb));
+            blocks_.resize(std::clamp<std::size_t>(kAccumulatorBudget / blockBytes, 1, 64));
+            cacheLambertianVertices(scene, eye);
+        }
+        const float maxNormalDistance = static_cast<float>(ctx.params().getFloat("max_normal_distance"));
 
         const auto position = caustics.photons.column<PhotonPosition>();
         const auto incident = caustics.photons.column<PhotonIncident>();
@@ -119,55 +147,88 @@ public:
         const auto dv = caustics.photons.column<PhotonDv>();
         const std::size_t photonCount = position.size();
 
-        const std::size_t blockBytes = std::max<std::size_t>(1, pixelCount * sizeof(Rgb));
-        std::size_t blocks = std::clamp<std::size_t>(kAccumulatorBudget / blockBytes, 1, 64);
-        blocks = std::min(blocks, std::max<std::size_t>(1, (photonCount + 1023) / 1024));
-
-        const SplatAccumulator total = jobs::deterministicReduce<SplatAccumulator>(
-            photonCount, blocks, [&] { return SplatAccumulator{std::vector<Rgb>(pixelCount, Rgb(0.0f))}; },
-            [&](SplatAccumulator& acc, jobs::IndexRange range) {
-                for (std::size_t p = range.begin; p != range.end; ++p) {
-                    if (!countsAsIndirect(photonClass[p])) continue;
-                    const std::optional<Footprint> footprint = photonFootprint(du[p], dv[p], normal[p]);
-                    if (!footprint) {
-                        ++acc.collapsed;
-                        continue;
-                    }
-                    ++acc.splatted;
-                    const Rgb irradiance = power[p] / footprint->area;  // E_p
-                    const Vec3 xp = position[p];
-                    const Vec3 wi = incident[p];
-                    const Vec3 planeNormal = glm::normalize(normal[p]);
-                    eyeIndex.forEachInRadius(xp, footprint->searchRadius, [&](std::uint32_t v, float) {
-                        const Vec3 offset = eye.position[v] - xp;
-                        const float q0 = glm::dot(footprint->row0, offset);
-                        const float q1 = glm::dot(footprint->row1, offset);
-                        const float filterRadius2 = q0 * q0 + q1 * q1;
-                        if (!(filterRadius2 < 1.0f)) return;
-                        if (maxNormalDistance > 0.0f && std::abs(glm::dot(planeNormal, offset)) > maxNormalDistance)
-                            return;
-                        const Rgb f = VertexBrdf(scene, eye, v)(wi);
-                        if (isBlack(f)) return;
-                        const Rgb value = (kPi * silvermanKernel(filterRadius2)) * f * irradiance * eye.throughput[v];
-                        if (!isFinite(value)) return;
-                        acc.pixels[eye.pixel[v]] += value;
-                        ++acc.deposits;
-                    });
+        jobs::parallelForBlocks(photonCount, blocks_.size(), [&](std::size_t block, jobs::IndexRange range) {
+            SplatAccumulator& acc = blocks_[block];
+            if (acc.pixels.empty()) acc.pixels.assign(pixelCount, Rgb(0.0f));
+            for (std::size_t p = range.begin; p != range.end; ++p) {
+                if (!countsAsIndirect(photonClass[p])) continue;
+                const std::optional<Footprint> footprint = photonFootprint(du[p], dv[p], normal[p]);
+                if (!footprint) {
+                    ++acc.collapsed;
+                    continue;
                 }
-            },
-            [](SplatAccumulator& sum, const SplatAccumulator& part) {
-                for (std::size_t i = 0; i < sum.pixels.size(); ++i) sum.pixels[i] += part.pixels[i];
-                sum.splatted += part.splatted;
-                sum.collapsed += part.collapsed;
-                sum.deposits += part.deposits;
-            });
-
-        image.addToPixels(total.pixels, 1.0f);
+                ++acc.splatted;
+                const Rgb irradiance = power[p] / footprint->area;  // E_p
+                const Vec3 xp = position[p];
+                const Vec3 wi = incident[p];
+                const Vec3 planeNormal = glm::normalize(normal[p]);
+                const float radius2 = sqr(footprint->searchRadius);
+                const Vec3 lo = xp - footprint->boxHalfExtent, hi = xp + footprint->boxHalfExtent;
+                auto visitor = [&](std::uint32_t v) {
+                    const Vec3 offset = eye.position[v] - xp;
+                    if (!(glm::dot(offset, offset) <= radius2)) return;
+                    const float q0 = glm::dot(footprint->row0, offset);
+                    const float q1 = glm::dot(footprint->row1, offset);
+                    const float filterRadius2 = q0 * q0 + q1 * q1;
+                    if (!(filterRadius2 < 1.0f)) return;
+                    if (maxNormalDistance > 0.0f && std::abs(glm::dot(planeNormal, offset)) > maxNormalDistance)
+                        return;
+                    Rgb weight;  // pi f_r times the vertex's throughput
+                    if (lambertian_[v]) {
+                        if (!(glm::dot(wi, eye.normal[v]) > 1e-6f) || !(glm::dot(wi, eye.geometricNormal[v]) > 0.0f))
+                            return;
+                        weight = vertexWeight_[v];
+                    } else {
+                        weight = kPi * VertexBrdf(scene, eye, v)(wi) * eye.throughput[v];
+                    }
+                    if (isBlack(weight)) return;
+                    const Rgb value = silvermanKernel(filterRadius2) * weight * irradiance;
+                    if (!isFinite(value)) return;
+                    acc.pixels[eye.pixel[v]] += value;
+                    ++acc.deposits;
+                };
+                eyeIndex.forEachInBox(lo, hi, visitor);
+            }
+        });
         ctx.addItems(static_cast<std::int64_t>(photonCount));
+    }
+
+    void run(PassContext& ctx) override {
+        Film& image = ctx.createOutput<Film>("image", ctx.input<Film>("direct"));
+        SplatAccumulator total;
+        total.pixels.assign(image.pixelCount(), Rgb(0.0f));
+        for (const SplatAccumulator& part : blocks_) {
+            for (std::size_t i = 0; i < part.pixels.size(); ++i) total.pixels[i] += part.pixels[i];
+            total.splatted += part.splatted;
+            total.collapsed += part.collapsed;
+            total.deposits += part.deposits;
+        }
+        image.addToPixels(total.pixels, 1.0f);
         ctx.addCounter("splatted_photons", total.splatted);
         ctx.addCounter("collapsed_footprints", total.collapsed);
         ctx.addCounter("vertex_deposits", total.deposits);
     }
+
+private:
+    // A vertex splatted to thousands of times should not rebuild its shading
+    // frame and call the BSDF each time: at Lambertian vertices pi f_r times the
+    // throughput is one constant, valid for light from the side where both
+    // normals agree (VertexBrdf's conditions).
+    void cacheLambertianVertices(const Scene& scene, const EyeVertexView& eye) {
+        lambertian_.assign(eye.size(), 0);
+        vertexWeight_.assign(eye.size(), Rgb(0.0f));
+        jobs::parallelFor(eye.size(), 4096, [&](std::size_t v) {
+            const std::optional<Rgb> reflectance = scene.bsdfs[eye.bsdf[v]]->constantReflectance(eye.uv[v]);
+            if (!reflectance) return;
+            lambertian_[v] = 1;
+            // Seen from below its shading normal, a Lambertian surface reflects nothing.
+            if (glm::dot(eye.outgoing[v], eye.normal[v]) > 0.0f) vertexWeight_[v] = kPi * *reflectance * eye.throughput[v];
+        });
+    }
+
+    std::vector<SplatAccumulator> blocks_;
+    std::vector<std::uint8_t> lambertian_;
+    std::vector<Rgb> vertexWeight_;
 };
 
 }  // namespace
@@ -180,7 +241,8 @@ PassRegistration splatPass() {
     spec.inputs = {
         {"eye_vertices", "EyeVertices", "the vertices photons are splatted to, with pixel and throughput"},
         {"eye_index", "PointIndex", "search structure over eye_vertices"},
-        {"caustic_photons", "PhotonMap", "caustic photons with positional differentials D_u x, D_v x"},
+        {"caustic_photons", "PhotonMap", "caustic photons with positional differentials D_u x, D_v x (read in batches)",
+         true},
         {"direct", "Film", "the film the splats are added to"},
     };
     spec.outputs = {{"image", "Film", "direct + splatted caustics"}};

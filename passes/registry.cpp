@@ -30,7 +30,10 @@ Pipeline spmPipeline() {
 
 // Photon differential splatting: caustic photons are splatted onto the indexed
 // eye vertices; the rest of the indirect light comes from gathering the global
-// map, added on top of the splatted film.
+// map, added on top of the splatted film. The caustic map is streamed: the
+// splat runs inside the photon pass's task and takes each batch as it is
+// traced (so the photon pass starts once the eye index is built), and no map
+// of all caustic photons exists (Frisvad et al. 2014, §2).
 Pipeline pdsPipeline() {
     return {"pds",
             "photon differential splatting for caustics + global photon map gathering for other indirect light",

@@ -21,9 +21,12 @@ void printPasses() {
     for (const fg::PassRegistration& r : fg::passRegistry()) {
         const fg::PassSpec& s = r.spec;
         std::cout << s.name << " — " << s.doc << "\n";
-        for (const auto& in : s.inputs) std::cout << "  in   " << in.name << " : " << in.type << "  " << in.doc << "\n";
+        for (const auto& in : s.inputs)
+            std::cout << "  in   " << in.name << " : " << in.type << (in.streamable ? " (batches)" : "") << "  " << in.doc
+                      << "\n";
         for (const auto& out : s.outputs)
-            std::cout << "  out  " << out.name << " : " << out.type << "  " << out.doc << "\n";
+            std::cout << "  out  " << out.name << " : " << out.type << (out.streamable ? " (batches)" : "") << "  "
+                      << out.doc << "\n";
         for (const auto& p : s.params) {
             std::cout << "  param " << p.name << " : " << fg::toString(p.type) << " = " << fg::toString(p.defaultValue);
             if (p.type == fg::ParamType::Int || p.type == fg::ParamType::Float) std::cout << "  " << fg::describeRange(p);

@@ -6,7 +6,10 @@
 #include "engine/light.h"
 #include "engine/photon_buffers.h"
 #include "engine/point_index.h"
+#include "engine/ray_query.h"
 #include "engine/scene.h"
+#include "engine/scene_loader.h"
+#include "engine/scheduler.h"
 #include "jobs/parallel.h"
 #include "passes/passes.h"
 #include "tests/support/pass_helpers.h"
@@ -14,6 +17,8 @@
 
 #include <glm/gtc/matrix_transform.hpp>
 #include <gtest/gtest.h>
+
+#include <filesystem>
 
 namespace fg {
 namespace {
@@ -271,6 +276,56 @@ TEST(PhotonSplat, PdsPipelineSplatsCausticsAndGathersGlobalLight) {
     }
     const glm::dvec3 globalMean = globalSum / static_cast<double>(image.size());
     for (int c = 0; c < 3; ++c) EXPECT_NEAR(globalMean[c] / globalL[c], 1.0, 0.03) << "channel " << c;
+}
+
+// The real photon pass feeding the splat on water-wave, in small batches: the
+// caustic map is streamed (never stored whole), the image is the one splatting
+// the stored map gives, up to the order of floating-point sums, and it is the
+// same for one and two threads.
+TEST(PhotonSplat, PdsStreamsCausticPhotonsBatchByBatch) {
+    const Scene scene = loadScene((std::filesystem::path(FLUXGRAPH_SOURCE_DIR) / "data" / "water-wave" /
+                                   "water-wave.xml").string());
+    const RayQuery rays(scene);
+    JobParams params;
+    params.values["eye"]["spp"] = {std::int64_t{1}, "test"};
+    params.values["photon"]["photons"] = {std::int64_t{120000}, "test"};
+    params.values["photon"]["batch_size"] = {std::int64_t{8192}, "test"};
+    params.values["photon"]["store"] = {std::string("caustic"), "test"};
+    RunOptions options;
+    options.film = film(32, 32);
+    const auto render = [&](bool stream, int threads, std::vector<PassStats>* stats = nullptr) {
+        Pipeline pipeline = pdsPipeline();
+        pipeline.streamBatches = stream;
+        const ExecutionPlan plan = ExecutionPlan::build(pipeline, params, "test");
+        EXPECT_EQ(plan.streamed("caustic_photons"), stream);
+        EXPECT_FALSE(plan.streamed("global_photons"));  // the global map is gathered, so stored
+        const jobs::ThreadLimit limit(threads);
+        RunResult run = execute(plan, scene, rays, options);
+        if (stats) *stats = run.stats;
+        return bufferAs<Film>(run.results.at("image")).resolve();
+    };
+    std::vector<PassStats> streamedStats, storedStats;
+    const std::vector<Rgb> streamed = render(true, 2, &streamedStats);
+    const std::vector<Rgb> stored = render(false, 2, &storedStats);
+    const auto statsOf = [](const std::vector<PassStats>& all, const std::string& instance) {
+        return *std::find_if(all.begin(), all.end(), [&](const PassStats& s) { return s.instance == instance; });
+    };
+    const PassStats photon = statsOf(streamedStats, "photon");
+    const std::int64_t causticPhotons = photon.counters.at("caustic_photons");
+    ASSERT_GT(causticPhotons, 3000);
+    EXPECT_EQ(photon.batchesEmitted, (120000 + 8191) / 8192);
+    // What the photon pass held at once: one batch, a small part of the map the stored run kept.
+    EXPECT_LT(photon.outputBytes * 5, statsOf(storedStats, "photon").outputBytes);
+    EXPECT_EQ(statsOf(streamedStats, "splat").counters.at("splatted_photons"), causticPhotons);
+
+    double sum = 0.0, difference = 0.0;
+    for (std::size_t i = 0; i < streamed.size(); ++i) {
+        sum += luminance(stored[i]);
+        difference += std::abs(luminance(streamed[i]) - luminance(stored[i]));
+    }
+    ASSERT_GT(sum, 0.0);
+    EXPECT_LT(difference / sum, 1e-5);
+    EXPECT_EQ(streamed, render(true, 1));
 }
 
 }  // namespace

@@ -26,7 +26,11 @@ std::map<std::string, BufferHandle> runPass(const PassRegistration& pass, const 
         out[slot.name] = &outputs[slot.name];
     }
     PassContext ctx(scene, rays, film, seed, resolved, in, out, pass.spec.name);
-    pass.create()->run(ctx);
+    // As the scheduler does with stored inputs: a streamable input arrives as one batch.
+    const std::unique_ptr<Pass> instance = pass.create();
+    for (const SlotSpec& slot : pass.spec.inputs)
+        if (slot.streamable) instance->consumeBatch(ctx, slot.name);
+    instance->run(ctx);
     return outputs;
 }
 
