@@ -166,6 +166,61 @@ TEST(PhotonSplat, CollapsedFootprintsAndMissingDifferentials) {
     EXPECT_THROW(splat(scene, grid.eye, caustics, film(11, 11)), InputError);
 }
 
+// Each eye vertex receives pi K f_r E_p times its throughput with its own BSDF:
+// Lambertian vertices (whose pi f_r throughput the splat caches), plastic and
+// rough metal (evaluated per deposit), seen from below their normal, or lit
+// from behind their geometric surface, side by side at the photon's centre.
+TEST(PhotonSplat, EachVertexUsesItsOwnBsdfAndSide) {
+    Scene scene;
+    scene.bsdfs.push_back(makeDiffuse(makeConstantTexture(kAlbedo)));
+    scene.bsdfs.push_back(makePlastic(makeConstantTexture(Rgb(0.2f, 0.4f, 0.6f)), 1.5f));
+    scene.bsdfs.push_back(makeRoughConductor(ConductorIor{Rgb(0.2f), Rgb(3.0f)}, 0.3f));
+    const Vec3 n(0, 0, 1);
+    const Vec3 wi = glm::normalize(Vec3(0.3f, -0.2f, 1.0f));
+    const Vec3 up = glm::normalize(Vec3(-0.2f, 0.1f, 1.0f));
+    struct VertexCase {
+        std::uint32_t bsdf;
+        Vec3 outgoing, normal, geometricNormal;
+        Rgb throughput;
+    };
+    const std::vector<VertexCase> cases = {
+        {0, up, n, n, Rgb(1.0f)},
+        {0, up, n, n, Rgb(0.5f, 2.0f, 1.0f)},
+        {1, up, n, n, Rgb(1.0f)},
+        {2, up, n, n, Rgb(0.7f)},
+        {0, glm::normalize(Vec3(0.2f, 0.0f, -1.0f)), n, n, Rgb(1.0f)},          // seen from below
+        {0, up, n, glm::normalize(Vec3(0.0f, -0.99f, -0.2f)), Rgb(1.0f)},       // light behind the geometry
+        {2, up, glm::normalize(Vec3(0.1f, 0.0f, 1.0f)), n, Rgb(1.0f)},          // shading normal tilted
+    };
+    auto eye = std::make_shared<EyeVertices>();
+    for (std::uint32_t i = 0; i < cases.size(); ++i) {
+        test::addEyeVertex(*eye, Vec3(0.0f), i, cases[i].throughput, cases[i].bsdf, cases[i].normal,
+                           cases[i].outgoing);
+        eye->vertices.column<EyeGeometricNormal>()[i] = cases[i].geometricNormal;
+    }
+    auto caustics = std::make_shared<PhotonMap>();
+    caustics->hasDifferentials = true;
+    const Rgb power(1.0f, 2.0f, 3.0f);
+    test::addPhoton(*caustics, Vec3(0.0f), wi, power, n, PhotonClass::Caustic, Vec3(0.2f, 0, 0), Vec3(0, 0.2f, 0));
+    const std::vector<Rgb> image = splat(scene, eye, caustics, film(static_cast<int>(cases.size()), 1));
+    const float area = 0.25f * kPi * 0.04f;
+    int lit = 0;
+    for (std::size_t i = 0; i < cases.size(); ++i) {
+        const VertexCase& c = cases[i];
+        const Frame frame(c.normal);
+        const Vec3 wiLocal = frame.toLocal(wi), woLocal = frame.toLocal(c.outgoing);
+        Rgb f(0.0f);
+        if (glm::dot(wi, c.geometricNormal) * wiLocal.z > 0.0f)
+            f = scene.bsdfs[c.bsdf]->eval(woLocal, wiLocal, Vec2(0.0f), TransportMode::Radiance) / std::abs(wiLocal.z);
+        // K(0) = 3 / pi.
+        const Rgb expected = kPi * (3.0f * kInvPi) * f * power / area * c.throughput;
+        for (int ch = 0; ch < 3; ++ch)
+            EXPECT_NEAR(image[i][ch], expected[ch], 1e-4f * (expected[ch] + 1e-3f)) << "vertex " << i;
+        lit += luminance(expected) > 0.0f ? 1 : 0;
+    }
+    EXPECT_EQ(lit, 5);  // the comparison covers lit and dark vertices
+}
+
 // Vertices off the photon's plane (as at a corner) are reached only while the
 // topological-bias test is off or lenient enough.
 TEST(PhotonSplat, TopologicalTestDropsVerticesOffThePhotonsPlane) {
