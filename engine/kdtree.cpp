@@ -233,7 +233,7 @@ void KdTree::build(std::span<const Vec3> positions, const BuildOptions& options)
     if (positions.size() > static_cast<std::size_t>(std::numeric_limits<std::int32_t>::max()))
         throw std::length_error("KdTree: more than 2^31 - 1 points");
     leafSize_ = std::max<std::uint32_t>(1, options.maxLeafSize);
-    points_ = {};
+    sorted_.clear();
     order_.clear();
     splits_.clear();
     const std::size_t n = positions.size();
@@ -261,21 +261,26 @@ void KdTree::build(std::span<const Vec3> positions, const BuildOptions& options)
         .buildNode(0, 0, static_cast<std::uint32_t>(n));
 
     std::vector<std::uint32_t> order(n);
-    jobs::parallelFor(n, kFillGrain, [&](std::size_t i) { order[i] = items[i].index; });
+    std::vector<Vec3> sorted(n);
+    jobs::parallelFor(n, kFillGrain, [&](std::size_t i) {
+        order[i] = items[i].index;
+        sorted[i] = items[i].position;
+    });
 
-    points_ = positions;
+    sorted_ = std::move(sorted);
     order_ = std::move(order);
     splits_ = std::move(splits);
 }
 
 std::size_t KdTree::bytes() const {
-    return order_.capacity() * sizeof(std::uint32_t) + splits_.capacity() * sizeof(Split);
+    return order_.capacity() * sizeof(std::uint32_t) + splits_.capacity() * sizeof(Split) +
+           sorted_.capacity() * sizeof(Vec3);
 }
 
 std::size_t KdTree::nearest(const Vec3& center, std::size_t k, float maxRadius, std::span<std::uint32_t> outIndices,
                             std::span<float> outDist2) const {
     k = std::min({k, outIndices.size(), outDist2.size()});
-    if (k == 0 || points_.empty() || !(maxRadius >= 0.0f)) return 0;
+    if (k == 0 || sorted_.empty() || !(maxRadius >= 0.0f)) return 0;
     // A NaN distance would pass every "too far?" test and poison the heap.
     if (!std::isfinite(center.x) || !std::isfinite(center.y) || !std::isfinite(center.z)) return 0;
     NeighbourHeap heap(outIndices.data(), outDist2.data(), k);
@@ -320,9 +325,9 @@ std::size_t KdTree::nearest(const Vec3& center, std::size_t k, float maxRadius, 
             }
         }
         for (std::uint32_t i = range.begin; i != range.end; ++i) {
-            const std::uint32_t index = order_[i];
-            const float d2 = distance2(center, points_[index]);
+            const float d2 = distance2(center, sorted_[i]);
             if (d2 > bound2) continue;
+            const std::uint32_t index = order_[i];
             if (!heap.full()) {
                 heap.push(index, d2);
                 if (heap.full()) bound2 = heap.worstDist2();

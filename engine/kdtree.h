@@ -6,9 +6,10 @@
 //   tree.forEachInRadius(x, r, [&](std::uint32_t photon, float dist2) { ... });
 //   std::size_t found = tree.nearest(x, k, maxRadius, indices, dist2);
 //
-// The tree does not copy the positions: it keeps a view of them, a permutation
-// of the point indices and one split record per inner node. The positions must
-// stay alive and unchanged while the tree is queried. Positions must be finite.
+// The tree keeps a copy of the positions in tree order (so a leaf is scanned
+// from contiguous memory and the caller's positions need not outlive it), the
+// permutation from tree order to point indices and one split record per inner
+// node. Positions must be finite.
 //
 // Queries are const and may run concurrently from any number of threads. The
 // built tree is a function of the point set alone, never of the thread count.
@@ -54,8 +55,8 @@ public:
     // std::invalid_argument if a position is not finite.
     void build(std::span<const Vec3> positions, const BuildOptions& options = {});
 
-    std::size_t size() const { return points_.size(); }
-    bool empty() const { return points_.empty(); }
+    std::size_t size() const { return sorted_.size(); }
+    bool empty() const { return sorted_.empty(); }
     std::uint32_t maxLeafSize() const { return leafSize_; }
     // Bytes held by the tree itself (not the positions it views), for profiling.
     std::size_t bytes() const;
@@ -85,7 +86,15 @@ public:
     // Calls visit(index) for every point with lo <= point <= hi on all three
     // axes (an axis-aligned box, bounds inclusive). Order of visits is unspecified.
     template <class F>
-    void forEachInBox(const Vec3& lo, const Vec3& hi, F&& visit) const;
+    void forEachInBox(const Vec3& lo, const Vec3& hi, F&& visit) const {
+        forEachSlotInBox(lo, hi, [&](std::uint32_t slot) { visit(order_[slot]); });
+    }
+    // As forEachInBox, but reports tree slots: the point is permutation()[slot],
+    // at slotPosition(slot). Callers that keep their own per-point data in tree
+    // order read it sequentially, leaf by leaf.
+    template <class F>
+    void forEachSlotInBox(const Vec3& lo, const Vec3& hi, F&& visit) const;
+    const Vec3& slotPosition(std::uint32_t slot) const { return sorted_[slot]; }
 
     // The up to k points nearest to `center` with distance² <= maxRadius²,
     // ordered by (distance², index), written to the front of outIndices and
@@ -104,7 +113,7 @@ private:
     // most one pending sibling per level.
     static constexpr int kMaxDepth = 64;
 
-    std::span<const Vec3> points_;
+    std::vector<Vec3> sorted_;  // positions in tree order
     std::vector<std::uint32_t> order_;
     std::vector<Split> splits_;
     std::uint32_t leafSize_ = KdTreeBuildOptions{}.maxLeafSize;
@@ -112,7 +121,7 @@ private:
 
 template <class F>
 void KdTree::forEachInRadius(const Vec3& center, float radius, F&& visit) const {
-    if (points_.empty() || !(radius >= 0.0f)) return;
+    if (sorted_.empty() || !(radius >= 0.0f)) return;
     const float radius2 = radius * radius;
     // Only the plane of each node is tested here, not the box distance that
     // nearest() tracks: with a fixed radius the extra pruning did not pay for
@@ -140,16 +149,15 @@ void KdTree::forEachInRadius(const Vec3& center, float radius, F&& visit) const 
             }
         }
         for (std::uint32_t i = range.begin; i != range.end; ++i) {
-            const std::uint32_t index = order_[i];
-            const float d2 = distance2(center, points_[index]);
-            if (d2 <= radius2) visit(index, d2);
+            const float d2 = distance2(center, sorted_[i]);
+            if (d2 <= radius2) visit(order_[i], d2);
         }
     }
 }
 
 template <class F>
-void KdTree::forEachInBox(const Vec3& lo, const Vec3& hi, F&& visit) const {
-    if (points_.empty() || !(lo.x <= hi.x && lo.y <= hi.y && lo.z <= hi.z)) return;
+void KdTree::forEachSlotInBox(const Vec3& lo, const Vec3& hi, F&& visit) const {
+    if (sorted_.empty() || !(lo.x <= hi.x && lo.y <= hi.y && lo.z <= hi.z)) return;
     Range stack[kMaxDepth];
     int top = 0;
     stack[top++] = Range{0, 0, static_cast<std::uint32_t>(order_.size())};
@@ -170,9 +178,8 @@ void KdTree::forEachInBox(const Vec3& lo, const Vec3& hi, F&& visit) const {
             }
         }
         for (std::uint32_t i = range.begin; i != range.end; ++i) {
-            const std::uint32_t index = order_[i];
-            const Vec3& p = points_[index];
-            if (p.x >= lo.x && p.x <= hi.x && p.y >= lo.y && p.y <= hi.y && p.z >= lo.z && p.z <= hi.z) visit(index);
+            const Vec3& p = sorted_[i];
+            if (p.x >= lo.x && p.x <= hi.x && p.y >= lo.y && p.y <= hi.y && p.z >= lo.z && p.z <= hi.z) visit(i);
         }
     }
 }

@@ -1,7 +1,7 @@
 // The neighbour structure the density-estimation passes share, as a pipeline
 // buffer: built once from photon or eye-vertex positions by an index pass and
 // read by the gather and splat passes. It owns a copy of the positions it
-// indexes, so it outlives the buffer it was built from, and may index a subset
+// indexes (the kd-tree's, in tree order), so it outlives the buffer it was built from, and may index a subset
 // of them (e.g. photons of some classes only), reporting the caller's indices.
 //
 // The search itself is delegated to the balanced kd-tree (engine/kdtree.h);
@@ -30,9 +30,8 @@ public:
 
     // Indexes every point; queries report positions in `points`.
     void build(std::span<const Vec3> points) {
-        points_.assign(points.begin(), points.end());
         ids_.clear();
-        search_.build(points_);
+        search_.build(points);
     }
     // Indexes points[ids[j]] for increasing ids; queries report those ids.
     void build(std::span<const Vec3> points, std::vector<std::uint32_t> ids) {
@@ -40,16 +39,25 @@ public:
             if (ids[j] >= points.size() || (j > 0 && ids[j] <= ids[j - 1]))
                 throw std::invalid_argument("PointIndex: ids must be increasing indices into the points");
         }
-        points_.resize(ids.size());
-        for (std::size_t j = 0; j < ids.size(); ++j) points_[j] = points[ids[j]];
+        std::vector<Vec3> subset(ids.size());
+        for (std::size_t j = 0; j < ids.size(); ++j) subset[j] = points[ids[j]];
         ids_ = std::move(ids);
-        search_.build(points_);
+        search_.build(subset);
     }
 
-    std::size_t size() const { return points_.size(); }
-    bool empty() const { return points_.empty(); }
-    std::size_t bytes() const {
-        return points_.capacity() * sizeof(Vec3) + ids_.capacity() * sizeof(std::uint32_t) + search_.bytes();
+    std::size_t size() const { return search_.size(); }
+    bool empty() const { return search_.empty(); }
+    std::size_t bytes() const { return ids_.capacity() * sizeof(std::uint32_t) + search_.bytes(); }
+
+    // Slots: the points in the index's own (tree) order, 0 .. size() - 1. A pass
+    // that reads per-point data for every point a query finds can copy it into
+    // slot order once and then read it leaf by leaf instead of at random.
+    std::uint32_t slotId(std::uint32_t slot) const { return id(search_.permutation()[slot]); }
+    const Vec3& slotPosition(std::uint32_t slot) const { return search_.slotPosition(slot); }
+    // visit(slot) for every indexed point inside the box [lo, hi] (bounds inclusive).
+    template <class F>
+    void forEachSlotInBox(const Vec3& lo, const Vec3& hi, F&& visit) const {
+        search_.forEachSlotInBox(lo, hi, visit);
     }
 
     // visit(id, distance²) for every indexed point with distance² <= radius².
@@ -78,7 +86,6 @@ public:
 private:
     std::uint32_t id(std::uint32_t local) const { return ids_.empty() ? local : ids_[local]; }
 
-    std::vector<Vec3> points_;
     std::vector<std::uint32_t> ids_;  // empty: the identity
     KdTree search_;
 };

@@ -108,6 +108,7 @@ struct SplatAccumulator {
     std::int64_t splatted = 0;
     std::int64_t collapsed = 0;
     std::int64_t deposits = 0;
+    std::int64_t candidates = 0;  // eye vertices the box query returned
 };
 
 class PhotonSplatPass final : public Pass {
@@ -134,7 +135,7 @@ public:
                 if (pixel >= pixelCount) throw std::logic_error("splat: eye vertex outside the film");
             const std::size_t blockBytes = std::max<std::size_t>(1, pixelCount * sizeof(Rgb));
             blocks_.resize(std::clamp<std::size_t>(kAccumulatorBudget / blockBytes, 1, 64));
-            cacheLambertianVertices(scene, eye);
+            prepareTargets(scene, eye, eyeIndex);
         }
         const float maxNormalDistance = static_cast<float>(ctx.params().getFloat("max_normal_distance"));
 
@@ -164,8 +165,9 @@ public:
                 const Vec3 planeNormal = glm::normalize(normal[p]);
                 const float radius2 = sqr(footprint->searchRadius);
                 const Vec3 lo = xp - footprint->boxHalfExtent, hi = xp + footprint->boxHalfExtent;
-                auto visitor = [&](std::uint32_t v) {
-                    const Vec3 offset = eye.position[v] - xp;
+                eyeIndex.forEachSlotInBox(lo, hi, [&](std::uint32_t treeSlot) {
+                    ++acc.candidates;
+                    const Vec3 offset = eyeIndex.slotPosition(treeSlot) - xp;
                     if (!(glm::dot(offset, offset) <= radius2)) return;
                     const float q0 = glm::dot(footprint->row0, offset);
                     const float q1 = glm::dot(footprint->row1, offset);
@@ -173,21 +175,21 @@ public:
                     if (!(filterRadius2 < 1.0f)) return;
                     if (maxNormalDistance > 0.0f && std::abs(glm::dot(planeNormal, offset)) > maxNormalDistance)
                         return;
+                    const SplatTarget& target = targets_[treeSlot];
                     Rgb weight;  // pi f_r times the vertex's throughput
-                    if (lambertian_[v]) {
-                        if (!(glm::dot(wi, eye.normal[v]) > 1e-6f) || !(glm::dot(wi, eye.geometricNormal[v]) > 0.0f))
+                    if (target.lambertian) {
+                        if (!(glm::dot(wi, target.normal) > 1e-6f) || !(glm::dot(wi, target.geometricNormal) > 0.0f))
                             return;
-                        weight = vertexWeight_[v];
+                        weight = target.weight;
                     } else {
-                        weight = kPi * VertexBrdf(scene, eye, v)(wi) * eye.throughput[v];
+                        weight = kPi * VertexBrdf(scene, eye, target.vertex)(wi) * eye.throughput[target.vertex];
                     }
                     if (isBlack(weight)) return;
                     const Rgb value = silvermanKernel(filterRadius2) * weight * irradiance;
                     if (!isFinite(value)) return;
-                    acc.pixels[eye.pixel[v]] += value;
+                    acc.pixels[target.pixel] += value;
                     ++acc.deposits;
-                };
-                eyeIndex.forEachInBox(lo, hi, visitor);
+                });
             }
         });
         ctx.addItems(static_cast<std::int64_t>(photonCount));
@@ -202,33 +204,49 @@ public:
             total.splatted += part.splatted;
             total.collapsed += part.collapsed;
             total.deposits += part.deposits;
+            total.candidates += part.candidates;
         }
         image.addToPixels(total.pixels, 1.0f);
         ctx.addCounter("splatted_photons", total.splatted);
         ctx.addCounter("collapsed_footprints", total.collapsed);
         ctx.addCounter("vertex_deposits", total.deposits);
+        ctx.addCounter("vertex_candidates", total.candidates);
     }
 
 private:
-    // A vertex splatted to thousands of times should not rebuild its shading
-    // frame and call the BSDF each time: at Lambertian vertices pi f_r times the
+    // What a deposit needs of its eye vertex, in the eye index's slot order, so
+    // that the vertices of one leaf are read from contiguous memory. A vertex
+    // splatted to thousands of times should not rebuild its shading frame and
+    // call the BSDF each time either: at Lambertian vertices pi f_r times the
     // throughput is one constant, valid for light from the side where both
     // normals agree (VertexBrdf's conditions).
-    void cacheLambertianVertices(const Scene& scene, const EyeVertexView& eye) {
-        lambertian_.assign(eye.size(), 0);
-        vertexWeight_.assign(eye.size(), Rgb(0.0f));
-        jobs::parallelFor(eye.size(), 4096, [&](std::size_t v) {
+    struct SplatTarget {
+        Vec3 normal{0.0f}, geometricNormal{0.0f};
+        Rgb weight{0.0f};
+        std::uint32_t pixel = 0;
+        std::uint32_t vertex = 0;
+        bool lambertian = false;
+    };
+
+    void prepareTargets(const Scene& scene, const EyeVertexView& eye, const PointIndex& eyeIndex) {
+        targets_.assign(eye.size(), SplatTarget{});
+        jobs::parallelFor(eye.size(), 4096, [&](std::size_t slot) {
+            SplatTarget& t = targets_[slot];
+            const std::uint32_t v = eyeIndex.slotId(static_cast<std::uint32_t>(slot));
+            t.vertex = v;
+            t.pixel = eye.pixel[v];
+            t.normal = eye.normal[v];
+            t.geometricNormal = eye.geometricNormal[v];
             const std::optional<Rgb> reflectance = scene.bsdfs[eye.bsdf[v]]->constantReflectance(eye.uv[v]);
             if (!reflectance) return;
-            lambertian_[v] = 1;
+            t.lambertian = true;
             // Seen from below its shading normal, a Lambertian surface reflects nothing.
-            if (glm::dot(eye.outgoing[v], eye.normal[v]) > 0.0f) vertexWeight_[v] = kPi * *reflectance * eye.throughput[v];
+            if (glm::dot(eye.outgoing[v], eye.normal[v]) > 0.0f) t.weight = kPi * *reflectance * eye.throughput[v];
         });
     }
 
     std::vector<SplatAccumulator> blocks_;
-    std::vector<std::uint8_t> lambertian_;
-    std::vector<Rgb> vertexWeight_;
+    std::vector<SplatTarget> targets_;
 };
 
 }  // namespace
