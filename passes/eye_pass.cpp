@@ -19,6 +19,12 @@
 // count, so photon estimates times throughput summed over a pixel's vertices
 // are that pixel's box-filtered mean. Vertices are stored in (pixel, sample)
 // order. Random numbers are keyed by (seed, "eye", sample index).
+//
+// With direct_light = false the `direct` film stays black: the pipeline's
+// image is then the photon estimates alone (caustic-only images, as in the
+// comparisons of Frisvad et al. 2014 §5). The vertices do not change: the
+// light sampling that is skipped comes after a sample's vertex is stored, and
+// every sample has its own random stream.
 #include "passes/eye_vertex_records.h"
 #include "passes/passes.h"
 #include "passes/path_vertex.h"
@@ -44,9 +50,10 @@ constexpr std::size_t kWaveSamples = 1 << 18;
 // would only add noise to the vertex weights.
 constexpr int kNoRoulette = std::numeric_limits<int>::max();
 
-// Traces one camera sample; returns the radiance for the `direct` film and fills `vertex`.
+// Traces one camera sample; returns the radiance for the `direct` film (black
+// without `directLight`) and fills `vertex`.
 Rgb traceEyeSample(const PathTracerScene& pts, const Camera& camera, Ray ray, jobs::Rng& rng, int maxSpecularDepth,
-                   float sampleWeight, EyeRecord& vertex) {
+                   float sampleWeight, bool directLight, EyeRecord& vertex) {
     const Scene& scene = pts.scene;
     Rgb beta(1.0f), radiance(0.0f);
     PathHistory history = PathHistory::atCamera(camera.medium);
@@ -71,6 +78,7 @@ Rgb traceEyeSample(const PathTracerScene& pts, const Camera& camera, Ray ray, jo
                 vertex.throughput = beta * sampleWeight;
                 vertex.bsdf = static_cast<std::uint32_t>(shape.bsdf);
                 vertex.valid = true;
+                if (!directLight) return Rgb(0.0f);
 
                 // The vertex as the last one of a path: emission, NEE and the
                 // BSDF-sampled ray's emission; the depth limit stops after that.
@@ -89,7 +97,7 @@ Rgb traceEyeSample(const PathTracerScene& pts, const Camera& camera, Ray ray, jo
         }
         // A miss (environment), a null boundary or a purely specular event.
         ShadowRequest unused;  // specular surfaces sample no lights
-        if (!advancePath(pts, chain, hit, state, unused)) return radiance;
+        if (!advancePath(pts, chain, hit, state, unused)) return directLight ? radiance : Rgb(0.0f);
     }
 }
 
@@ -105,6 +113,7 @@ public:
         }
         const int spp = static_cast<int>(ctx.params().getInt("spp"));
         const int maxSpecularDepth = static_cast<int>(ctx.params().getInt("max_specular_depth"));
+        const bool directLight = ctx.params().getBool("direct_light");
         const float sampleWeight = 1.0f / static_cast<float>(spp);
 
         Camera camera = scene.camera;
@@ -143,7 +152,7 @@ public:
                         jobs::Rng rng(ctx.seed(), stream, static_cast<std::uint64_t>(pixel) * samplesPerPixel + s);
                         raster[i] = corner + rng.uniform2();
                         const Rgb L = traceEyeSample(pts, camera, camera.generateRay(raster[i]), rng, maxSpecularDepth,
-                                                     sampleWeight, records[i]);
+                                                     sampleWeight, directLight, records[i]);
                         // A non-finite sample would poison every pixel its filter reaches.
                         radiance[i] = isFinite(L) ? L : Rgb(0.0f);
                     }
@@ -164,7 +173,7 @@ PassRegistration eyePass() {
     PassSpec spec;
     spec.name = "eye";
     spec.doc = "Camera paths through specular chains to the first diffuse/glossy vertex: stores the eye-vertex map "
-               "and renders emission plus direct lighting (NEE + MIS) at those vertices";
+               "and renders emission plus direct lighting (NEE + MIS) at those vertices (unless direct_light = false)";
     spec.outputs = {
         {"eye_vertices", "EyeVertices", "first non-specular vertex of each camera sample, in (pixel, sample) order"},
         {"direct", "Film", "emission seen through S* chains and direct lighting at the eye vertices"},
@@ -173,6 +182,9 @@ PassRegistration eyePass() {
         {"spp", ParamType::Int, std::int64_t{4}, 1, 1 << 16, {}, "camera samples per pixel (jittered)"},
         {"max_specular_depth", ParamType::Int, std::int64_t{16}, 0, 4096, {},
          "specular bounces followed before a camera path is given up (0: only directly seen surfaces)"},
+        {"direct_light", ParamType::Bool, true, 0, 0, {},
+         "add emission and direct lighting at the eye vertices to the film (false: the photon estimates alone, "
+         "e.g. caustic-only images)"},
     };
     return {spec, [] { return std::make_unique<EyePass>(); }};
 }

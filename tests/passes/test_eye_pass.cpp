@@ -149,6 +149,56 @@ TEST(EyePass, StoresVerticesBehindSpecularChains) {
     for (const Rgb& p : test::bufferAs<Film>(out.at("direct")).resolve()) EXPECT_EQ(p, Rgb(0.0f));
 }
 
+// direct_light = false leaves the film black and nothing else changes: the
+// vertices (positions, weights, everything the photon passes read) are the
+// ones stored with direct light on, so caustic-only images and full images
+// are made from the same eye samples. Gold ring: a directly lit floor, seen
+// directly and in the ring's mirror reflection.
+TEST(EyePass, WithoutDirectLightTheFilmIsBlackAndTheVerticesAreUnchanged) {
+    const Scene scene = loadScene(std::string(FLUXGRAPH_SOURCE_DIR) + "/data/gold-ring/gold-ring.toml");
+    const RayQuery rays(scene);
+    const FilmSettings film = boxFilm(24, 24);
+    const auto render = [&](bool directLight) {
+        return test::runPass(eyePass(), scene, &rays, film, {},
+                             {{"spp", std::int64_t{3}}, {"direct_light", directLight}}, 7);
+    };
+    const auto lit = render(true);
+    const auto dark = render(false);
+
+    const std::vector<Rgb> litFilm = test::bufferAs<Film>(lit.at("direct")).resolve();
+    const std::vector<Rgb> darkFilm = test::bufferAs<Film>(dark.at("direct")).resolve();
+    ASSERT_EQ(darkFilm.size(), litFilm.size());
+    std::size_t litPixels = 0;
+    for (std::size_t i = 0; i < litFilm.size(); ++i) {
+        EXPECT_EQ(darkFilm[i], Rgb(0.0f)) << "pixel " << i;
+        litPixels += luminance(litFilm[i]) > 0.0f ? 1 : 0;
+    }
+    EXPECT_GT(litPixels, litFilm.size() / 2) << "the floor is directly lit";
+
+    const auto& a = test::bufferAs<EyeVertices>(lit.at("eye_vertices"));
+    const auto& b = test::bufferAs<EyeVertices>(dark.at("eye_vertices"));
+    EXPECT_EQ(a.samplesPerPixel, b.samplesPerPixel);
+    ASSERT_EQ(a.vertices.size(), b.vertices.size());
+    ASSERT_GT(a.vertices.size(), static_cast<std::size_t>(film.width * film.height));
+    const auto same = [](auto columnA, auto columnB) {
+        return std::equal(columnA.begin(), columnA.end(), columnB.begin(), columnB.end());
+    };
+    const EyeVertexBuffer& va = a.vertices;
+    const EyeVertexBuffer& vb = b.vertices;
+    EXPECT_TRUE(same(va.column<EyePosition>(), vb.column<EyePosition>()));
+    EXPECT_TRUE(same(va.column<EyeNormal>(), vb.column<EyeNormal>()));
+    EXPECT_TRUE(same(va.column<EyeGeometricNormal>(), vb.column<EyeGeometricNormal>()));
+    EXPECT_TRUE(same(va.column<EyeOutgoing>(), vb.column<EyeOutgoing>()));
+    EXPECT_TRUE(same(va.column<EyeUv>(), vb.column<EyeUv>()));
+    EXPECT_TRUE(same(va.column<EyeThroughput>(), vb.column<EyeThroughput>()));
+    EXPECT_TRUE(same(va.column<EyeBsdf>(), vb.column<EyeBsdf>()));
+    EXPECT_TRUE(same(va.column<EyePixel>(), vb.column<EyePixel>()));
+    // Some vertices lie behind the gold mirror (throughput below the 1/spp of a directly seen floor).
+    const auto throughput = va.column<EyeThroughput>();
+    EXPECT_TRUE(std::any_of(throughput.begin(), throughput.end(),
+                            [](const Rgb& t) { return t.z < 0.99f / 3.0f; }));
+}
+
 TEST(EyePass, DeterministicForAnyThreadCountAndRejectsMedia) {
     const Scene scene = loadScene(std::string(FLUXGRAPH_SOURCE_DIR) + "/data/cornell-box/cornell-box.toml");
     const FilmSettings film = boxFilm(12, 12);
