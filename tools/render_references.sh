@@ -56,7 +56,7 @@ binary="$build/fluxgraph"
 [[ -x "$binary" ]] || { echo "render_references.sh: no $binary; build first (cmake --build $build)" >&2; exit 2; }
 
 if ((caustic)); then
-  ((${#scenes[@]})) || scenes=(water-wave metal-ring)
+  ((${#scenes[@]})) || scenes=(water-wave water-wave-collimated metal-ring)
   for scene in "${scenes[@]}"; do
     job="data/$scene/caustic-reference.toml"
     [[ -f "$job" ]] || { echo "render_references.sh: '$scene' has no $job" >&2; exit 2; }

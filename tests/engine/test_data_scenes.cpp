@@ -533,7 +533,8 @@ TEST(DataCausticReferences, MatchTheirJobs) {
 // with 1/100 of the photons (bandwidth ~10x larger, so blurrier and noisier)
 // agrees on the mean caustic radiance (measured: within 2 %) and pixel by
 // pixel (RMSE measured at 12 % and 16 % of the reference's RMS pixel value; the
-// reference shifted by two pixels is off by 33 % and 51 %). A changed scene,
+// reference shifted by two pixels is off by 33 % and 51 %; water-wave-collimated,
+// at 1/10 of its photons: 23 %, mean within 0.5 %). A changed scene,
 // light, photon power or gather normalisation fails this; re-render then.
 TEST(DataCausticReferences, AgreeWithAFewPhotons) {
     for (const fs::path& folder : causticReferenceFolders()) {
@@ -542,8 +543,11 @@ TEST(DataCausticReferences, AgreeWithAFewPhotons) {
         if (!fs::exists(reference)) continue;  // MatchTheirJobs reports it
         const Job full = loadJob((folder / "caustic-reference.toml").string());
         JobOverrides overrides;
+        // Under collimated light the caustic's lines are too sharp for 1/100 of
+        // the photons (bandwidth 10x): 1/10 of them keep it within 3.2x.
+        const std::int64_t divisor = name == "water-wave-collimated" ? 10 : 100;
         overrides.sets = {"passes.photon.photons=" +
-                              std::to_string(jobParam<std::int64_t>(full, "photon", "photons") / 100),
+                              std::to_string(jobParam<std::int64_t>(full, "photon", "photons") / divisor),
                           "output.exr=false", "output.png=false"};
         overrides.outputDirectory = (fs::path(FLUXGRAPH_TEST_TMP) / "caustic_references").string();
         const RenderOutcome outcome = renderJob(loadJob((folder / "caustic-reference.toml").string(), overrides), {});
