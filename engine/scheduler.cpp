@@ -452,7 +452,12 @@ RunResult execute(const ExecutionPlan& plan, const Scene& scene, const RayQuery*
         if (options.progress) run.ctx->setProgressSink(options.progress);
         run.work.label = pass.node.instance;
         run.instance = pass.registration->create();
-        // Stored inputs a pass could also read in batches arrive as one batch.
+    };
+    // Stored inputs a pass could also read in batches arrive as one batch (for a
+    // hosted reader, once its host has run: the host may have produced them).
+    const auto consumeStored = [&](std::size_t i) {
+        const PlannedPass& pass = passes[i];
+        PassRun& run = runs[i];
         for (const SlotSpec& in : pass.registration->spec.inputs) {
             if (in.streamable && !plan.streamed(slotBuffer(pass.node.inputBindings, in.name)))
                 timed(run, pass.node.instance, [&] { run.instance->consumeBatch(*run.ctx, in.name); });
@@ -504,6 +509,7 @@ RunResult execute(const ExecutionPlan& plan, const Scene& scene, const RayQuery*
             const PlannedPass& pass = passes[i];
             for (std::size_t reader : hosted[i]) prepare(reader);
             prepare(i);
+            consumeStored(i);
             PassRun& run = runs[i];
             if (!pass.streamedOutputs.empty()) {
                 run.ctx->setBatchSink(pass.streamedOutputs, [&, i](const std::string& slot, std::shared_ptr<void> batch,
@@ -529,6 +535,7 @@ RunResult execute(const ExecutionPlan& plan, const Scene& scene, const RayQuery*
             timed(run, pass.node.instance, [&] { run.instance->run(*run.ctx); });
             finish(i);
             for (std::size_t reader : hosted[i]) {
+                consumeStored(reader);
                 timed(runs[reader], passes[reader].node.instance, [&] { runs[reader].instance->run(*runs[reader].ctx); });
                 finish(reader);
             }

@@ -256,6 +256,39 @@ TEST(Streams, NotFusedWhenTheReaderWaitsOnSomethingDownstreamOfTheProducer) {
     EXPECT_EQ(imageOf(result), (std::vector<double>{1, 2, 3}));
 }
 
+TEST(Streams, AHostedReaderGetsItsHostsStoredOutputsAfterTheHostRan) {
+    // producer --a (streamed)--> reader, producer --b (stored: also a result)--> reader:
+    // the reader consumes b as one batch, which exists only once the producer has run.
+    std::vector<std::string> order;
+    const std::vector<PassRegistration> passes = {
+        makePass("producer", {}, {batches("a", true), batches("b", true)},
+                 [&](PassContext& ctx) {
+                     EXPECT_TRUE(ctx.streamed("a"));
+                     EXPECT_FALSE(ctx.streamed("b"));
+                     ctx.emitBatch<Batch>("a", std::make_shared<const Batch>(std::vector<double>{1}, nullptr));
+                     ctx.createOutput<Batch>("b", std::vector<double>{2}, nullptr);
+                     order.push_back("producer");
+                 }),
+        makePass("reader", {batches("a", true), batches("b", true)}, {batches("image", false)},
+                 [&](PassContext& ctx) {
+                     order.push_back("run");
+                     ctx.createOutput<Batch>("image", std::vector<double>{}, nullptr);
+                 },
+                 [&](PassContext& ctx, const std::string& slot) {
+                     order.push_back(slot + "=" + std::to_string(ctx.input<Batch>(slot).values.at(0)).substr(0, 1));
+                 }),
+    };
+    Pipeline p;
+    p.name = "host-outputs";
+    p.nodes = {node("producer", "producer"), node("reader", "reader")};
+    p.results = {"image", "b"};
+    const ExecutionPlan plan = ExecutionPlan::build(p, {}, "job.toml", passes);
+    EXPECT_TRUE(plan.streamed("a"));
+    EXPECT_FALSE(plan.streamed("b"));
+    execute(plan, Scene{}, nullptr, RunOptions{});
+    EXPECT_EQ(order, (std::vector<std::string>{"a=1", "producer", "b=2", "run"}));
+}
+
 TEST(Streams, EmittingOnAStoredOutputIsAnError) {
     const std::vector<PassRegistration> passes = {
         makePass("producer", {}, {batches("image", true)},
