@@ -574,7 +574,8 @@ PassRegistration photonPass() {
         {"smoothing", ParamType::Float, 10.0, 1e-3, 1e4, {},
          "smoothing s of the initial differentials: footprints of one source add up to s^2 times its area"},
         {"batch_size", ParamType::Int, std::int64_t{1 << 18}, 1, 1 << 26, {},
-         "photon paths per batch (memory vs. parallelism); does not change the result"},
+         "photon paths per batch (memory vs. parallelism; a streamed map is handed over per batch); does not "
+         "change the photons"},
     };
     return {spec, [] { return std::make_unique<PhotonPass>(); }};
 }
