@@ -22,7 +22,7 @@
 //
 // With direct_light = false the `direct` film stays black: the pipeline's
 // image is then the photon estimates alone (caustic-only images, as in the
-// comparisons of Frisvad et al. 2014 §5). The vertices do not change: the
+// comparisons of Frisvad et al. 2014 §4.1). The vertices do not change: the
 // light sampling that is skipped comes after a sample's vertex is stored, and
 // every sample has its own random stream.
 #include "passes/eye_vertex_records.h"
