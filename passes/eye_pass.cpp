@@ -46,9 +46,6 @@ namespace {
 
 // Samples traced per film round; bounds the temporary per-sample storage.
 constexpr std::size_t kWaveSamples = 1 << 18;
-// Specular chains end by their depth limit, never by Russian roulette, which
-// would only add noise to the vertex weights.
-constexpr int kNoRoulette = std::numeric_limits<int>::max();
 
 // Traces one camera sample; returns the radiance for the `direct` film (black
 // without `directLight`) and fills `vertex`.
@@ -80,18 +77,7 @@ Rgb traceEyeSample(const PathTracerScene& pts, const Camera& camera, Ray ray, jo
                 vertex.valid = true;
                 if (!directLight) return Rgb(0.0f);
 
-                // The vertex as the last one of a path: emission, NEE and the
-                // BSDF-sampled ray's emission; the depth limit stops after that.
-                PathLimits last;
-                last.maxDepth = history.depth + 1;
-                last.rrDepth = kNoRoulette;
-                ShadowRequest shadow;
-                bool alive = advancePath(pts, last, hit, state, shadow);
-                if (shadow.pending) radiance += shadow.contribution * shadowTransmittance(pts, shadow);
-                while (alive) {
-                    ShadowRequest unused;  // no light is sampled past the depth limit
-                    alive = advancePath(pts, last, pts.rays.intersect(state.ray), state, unused);
-                }
+                endPathAtEyeVertex(pts, hit, state, false);
                 return radiance;
             }
         }

@@ -196,6 +196,20 @@ bool advancePathAtSurface(const PathTracerScene& pts, const PathLimits& limits, 
     return russianRoulette(limits, s);
 }
 
+void endPathAtEyeVertex(const PathTracerScene& pts, const Hit& hit, PathVertexState& state, bool segmentDone) {
+    PathLimits last;
+    last.maxDepth = state.history.depth + 1;
+    last.rrDepth = kNoRoulette;
+    ShadowRequest shadow;
+    bool alive = segmentDone ? advancePathAtSurface(pts, last, hit, state, shadow)
+                             : advancePath(pts, last, hit, state, shadow);
+    if (shadow.pending) state.radiance += shadow.contribution * shadowTransmittance(pts, shadow);
+    while (alive) {
+        ShadowRequest unused;  // no light is sampled past the depth limit
+        alive = advancePath(pts, last, pts.rays.intersect(state.ray), state, unused);
+    }
+}
+
 Rgb shadowTransmittance(const PathTracerScene& pts, const ShadowRequest& shadow) {
     if (!pts.shadowsNeedTransmittance) return pts.rays.occluded(shadow.ray) ? Rgb(0.0f) : Rgb(1.0f);
     const Scene& scene = pts.scene;

@@ -11,6 +11,7 @@
 
 #include <cmath>
 #include <cstdint>
+#include <limits>
 #include <span>
 #include <vector>
 
@@ -73,6 +74,17 @@ bool advancePathAtSurface(const PathTracerScene& pts, const PathLimits& limits, 
 
 // Transmittance along a shadow ray: 0 if blocked by a non-null surface.
 Rgb shadowTransmittance(const PathTracerScene& pts, const ShadowRequest& shadow);
+
+// Camera paths of the eye passes: their specular chains end by the depth limit,
+// never by Russian roulette, which would only add noise to the vertex weights.
+constexpr int kNoRoulette = std::numeric_limits<int>::max();
+
+// Ends a camera path at its eye vertex, the surface hit `hit`: adds to
+// state.radiance the vertex's emission, its next-event estimate and the
+// emission the BSDF-sampled ray reaches, and follows the path no further.
+// `segmentDone`: the medium along the segment to `hit` is already accounted
+// for (advancePathAtSurface); otherwise advancePath samples it first.
+void endPathAtEyeVertex(const PathTracerScene& pts, const Hit& hit, PathVertexState& state, bool segmentDone);
 
 // Resolves the pending shadow rays of `paths` and adds their contributions to radiance[path].
 void resolveShadowRays(const PathTracerScene& pts, std::span<const std::uint32_t> paths,

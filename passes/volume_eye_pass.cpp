@@ -48,7 +48,6 @@ namespace {
 
 // Samples traced per film round; bounds the temporary per-sample storage.
 constexpr std::size_t kWaveSamples = 1 << 18;
-constexpr int kNoRoulette = std::numeric_limits<int>::max();
 // Null boundaries crossed in a row; the bound only guards against degenerate geometry.
 constexpr int kMaxNullCrossings = 1024;
 
@@ -112,19 +111,8 @@ public:
                     vertex.bsdf = static_cast<std::uint32_t>(shape.bsdf);
                     vertex.valid = true;
 
-                    // The vertex as the last one of a path: emission, NEE and the BSDF-sampled
-                    // ray's emission (reached without a medium event); the depth limit stops
-                    // after that.
-                    PathLimits last;
-                    last.maxDepth = history.depth + 1;
-                    last.rrDepth = kNoRoulette;
-                    ShadowRequest shadow;
-                    bool alive = advancePathAtSurface(pts_, last, hit, state, shadow);
-                    if (shadow.pending) radiance += shadow.contribution * shadowTransmittance(pts_, shadow);
-                    while (alive) {
-                        ShadowRequest unused;  // no light is sampled past the depth limit
-                        alive = advancePath(pts_, last, pts_.rays.intersect(state.ray), state, unused);
-                    }
+                    // The segment's medium is in the throughput as transmittance already.
+                    endPathAtEyeVertex(pts_, hit, state, true);
                     return radiance;
                 }
                 if (!bsdf || bsdf->isNull()) {
