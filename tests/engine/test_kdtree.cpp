@@ -130,12 +130,12 @@ void expectWellFormed(const KdTree& tree, std::span<const Vec3> points) {
     struct Node {
         std::size_t node, begin, end;
     };
-    std::vector<Node> todo{{0, 0, points.size()}};
+    std::vector<Node> pending{{0, 0, points.size()}};
     std::size_t inner = 0;
     std::size_t maxInnerSlot = 0;
-    while (!todo.empty()) {
-        const Node n = todo.back();
-        todo.pop_back();
+    while (!pending.empty()) {
+        const Node n = pending.back();
+        pending.pop_back();
         if (n.end - n.begin <= tree.maxLeafSize()) continue;
         ++inner;
         maxInnerSlot = std::max(maxInnerSlot, n.node);
@@ -145,8 +145,8 @@ void expectWellFormed(const KdTree& tree, std::span<const Vec3> points) {
         const std::size_t mid = n.begin + (n.end - n.begin) / 2;
         for (std::size_t i = n.begin; i < mid; ++i) ASSERT_LE(points[order[i]][int(s.axis)], s.value);
         for (std::size_t i = mid; i < n.end; ++i) ASSERT_GE(points[order[i]][int(s.axis)], s.value);
-        todo.push_back({2 * n.node + 1, n.begin, mid});
-        todo.push_back({2 * n.node + 2, mid, n.end});
+        pending.push_back({2 * n.node + 1, n.begin, mid});
+        pending.push_back({2 * n.node + 2, mid, n.end});
     }
     if (inner > 0) {
         EXPECT_EQ(maxInnerSlot + 1, splits.size()) << "heap array longer than its deepest inner node";

@@ -19,20 +19,9 @@ namespace {
 using test::bufferAs;
 using test::makeBuffer;
 
-const Rgb kAlbedo(0.7f, 0.5f, 0.3f);
-
-Scene diffuseScene() {
-    Scene scene;
-    scene.bsdfs.push_back(makeDiffuse(makeConstantTexture(kAlbedo)));
-    return scene;
-}
-
-FilmSettings film(int w, int h) {
-    FilmSettings f;
-    f.width = w;
-    f.height = h;
-    return f;
-}
+using test::diffuseScene;
+using test::film;
+using test::kAlbedo;
 
 BufferHandle indexOf(const Scene& scene, const BufferHandle& photons, bool includeDirect = false) {
     auto out = test::runPass(photonIndexPass(), scene, nullptr, film(1, 1), {{"photons", photons}},

@@ -26,20 +26,9 @@ namespace {
 using test::bufferAs;
 using test::makeBuffer;
 
-const Rgb kAlbedo(0.7f, 0.5f, 0.3f);
-
-Scene diffuseScene() {
-    Scene scene;
-    scene.bsdfs.push_back(makeDiffuse(makeConstantTexture(kAlbedo)));
-    return scene;
-}
-
-FilmSettings film(int w, int h) {
-    FilmSettings f;
-    f.width = w;
-    f.height = h;
-    return f;
-}
+using test::diffuseScene;
+using test::film;
+using test::kAlbedo;
 
 std::vector<Rgb> splat(const Scene& scene, const std::shared_ptr<EyeVertices>& eye,
                        const std::shared_ptr<PhotonMap>& caustics, const FilmSettings& settings,

@@ -2,15 +2,36 @@
 // and a stand-in `photon` pass that hands such maps to a pipeline.
 #pragma once
 
+#include "engine/bsdf.h"
 #include "engine/math.h"
 #include "engine/pass.h"
 #include "engine/photon_buffers.h"
+#include "engine/scene.h"
+#include "engine/texture.h"
 #include "jobs/random.h"
 
 #include <functional>
 #include <memory>
 
 namespace fg::test {
+
+// The albedo of diffuseScene()'s one BSDF.
+inline const Rgb kAlbedo(0.7f, 0.5f, 0.3f);
+
+// A scene with one diffuse BSDF (index 0) and no geometry: the density
+// estimates only evaluate BSDFs at given eye vertices.
+inline Scene diffuseScene() {
+    Scene scene;
+    scene.bsdfs.push_back(makeDiffuse(makeConstantTexture(kAlbedo)));
+    return scene;
+}
+
+inline FilmSettings film(int width, int height) {
+    FilmSettings f;
+    f.width = width;
+    f.height = height;
+    return f;
+}
 
 // Appends one photon (differentials default to zero) and returns its index.
 inline std::size_t addPhoton(PhotonMap& map, const Vec3& position, const Vec3& incident, const Rgb& power,
