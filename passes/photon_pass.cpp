@@ -414,6 +414,11 @@ public:
         settings.differentials = params.getBool("differentials");
         settings.smoothing = static_cast<float>(params.getFloat("smoothing"));
         settings.batchSize = static_cast<std::size_t>(params.getInt("batch_size"));
+        // An own seed gives an independent photon set at the same eye vertices (the job's
+        // seed keys the camera paths): what variance measurements and comparisons against a
+        // reference rendered with the job's seed need.
+        const std::int64_t ownSeed = params.getInt("seed");
+        const std::uint64_t seed = ownSeed == 0 ? ctx.seed() : static_cast<std::uint64_t>(ownSeed);
         const bool targetMode = settings.volumeTarget > 0;
         if (targetMode && !settings.storeVolume) {
             throw InputError(scene.sourcePath, 0,
@@ -456,7 +461,7 @@ public:
             return;
         }
 
-        const PhotonTracer tracer(scene, ctx.rays(), settings, ctx.seed());
+        const PhotonTracer tracer(scene, ctx.rays(), settings, seed);
         std::int64_t storedCaustic = 0, storedGlobal = 0, storedDirect = 0, storedVolume = 0, singleScattering = 0;
         std::int64_t segments = 0;
         std::uint64_t collapsed = 0;
@@ -576,6 +581,9 @@ PassRegistration photonPass() {
         {"batch_size", ParamType::Int, std::int64_t{1 << 18}, 1, 1 << 26, {},
          "photon paths per batch (memory vs. parallelism; a streamed map is handed over per batch); does not "
          "change the photons"},
+        {"seed", ParamType::Int, std::int64_t{0}, 0, 1e15, {},
+         "seed of the photon paths' random streams (0 = the job's seed); another seed traces an independent "
+         "photon set at the same eye vertices"},
     };
     return {spec, [] { return std::make_unique<PhotonPass>(); }};
 }

@@ -412,6 +412,24 @@ TEST(PhotonPass, IdenticalForAnyThreadCountAndBatchSize) {
     EXPECT_FALSE(samePhotons(*one.global, *reseeded.global));
 }
 
+// The pass's own seed replaces the job's for the photon streams alone: photons of
+// seed s under any job seed are those of job seed s, and 0 means the job's seed.
+TEST(PhotonPass, OwnSeedOverridesTheJobSeed) {
+    const Scene scene = glassBallScene();
+    std::map<std::string, ParamValue> params = {{"photons", std::int64_t{20000}}, {"store_direct", true}};
+    const PhotonRun jobSeedTwo = runPhotonPass(scene, params, 2, 2);
+    const PhotonRun jobSeedOne = runPhotonPass(scene, params, 2, 1);
+    ASSERT_GT(jobSeedTwo.global->photons.size(), 0u);
+    params["seed"] = std::int64_t{2};
+    const PhotonRun ownSeedTwo = runPhotonPass(scene, params, 2, 1);
+    EXPECT_TRUE(samePhotons(*ownSeedTwo.global, *jobSeedTwo.global));
+    EXPECT_TRUE(samePhotons(*ownSeedTwo.caustic, *jobSeedTwo.caustic));
+    EXPECT_FALSE(samePhotons(*ownSeedTwo.global, *jobSeedOne.global));
+    params["seed"] = std::int64_t{0};
+    const PhotonRun ownSeedZero = runPhotonPass(scene, params, 2, 2);
+    EXPECT_TRUE(samePhotons(*ownSeedZero.global, *jobSeedTwo.global));
+}
+
 // Surfaces without a BSDF or with `null` are crossed without an event.
 TEST(PhotonPass, NullBoundariesArePassedThrough) {
     Scene scene;
