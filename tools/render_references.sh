@@ -13,11 +13,13 @@
 # below take a few minutes per scene on a 2-core machine.
 #
 # --caustic renders the caustic-only references of the caustic case studies
-# instead (water-wave, metal-ring): standard photon mapping with ~10 million
-# caustic photons, data/<scene>/caustic-reference.toml as it stands (its
-# photon count is in the job file; --divide divides it), to
+# instead (water-wave, water-wave-collimated, metal-ring): standard photon
+# mapping with ~10 million caustic photons (40 million under collimated
+# light), data/<scene>/caustic-reference.toml as it stands (its photon count
+# is in the job file; --divide divides it), to
 # data/<scene>/reference/caustic-reference.exr with the same half-float
-# colour and metadata; no preview. Water-wave ~30 s, metal-ring 5-8 minutes.
+# colour and metadata; no preview. Water-wave ~30 s, water-wave-collimated
+# ~4.5 minutes, metal-ring 5-8 minutes.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 

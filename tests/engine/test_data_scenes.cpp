@@ -456,7 +456,8 @@ TEST(DataReferences, MatchTheirJobs) {
 
 // The caustic case studies (tools/caustics_report.py) are measured against
 // caustic-only references, `tools/render_references.sh --caustic`: standard
-// photon mapping with ~10M caustic photons from data/<scene>/caustic-reference.toml.
+// photon mapping with ~10M caustic photons (40M under collimated light) from
+// data/<scene>/caustic-reference.toml.
 
 std::vector<fs::path> causticReferenceFolders() {
     std::vector<fs::path> folders;
@@ -534,8 +535,9 @@ TEST(DataCausticReferences, MatchTheirJobs) {
 // agrees on the mean caustic radiance (measured: within 2 %) and pixel by
 // pixel (RMSE measured at 12 % and 16 % of the reference's RMS pixel value; the
 // reference shifted by two pixels is off by 33 % and 51 %; water-wave-collimated,
-// at 1/10 of its photons: 23 %, mean within 0.5 %). A changed scene,
-// light, photon power or gather normalisation fails this; re-render then.
+// at 1/40 of its photons: 34 %, mean within 1 %, where a shift by one pixel is
+// off by 81 %). A changed scene, light, photon power or gather normalisation
+// fails this; re-render then.
 TEST(DataCausticReferences, AgreeWithAFewPhotons) {
     for (const fs::path& folder : causticReferenceFolders()) {
         const std::string name = folder.filename().string();
@@ -543,9 +545,12 @@ TEST(DataCausticReferences, AgreeWithAFewPhotons) {
         if (!fs::exists(reference)) continue;  // MatchTheirJobs reports it
         const Job full = loadJob((folder / "caustic-reference.toml").string());
         JobOverrides overrides;
-        // Under collimated light the caustic's lines are too sharp for 1/100 of
-        // the photons (bandwidth 10x): 1/10 of them keep it within 3.2x.
-        const std::int64_t divisor = name == "water-wave-collimated" ? 10 : 100;
+        // Under collimated light the caustic's foci are too sharp for 1/100 of the
+        // photons (bandwidth 10x); 1/40 of them (bandwidth 6.3x) take as long as
+        // 1/100 of the others and blur the foci more than they blur the rest.
+        const bool collimated = name == "water-wave-collimated";
+        const std::int64_t divisor = collimated ? 40 : 100;
+        const double relativeRmseBound = collimated ? 0.4 : 0.25;
         overrides.sets = {"passes.photon.photons=" +
                               std::to_string(jobParam<std::int64_t>(full, "photon", "photons") / divisor),
                           "output.exr=false", "output.png=false"};
@@ -562,7 +567,8 @@ TEST(DataCausticReferences, AgreeWithAFewPhotons) {
             squaredError += glm::dot(d, d);
             squaredValue += glm::dot(committed.rgb[i], committed.rgb[i]);
         }
-        EXPECT_LT(std::sqrt(squaredError / squaredValue), 0.25) << name << ": RMSE relative to the RMS pixel value";
+        EXPECT_LT(std::sqrt(squaredError / squaredValue), relativeRmseBound)
+            << name << ": RMSE relative to the RMS pixel value";
     }
 }
 
