@@ -358,8 +358,10 @@ def best(rows, key, larger=False):
 
 
 def spm_ks(base, factor):
-    """SPM's k sweep at `factor` times the photons: the optimal k grows about as the square root."""
-    return sorted({max(1, round(k * math.sqrt(factor))) for k in base})
+    """SPM's k sweep at `factor` times the photons: the optimal k grows about as the square root, but
+    where bias rules (sharp foci) it may not grow at all, so the base sweep's smaller k stay in."""
+    scaled = {max(1, round(k * math.sqrt(factor))) for k in base}
+    return sorted(scaled | {k for k in base if k < min(scaled)})
 
 
 def case_study(runner, scene_dir, out, quick):
