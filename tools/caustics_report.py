@@ -331,7 +331,7 @@ def judge_reference(runner, study):
 def error_anatomy(row, reference_pixels):
     """Where the squared error of a setting rendered with several photon sets comes from: the share
     that is photon noise (per-pixel variance across the sets, unbiased), the rest (squared bias of the
-    mean image, reference noise included), the share in the reference's brightest tenth of the pixels,
+    mean image, the reference's own error included), the share in the reference's brightest tenth of the pixels,
     and the mean image's energy relative to the reference's."""
     images = [read_exr_rgb(r["image"]) for r in row["sets"]]
     n, count = len(images), len(reference_pixels)
@@ -480,7 +480,7 @@ def report(studies, et, out):
         lines += ["", f"PDS RMSE / SPM RMSE at the RMSE-optimal bandwidths: **{ratio:.3f}** (target ≤ 0.55; the paper: "
                   f"0.0370 / 0.0682 = 0.54); photon set by photon set: {min(per_set):.3f} to {max(per_set):.3f}.", ""]
         lines += [f"Where the squared error at the RMSE-optimal bandwidths comes from (over the {st['repeats']} photon sets):", "",
-                  "| method | photon noise | bias (incl. reference noise) | in the brightest 10 % of pixels | energy / reference |",
+                  "| method | photon noise | bias (incl. the reference's own error) | in the brightest 10 % of pixels | energy / reference |",
                   "|---|---:|---:|---:|---:|"]
         for label in ("SPM", "PDS"):
             a = st["anatomy"][label]
