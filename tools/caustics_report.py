@@ -534,7 +534,7 @@ def main():
     with tempfile.TemporaryDirectory() as tmp:
         runner = Runner((ROOT / args.build), Path(tmp))
         studies = [case_study(runner, ROOT / "data" / s, out, args.quick)
-                   for s in ("water-wave", "water-wave-collimated", "metal-ring")]
+                   for s in ("water-wave", "water-wave-collimated", "water-wave-sine", "metal-ring")]
         et = equal_time(runner, ROOT / "data" / "gold-ring", args.quick)
         report(studies, et, out)
 

@@ -161,6 +161,8 @@ def parse_wave(text):
 WATER_WAVES = [(0.014, 0.35, 10.0, 0.0), (0.011, 0.31, 70.0, 1.0), (0.0086, 0.27, 130.0, 2.0)]
 SCENE_MESHES = [
     ("data/water-wave/meshes/wave.obj", "wave", dict(size=1.4, grid=80, height=1.0, waves=WATER_WAVES)),
+    # The first of water-wave's wave trains alone: a single sinusoid, fold lines without point foci.
+    ("data/water-wave-sine/meshes/wave.obj", "wave", dict(size=1.4, grid=80, height=1.0, waves=WATER_WAVES[:1])),
     ("data/gold-ring/meshes/ring.obj", "ring",
      dict(inner=1.0, outer=1.08, height=0.5, segments=360, start=0.0, sweep=360.0)),
     ("data/metal-ring/meshes/half-ring.obj", "ring",

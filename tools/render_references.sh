@@ -13,13 +13,13 @@
 # below take a few minutes per scene on a 2-core machine.
 #
 # --caustic renders the caustic-only references of the caustic case studies
-# instead (water-wave, water-wave-collimated, metal-ring): standard photon
+# instead (water-wave, water-wave-collimated, water-wave-sine, metal-ring): standard photon
 # mapping with ~10 million caustic photons (40 million under collimated
 # light), data/<scene>/caustic-reference.toml as it stands (its photon count
 # is in the job file; --divide divides it), to
 # data/<scene>/reference/caustic-reference.exr with the same half-float
 # colour and metadata; no preview. Water-wave ~30 s, water-wave-collimated
-# ~4.5 minutes, metal-ring 5-8 minutes.
+# and water-wave-sine ~4.5 minutes each, metal-ring 5-8 minutes.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -58,7 +58,7 @@ binary="$build/fluxgraph"
 [[ -x "$binary" ]] || { echo "render_references.sh: no $binary; build first (cmake --build $build)" >&2; exit 2; }
 
 if ((caustic)); then
-  ((${#scenes[@]})) || scenes=(water-wave water-wave-collimated metal-ring)
+  ((${#scenes[@]})) || scenes=(water-wave water-wave-collimated water-wave-sine metal-ring)
   for scene in "${scenes[@]}"; do
     job="data/$scene/caustic-reference.toml"
     [[ -f "$job" ]] || { echo "render_references.sh: '$scene' has no $job" >&2; exit 2; }
