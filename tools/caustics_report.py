@@ -450,7 +450,7 @@ def report(studies, et, out):
              "path-traced `reference/reference.exr` (all light, Gaussian pixel filter). Caustic time = photon pass +",
              "index build + gather/splat (wall seconds from `--stats`). The references' own error is a floor under",
              "every RMSE: against renders with twice their photons they differ by RMSE 0.026 (water-wave) and",
-             "0.0017 (metal-ring); water-wave-collimated's foci are not converged even at 40M photons (its job file).",
+             "0.0017 (metal-ring); the foci under collimated light are not converged even at 40M photons (the job files).",
              f"At ≈20k photons every setting is rendered with {studies[0]['repeats']} independent photon sets (none of them the",
              "reference's): RMSE is the root of the mean squared error over the sets, SSIM and times their means.",
              "The photon-count ladder renders one set per setting.",
