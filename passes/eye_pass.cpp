@@ -38,7 +38,6 @@
 #include "jobs/random.h"
 
 #include <algorithm>
-#include <limits>
 
 namespace fg {
 

@@ -40,7 +40,6 @@
 #include "jobs/random.h"
 
 #include <algorithm>
-#include <limits>
 
 namespace fg {
 
