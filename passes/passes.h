@@ -17,10 +17,12 @@ PassRegistration volumeEyePass();
 PassRegistration photonRadiusPass();
 PassRegistration photonBvhPass();
 PassRegistration beamQueryPass();
+PassRegistration lightTracePass();
 
 // The photon-mapping pipelines as data.
 Pipeline spmPipeline();
 Pipeline pdsPipeline();
 Pipeline brePipeline();
+Pipeline ltPipeline();
 
 }  // namespace fg

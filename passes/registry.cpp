@@ -7,7 +7,7 @@ const std::vector<PassRegistration>& passRegistry() {
     static const std::vector<PassRegistration> registry = {
         pathTracerPass(), photonPass(),  eyePass(),          eyeIndexPass(),
         photonIndexPass(), gatherPass(), gatherGlobalPass(), splatPass(),
-        volumeEyePass(),   photonRadiusPass(), photonBvhPass(), beamQueryPass(),
+        volumeEyePass(),   photonRadiusPass(), photonBvhPass(), beamQueryPass(), lightTracePass(),
     };
     return registry;
 }
@@ -73,12 +73,27 @@ Pipeline brePipeline() {
             {"image"}};
 }
 
+// Light tracing: the photons, streamed batch by batch, each connected to the
+// camera. Which light the image holds is the photon pass's `store`: the
+// unbiased reference for caustics under delta lights (store = "caustic").
+Pipeline ltPipeline() {
+    return {"lt",
+            "light tracing: every photon connected to the camera; unbiased images of light seen directly on surfaces "
+            "(e.g. caustics of collimated or point lights, which pt cannot reach)",
+            {
+                {"photon", "photon", {}, {}, 0},
+                {"light_trace", "light_trace", {}, {}, 0},
+            },
+            {"image"}};
+}
+
 const std::vector<Pipeline>& builtinPipelines() {
     static const std::vector<Pipeline> pipelines = {
         {"pt", "reference path tracer: surfaces and homogeneous media, NEE + MIS", {{"pt", "pt", {}, {}, 0}}, {"image"}},
         spmPipeline(),
         pdsPipeline(),
         brePipeline(),
+        ltPipeline(),
     };
     return pipelines;
 }
