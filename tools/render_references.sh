@@ -7,6 +7,7 @@
 #
 #   tools/render_references.sh [--build DIR] [--divide N] [SCENE ...]
 #   tools/render_references.sh --caustic [--build DIR] [--divide N] [SCENE ...]
+#   tools/render_references.sh --lt [--build DIR] [--divide N] [SCENE ...]
 #
 # --divide N renders with 1/N of the reference sample counts (a trial run; the
 # result is written to out/references/ instead of data/). The sample counts
@@ -20,19 +21,27 @@
 # data/<scene>/reference/caustic-reference.exr with the same half-float
 # colour and metadata; no preview. Water-wave ~30 s, water-wave-collimated
 # and water-wave-sine ~4.5 minutes each, metal-ring 5-8 minutes.
+#
+# --lt renders the light-traced caustic references of the collimated case
+# studies (water-wave-collimated, water-wave-sine) from
+# data/<scene>/lt-reference.toml to data/<scene>/reference/lt-reference.exr,
+# likewise: every caustic photon connected to the camera, no density
+# estimation (~4 minutes each).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
 build=build
 divide=1
 caustic=0
+kind=caustic-reference
 scenes=()
 while (($#)); do
   case "$1" in
     --build) build="$2"; shift 2 ;;
     --divide) divide="$2"; shift 2 ;;
     --caustic) caustic=1; shift ;;
-    -h|--help) sed -n '2,20p' "$0"; exit 0 ;;
+    --lt) caustic=1; kind=lt-reference; shift ;;
+    -h|--help) sed -n '2,28p' "$0"; exit 0 ;;
     *) scenes+=("$1"); shift ;;
   esac
 done
@@ -58,11 +67,15 @@ binary="$build/fluxgraph"
 [[ -x "$binary" ]] || { echo "render_references.sh: no $binary; build first (cmake --build $build)" >&2; exit 2; }
 
 if ((caustic)); then
-  ((${#scenes[@]})) || scenes=(water-wave water-wave-collimated water-wave-sine metal-ring)
+  if [[ $kind == caustic-reference ]]; then
+    ((${#scenes[@]})) || scenes=(water-wave water-wave-collimated water-wave-sine metal-ring)
+  else
+    ((${#scenes[@]})) || scenes=(water-wave-collimated water-wave-sine)
+  fi
   for scene in "${scenes[@]}"; do
-    job="data/$scene/caustic-reference.toml"
+    job="data/$scene/$kind.toml"
     [[ -f "$job" ]] || { echo "render_references.sh: '$scene' has no $job" >&2; exit 2; }
-    overrides=(--set output.name=caustic-reference --set output.half=true --set output.png=false)
+    overrides=(--set output.name=$kind --set output.half=true --set output.png=false)
     if ((divide == 1)); then
       out="data/$scene/reference"
     else
@@ -70,13 +83,13 @@ if ((caustic)); then
       photons=$(python3 -c 'import sys, tomllib; print(tomllib.load(open(sys.argv[1], "rb"))["passes"]["photon"]["photons"])' "$job")
       overrides+=(--set passes.photon.photons=$(( photons / divide > 0 ? photons / divide : 1 )))
     fi
-    echo "== $scene: caustic reference"
+    echo "== $scene: $kind"
     start=$(date +%s)
     if ! "$binary" render "$job" --out "$out" "${overrides[@]}"; then
-      echo "render_references.sh: rendering the caustic reference of '$scene' failed" >&2
+      echo "render_references.sh: rendering the $kind of '$scene' failed" >&2
       exit 1
     fi
-    echo "== $scene: $(( $(date +%s) - start )) s -> $out/caustic-reference.exr"
+    echo "== $scene: $(( $(date +%s) - start )) s -> $out/$kind.exr"
   done
   exit 0
 fi
