@@ -113,12 +113,16 @@ public:
                 const Vec3 toPhoton = x - camera_.eye;
                 const float distance = glm::length(toPhoton);
                 if (!(distance > 0.0f)) continue;
+                const float cosCamera = depth / distance;
+                // As the camera's own rays, the visibility ray starts on the near plane.
                 Ray ray;
-                ray.origin = camera_.eye;
                 ray.direction = toPhoton / distance;
-                ray.tMax = distance * (1.0f + 2.0f * kSameHitTolerance) + kRayEpsilon;
+                const float tNear = camera_.nearClip / cosCamera;
+                ray.origin = camera_.eye + tNear * ray.direction;
+                const float rayLength = distance - tNear;
+                ray.tMax = rayLength + kSameHitTolerance * distance * 2.0f + kRayEpsilon;
                 const Hit hit = rays.intersect(ray);
-                if (!hit.valid() || std::abs(hit.t - distance) > kSameHitTolerance * distance + kRayEpsilon) {
+                if (!hit.valid() || std::abs(hit.t - rayLength) > kSameHitTolerance * distance + kRayEpsilon) {
                     ++acc.occluded;
                     continue;
                 }
@@ -137,7 +141,6 @@ public:
                 const Rgb brdf = scene.bsdfs[static_cast<std::size_t>(bsdfIndex)]->eval(
                                      woLocal, wiLocal, surface.uv, TransportMode::Radiance) /
                                  std::abs(wiLocal.z);
-                const float cosCamera = depth / distance;
                 const float rasterPerArea =
                     rasterPerImagePlane_ * std::abs(glm::dot(surface.ng, wo)) / (sqr(distance) * cosCamera * sqr(cosCamera));
                 const Rgb value = power[p] * brdf * (rasterPerArea / filterIntegral_);

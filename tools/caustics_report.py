@@ -238,7 +238,7 @@ class Study:
             if self.pt_reference is None and not lt_reference.exists() and (scene_dir / "lt-reference.toml").exists():
                 sys.exit(f"{lt_reference}: missing (tools/render_references.sh --lt {self.tag})")
             self.secondary = self.pt_reference or (lt_reference if lt_reference.exists() else None)
-            self.secondary_label = "pt" if self.pt_reference else "lt"
+            self.secondary_label = "pt" if self.pt_reference else ("lt" if self.secondary else None)
             self.reference_pixels = read_exr_rgb(self.reference)
         else:
             self.reference = self.pt_reference

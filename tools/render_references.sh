@@ -32,16 +32,16 @@ cd "$(dirname "$0")/.."
 
 build=build
 divide=1
-caustic=0
+photon_references=0
 kind=caustic-reference
 scenes=()
 while (($#)); do
   case "$1" in
     --build) build="$2"; shift 2 ;;
     --divide) divide="$2"; shift 2 ;;
-    --caustic) caustic=1; shift ;;
-    --lt) caustic=1; kind=lt-reference; shift ;;
-    -h|--help) sed -n '2,28p' "$0"; exit 0 ;;
+    --caustic) photon_references=1; shift ;;
+    --lt) photon_references=1; kind=lt-reference; shift ;;
+    -h|--help) sed -n '2,29p' "$0"; exit 0 ;;
     *) scenes+=("$1"); shift ;;
   esac
 done
@@ -66,7 +66,7 @@ declare -A exposure=(
 binary="$build/fluxgraph"
 [[ -x "$binary" ]] || { echo "render_references.sh: no $binary; build first (cmake --build $build)" >&2; exit 2; }
 
-if ((caustic)); then
+if ((photon_references)); then
   if [[ $kind == caustic-reference ]]; then
     ((${#scenes[@]})) || scenes=(water-wave water-wave-collimated water-wave-sine metal-ring)
   else

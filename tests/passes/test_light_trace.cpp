@@ -2,7 +2,7 @@
 // by a point light directly and through a perfect vertical mirror (the
 // caustic is the direct light of the mirror image source), seen by a tilted
 // camera through box and Gaussian pixel filters; identical images for one and
-// two threads; scenes with media refused.
+// two threads; the near clip plane; scenes with media refused.
 #include "engine/bsdf.h"
 #include "engine/error.h"
 #include "engine/light.h"
@@ -162,6 +162,34 @@ TEST(LightTrace, ImageIsIdenticalForOneAndTwoThreads) {
     EXPECT_GT(luminance(one.mean()), 0.0f);
     for (std::size_t i = 0; i < one.pixels.size(); ++i)
         for (int c = 0; c < 3; ++c) ASSERT_EQ(one.pixels[i][c], two.pixels[i][c]) << "pixel " << i;
+}
+
+// Geometry between the eye and the near clip plane is not seen, as by the
+// camera's own rays: a sheet over the whole view just in front of the lens hides
+// the floor, unless the near plane lies beyond it.
+TEST(LightTrace, GeometryBeforeTheNearPlaneIsIgnored) {
+    const std::map<std::string, ParamValue> params = {{"photon.photons", std::int64_t{200000}},
+                                                      {"photon.store", std::string("global")},
+                                                      {"photon.store_direct", true},
+                                                      {"photon.max_depth", std::int64_t{1}}};
+    const FilmSettings film = filmWith(FilterKind::Box);
+    const Scene open = mirrorScene();
+    Scene covered = mirrorScene();
+    Shape sheet;
+    TriangleMesh sheetMesh = makeRectangleMesh();
+    sheetMesh.transform(glm::translate(Mat4(1.0f), Vec3(-0.6f, 0.3f, 2.45f)) * glm::scale(Mat4(1.0f), Vec3(1.0f)));
+    sheet.geometry = sheetMesh;
+    sheet.bsdf = 0;
+    covered.shapes.push_back(sheet);
+    covered.finalize();
+    const test::RenderedImage reference = test::renderPipeline(open, "lt", params, film);
+    EXPECT_EQ(luminance(test::renderPipeline(covered, "lt", params, film).mean()), 0.0f);
+    covered.camera.nearClip = 0.1f;
+    const test::RenderedImage clipped = test::renderPipeline(covered, "lt", params, film);
+    ASSERT_GT(luminance(reference.mean()), 0.0f);
+    for (std::size_t i = 0; i < reference.pixels.size(); ++i)
+        for (int c = 0; c < 3; ++c)
+            EXPECT_NEAR(clipped.pixels[i][c], reference.pixels[i][c], 1e-5f * reference.pixels[i][c]) << "pixel " << i;
 }
 
 TEST(LightTrace, ScenesWithMediaAreRefused) {
