@@ -459,11 +459,12 @@ TEST(DataReferences, MatchTheirJobs) {
 // photon mapping with ~10M caustic photons (40M under collimated light) from
 // data/<scene>/caustic-reference.toml.
 
-std::vector<fs::path> causticReferenceFolders() {
+// The scene folders with a reference of `kind` ("caustic-reference",
+// "lt-reference"): its job data/<scene>/<kind>.toml or its image.
+std::vector<fs::path> referenceFolders(const std::string& kind) {
     std::vector<fs::path> folders;
     for (const auto& entry : fs::directory_iterator(dataDirectory())) {
-        if (fs::exists(entry.path() / "caustic-reference.toml") ||
-            fs::exists(entry.path() / "reference" / "caustic-reference.exr"))
+        if (fs::exists(entry.path() / (kind + ".toml")) || fs::exists(entry.path() / "reference" / (kind + ".exr")))
             folders.push_back(entry.path());
     }
     std::sort(folders.begin(), folders.end());
@@ -528,12 +529,26 @@ ImageChannels expectRenderedFromItsJob(const fs::path& folder, const std::string
     return image;
 }
 
+// The job data/<scene>/<kind>.toml rendered with 1/divisor of its photon paths
+// (nothing written).
+std::vector<Rgb> renderWithFewerPhotons(const fs::path& folder, const std::string& kind, std::int64_t divisor) {
+    const fs::path jobPath = folder / (kind + ".toml");
+    const Job full = loadJob(jobPath.string());
+    JobOverrides overrides;
+    overrides.sets = {"passes.photon.photons=" +
+                          std::to_string(jobParam<std::int64_t>(full, "photon", "photons") / divisor),
+                      "output.exr=false", "output.png=false"};
+    overrides.outputDirectory = (fs::path(FLUXGRAPH_TEST_TMP) / (kind + "s")).string();
+    const RenderOutcome outcome = renderJob(loadJob(jobPath.string(), overrides), {});
+    return static_cast<const Film*>(outcome.run.results.at("image").data.get())->resolve();
+}
+
 // A committed caustic reference is what the script makes from its job as it
 // stands: same size, half-float colour, the job text and command line recorded,
 // no photon-count override (a --divide trial), and the job is a caustic-only
 // spm render (no direct light at the eye vertices, caustic photons only).
 TEST(DataCausticReferences, MatchTheirJobs) {
-    const std::vector<fs::path> folders = causticReferenceFolders();
+    const std::vector<fs::path> folders = referenceFolders("caustic-reference");
     for (const fs::path& folder : folders) {
         const std::string name = folder.filename().string();
         const fs::path jobPath = folder / "caustic-reference.toml";
@@ -559,12 +574,10 @@ TEST(DataCausticReferences, MatchTheirJobs) {
 // A changed scene, light, photon power or gather normalisation fails this;
 // re-render then (deterministic: the same job gives the same figures).
 TEST(DataCausticReferences, AgreeWithAFewPhotons) {
-    for (const fs::path& folder : causticReferenceFolders()) {
+    for (const fs::path& folder : referenceFolders("caustic-reference")) {
         const std::string name = folder.filename().string();
         const fs::path reference = folder / "reference" / "caustic-reference.exr";
         if (!fs::exists(reference)) continue;  // MatchTheirJobs reports it
-        const Job full = loadJob((folder / "caustic-reference.toml").string());
-        JobOverrides overrides;
         // Under collimated light (the scenes that have a light-traced reference
         // because a path tracer cannot reach their light) the caustic's foci are
         // too sharp for 1/100 of the photons (bandwidth 10x); 1/40 of them (83M
@@ -573,12 +586,7 @@ TEST(DataCausticReferences, AgreeWithAFewPhotons) {
         const bool collimated = fs::exists(folder / "lt-reference.toml");
         const std::int64_t divisor = collimated ? 40 : 100;
         const double relativeRmseBound = collimated ? 0.4 : 0.25;
-        overrides.sets = {"passes.photon.photons=" +
-                              std::to_string(jobParam<std::int64_t>(full, "photon", "photons") / divisor),
-                          "output.exr=false", "output.png=false"};
-        overrides.outputDirectory = (fs::path(FLUXGRAPH_TEST_TMP) / "caustic_references").string();
-        const RenderOutcome outcome = renderJob(loadJob((folder / "caustic-reference.toml").string(), overrides), {});
-        const std::vector<Rgb> coarse = static_cast<const Film*>(outcome.run.results.at("image").data.get())->resolve();
+        const std::vector<Rgb> coarse = renderWithFewerPhotons(folder, "caustic-reference", divisor);
         const ImageChannels committed = readExr(reference.string());
         ASSERT_EQ(coarse.size(), committed.rgb.size()) << name;
 
@@ -596,20 +604,10 @@ TEST(DataCausticReferences, AgreeWithAFewPhotons) {
 // connected to the camera (no density estimation), from
 // data/<scene>/lt-reference.toml.
 
-std::vector<fs::path> lightTracedReferenceFolders() {
-    std::vector<fs::path> folders;
-    for (const auto& entry : fs::directory_iterator(dataDirectory())) {
-        if (fs::exists(entry.path() / "lt-reference.toml") || fs::exists(entry.path() / "reference" / "lt-reference.exr"))
-            folders.push_back(entry.path());
-    }
-    std::sort(folders.begin(), folders.end());
-    return folders;
-}
-
 // As for the caustic references: the committed image is what its job makes, a
 // caustic-only light-tracing render, in half float, with the job recorded.
 TEST(DataLightTracedReferences, MatchTheirJobs) {
-    const std::vector<fs::path> folders = lightTracedReferenceFolders();
+    const std::vector<fs::path> folders = referenceFolders("lt-reference");
     for (const fs::path& folder : folders) {
         const std::string name = folder.filename().string();
         const fs::path jobPath = folder / "lt-reference.toml";
@@ -635,17 +633,11 @@ TEST(DataLightTracedReferences, MatchTheirJobs) {
 // and 14 % of the RMS pixel value, where the reference shifted by one pixel is
 // off by 61 % and 104 %).
 TEST(DataLightTracedReferences, AgreeWithAFewPhotons) {
-    for (const fs::path& folder : lightTracedReferenceFolders()) {
+    for (const fs::path& folder : referenceFolders("lt-reference")) {
         const std::string name = folder.filename().string();
         const fs::path reference = folder / "reference" / "lt-reference.exr";
         if (!fs::exists(reference)) continue;  // MatchTheirJobs reports it
-        const Job full = loadJob((folder / "lt-reference.toml").string());
-        JobOverrides overrides;
-        overrides.sets = {"passes.photon.photons=" + std::to_string(jobParam<std::int64_t>(full, "photon", "photons") / 100),
-                          "output.exr=false", "output.png=false"};
-        overrides.outputDirectory = (fs::path(FLUXGRAPH_TEST_TMP) / "lt_references").string();
-        const RenderOutcome outcome = renderJob(loadJob((folder / "lt-reference.toml").string(), overrides), {});
-        const std::vector<Rgb> coarse = static_cast<const Film*>(outcome.run.results.at("image").data.get())->resolve();
+        const std::vector<Rgb> coarse = renderWithFewerPhotons(folder, "lt-reference", 100);
         const ImageChannels committed = readExr(reference.string());
         ASSERT_EQ(coarse.size(), committed.rgb.size()) << name;
         EXPECT_NEAR(meanLuminance(coarse) / meanLuminance(committed.rgb), 1.0, 0.01) << name;

@@ -1,4 +1,4 @@
-// Light tracing (`lt`) against images with known answers: a diffuse floor lit
+// The `light_trace` pass (pipeline `lt`) against images with known answers: a diffuse floor lit
 // by a point light directly and through a perfect vertical mirror (the
 // caustic is the direct light of the mirror image source), seen by a tilted
 // camera through box and Gaussian pixel filters; identical images for one and
