@@ -14,13 +14,14 @@
 # below take a few minutes per scene on a 2-core machine.
 #
 # --caustic renders the caustic-only references of the caustic case studies
-# instead (water-wave, water-wave-collimated, water-wave-sine, metal-ring): standard photon
-# mapping with ~10 million caustic photons (40 million under collimated
+# instead (water-wave, water-wave-collimated, water-wave-sine, metal-ring,
+# metal-ring-collimated): standard photon mapping with ~10 million caustic photons (40 million under collimated
 # light), data/<scene>/caustic-reference.toml as it stands (its photon count
 # is in the job file; --divide divides it), to
 # data/<scene>/reference/caustic-reference.exr with the same half-float
 # colour and metadata; no preview. Water-wave ~30 s, water-wave-collimated
-# and water-wave-sine ~4.5 minutes each, metal-ring 5-8 minutes.
+# and water-wave-sine ~4.5 minutes each, metal-ring 5-8 minutes,
+# metal-ring-collimated ~2 minutes.
 #
 # --lt renders the light-traced caustic references of the collimated case
 # studies (water-wave-collimated, water-wave-sine) from
@@ -68,7 +69,7 @@ binary="$build/fluxgraph"
 
 if ((photon_references)); then
   if [[ $kind == caustic-reference ]]; then
-    ((${#scenes[@]})) || scenes=(water-wave water-wave-collimated water-wave-sine metal-ring)
+    ((${#scenes[@]})) || scenes=(water-wave water-wave-collimated water-wave-sine metal-ring metal-ring-collimated)
   else
     ((${#scenes[@]})) || scenes=(water-wave-collimated water-wave-sine)
   fi
