@@ -20,38 +20,6 @@ namespace fg {
 
 namespace {
 
-// A filter with its constants computed once per round rather than per sample.
-class ReconstructionFilter {
-public:
-    explicit ReconstructionFilter(const FilmSettings& s)
-        : kind_(s.filter), radius_(s.filterRadius),
-          inverseTwoSigmaSquared_(1.0f / (2.0f * s.gaussianSigma * s.gaussianSigma)),
-          gaussianAtRadius_(std::exp(-s.filterRadius * s.filterRadius * inverseTwoSigmaSquared_)) {}
-
-    float operator()(float dx, float dy) const {
-        if (kind_ == FilterKind::Box) {
-            // Half-open on purpose: with radius 0.5 a sample on the edge shared by two
-            // pixels belongs to exactly one of them (the one whose raster cell [i, i+1)
-            // contains it), so the box filter is exactly the per-pixel mean.
-            return (dx >= -radius_ && dx < radius_ && dy >= -radius_ && dy < radius_) ? 1.0f : 0.0f;
-        }
-        return gaussian1D(dx) * gaussian1D(dy);
-    }
-
-private:
-    // Shifted down by its value at the radius so the filter reaches zero there
-    // instead of stepping, clamped so nothing beyond the radius counts.
-    float gaussian1D(float d) const {
-        if (std::abs(d) >= radius_) return 0.0f;
-        return std::max(0.0f, std::exp(-d * d * inverseTwoSigmaSquared_) - gaussianAtRadius_);
-    }
-
-    FilterKind kind_;
-    float radius_;
-    float inverseTwoSigmaSquared_;
-    float gaussianAtRadius_;
-};
-
 void validateSettings(const FilmSettings& s) {
     if (s.width <= 0 || s.height <= 0)
         throw std::invalid_argument("Film: width and height must be positive");
@@ -63,7 +31,10 @@ void validateSettings(const FilmSettings& s) {
 
 }  // namespace
 
-float filterWeight(const FilmSettings& s, float dx, float dy) { return ReconstructionFilter(s)(dx, dy); }
+PixelFilter::PixelFilter(const FilmSettings& s)
+    : kind_(s.filter), radius_(s.filterRadius),
+      inverseTwoSigmaSquared_(1.0f / (2.0f * s.gaussianSigma * s.gaussianSigma)),
+      gaussianAtRadius_(std::exp(-s.filterRadius * s.filterRadius * inverseTwoSigmaSquared_)) {}
 
 Film::Film(const FilmSettings& settings) : settings_(settings) {
     validateSettings(settings_);
@@ -81,7 +52,7 @@ void Film::addRound(const SampleRound& round) {
     if (round.raster.size() != sampleCount || round.radiance.size() != sampleCount)
         throw std::invalid_argument("Film::addRound: expected pixelCount * samplesPerPixel samples");
 
-    const ReconstructionFilter filter(settings_);
+    const PixelFilter filter(settings_);
     const std::ptrdiff_t width = settings_.width;
     const std::ptrdiff_t height = settings_.height;
     // Samples of a pixel lie inside its raster cell, so a filter of radius r

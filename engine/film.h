@@ -8,6 +8,8 @@
 
 #include "engine/math.h"
 
+#include <algorithm>
+#include <cmath>
 #include <cstdint>
 #include <span>
 #include <string>
@@ -66,6 +68,35 @@ private:
     std::vector<std::pair<std::string, std::vector<float>>> aovs_;
 };
 
-float filterWeight(const FilmSettings& s, float dx, float dy);
+// The film's reconstruction filter w(dx, dy), offsets in pixels from the pixel
+// centre, with its constants computed once: build one per round or batch, not
+// per sample.
+class PixelFilter {
+public:
+    explicit PixelFilter(const FilmSettings& s);
+
+    float operator()(float dx, float dy) const {
+        if (kind_ == FilterKind::Box) {
+            // Half-open on purpose: with radius 0.5 a sample on the edge shared by two
+            // pixels belongs to exactly one of them (the one whose raster cell [i, i+1)
+            // contains it), so the box filter is exactly the per-pixel mean.
+            return (dx >= -radius_ && dx < radius_ && dy >= -radius_ && dy < radius_) ? 1.0f : 0.0f;
+        }
+        return gaussian1D(dx) * gaussian1D(dy);
+    }
+
+private:
+    // Shifted down by its value at the radius so the filter reaches zero there
+    // instead of stepping, clamped so nothing beyond the radius counts.
+    float gaussian1D(float d) const {
+        if (std::abs(d) >= radius_) return 0.0f;
+        return std::max(0.0f, std::exp(-d * d * inverseTwoSigmaSquared_) - gaussianAtRadius_);
+    }
+
+    FilterKind kind_;
+    float radius_;
+    float inverseTwoSigmaSquared_;
+    float gaussianAtRadius_;
+};
 
 }  // namespace fg

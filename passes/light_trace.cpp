@@ -68,12 +68,13 @@ double filterIntegral(const FilmSettings& film) {
     constexpr int kSteps = 512;
     const double radius = film.filterRadius;
     const double step = 2.0 * radius / kSteps;
+    const PixelFilter filter(film);
     double sum = 0.0;
     for (int i = 0; i < kSteps; ++i) {
         const float dx = static_cast<float>(-radius + (i + 0.5) * step);
         for (int j = 0; j < kSteps; ++j) {
             const float dy = static_cast<float>(-radius + (j + 0.5) * step);
-            sum += filterWeight(film, dx, dy);
+            sum += filter(dx, dy);
         }
     }
     return sum * step * step;
@@ -95,6 +96,7 @@ public:
         const auto photonClass = map.photons.column<PhotonClassColumn>();
         const std::ptrdiff_t width = film.width, height = film.height;
         const float reach = film.filterRadius;
+        const PixelFilter filter(film);
 
         jobs::parallelForBlocks(position.size(), blocks_.size(), [&](std::size_t block, jobs::IndexRange range) {
             ConnectAccumulator& acc = blocks_[block];
@@ -152,8 +154,8 @@ public:
                 const std::ptrdiff_t y1 = std::min<std::ptrdiff_t>(height - 1, static_cast<std::ptrdiff_t>(std::floor(raster.y + reach)));
                 for (std::ptrdiff_t py = y0; py <= y1; ++py)
                     for (std::ptrdiff_t px = x0; px <= x1; ++px) {
-                        const float weight = filterWeight(film, raster.x - (static_cast<float>(px) + 0.5f),
-                                                          raster.y - (static_cast<float>(py) + 0.5f));
+                        const float weight = filter(raster.x - (static_cast<float>(px) + 0.5f),
+                                                    raster.y - (static_cast<float>(py) + 0.5f));
                         if (weight != 0.0f) acc.pixels[static_cast<std::size_t>(py * width + px)] += weight * value;
                     }
             }

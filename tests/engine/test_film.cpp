@@ -117,22 +117,24 @@ TEST(Film, GaussianWeightIsSeparableAndVanishesAtTheRadius) {
     settings.filter = FilterKind::Gaussian;
     settings.filterRadius = 2.0f;
     settings.gaussianSigma = 0.7f;
+    const PixelFilter gaussian(settings);
     for (float dx : {-1.9f, -0.6f, 0.0f, 0.25f, 1.3f}) {
         for (float dy : {-1.2f, 0.0f, 0.4f, 1.99f}) {
             const double expected = gaussian1D(dx, 2.0, 0.7) * gaussian1D(dy, 2.0, 0.7);
-            EXPECT_NEAR(filterWeight(settings, dx, dy), expected, 1e-6) << dx << ", " << dy;
+            EXPECT_NEAR(gaussian(dx, dy), expected, 1e-6) << dx << ", " << dy;
         }
     }
-    EXPECT_EQ(filterWeight(settings, 2.0f, 0.0f), 0.0f);
-    EXPECT_EQ(filterWeight(settings, 0.0f, -2.5f), 0.0f);
-    EXPECT_GT(filterWeight(settings, 0.0f, 0.0f), filterWeight(settings, 0.1f, 0.0f));
+    EXPECT_EQ(gaussian(2.0f, 0.0f), 0.0f);
+    EXPECT_EQ(gaussian(0.0f, -2.5f), 0.0f);
+    EXPECT_GT(gaussian(0.0f, 0.0f), gaussian(0.1f, 0.0f));
 
     FilmSettings box;
     box.filterRadius = 0.5f;
-    EXPECT_EQ(filterWeight(box, 0.0f, 0.0f), 1.0f);
-    EXPECT_EQ(filterWeight(box, -0.5f, -0.5f), 1.0f);
-    EXPECT_EQ(filterWeight(box, 0.5f, 0.0f), 0.0f);
-    EXPECT_EQ(filterWeight(box, 0.0f, 0.5f), 0.0f);
+    const PixelFilter boxFilter(box);
+    EXPECT_EQ(boxFilter(0.0f, 0.0f), 1.0f);
+    EXPECT_EQ(boxFilter(-0.5f, -0.5f), 1.0f);
+    EXPECT_EQ(boxFilter(0.5f, 0.0f), 0.0f);
+    EXPECT_EQ(boxFilter(0.0f, 0.5f), 0.0f);
 }
 
 TEST(Film, GaussianResultIsTheNormalisedWeightedMeanOverAllSamples) {

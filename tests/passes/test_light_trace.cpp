@@ -70,6 +70,7 @@ std::vector<Rgb> expectedImage(const Scene& scene, const FilmSettings& film,
     camera.height = film.height;
     const int perPixel = 8;
     const int reach = static_cast<int>(std::ceil(film.filterRadius * perPixel));
+    const PixelFilter filter(film);
     std::vector<Rgb> image;
     for (int py = 0; py < film.height; ++py)
         for (int px = 0; px < film.width; ++px) {
@@ -78,7 +79,7 @@ std::vector<Rgb> expectedImage(const Scene& scene, const FilmSettings& film,
             for (int i = -reach; i < reach; ++i)
                 for (int j = -reach; j < reach; ++j) {
                     const float dx = (i + 0.5f) / perPixel, dy = (j + 0.5f) / perPixel;
-                    const float w = filterWeight(film, dx, dy);
+                    const float w = filter(dx, dy);
                     if (w == 0.0f) continue;
                     const Ray ray = camera.generateRay(Vec2(px + 0.5f + dx, py + 0.5f + dy));
                     const float t = -ray.origin.z / ray.direction.z;
