@@ -15,8 +15,9 @@
 #
 # --caustic renders the caustic-only references of the caustic case studies
 # instead (water-wave, water-wave-collimated, water-wave-sine, metal-ring,
-# metal-ring-collimated): standard photon mapping with ~10 million caustic photons (40 million under collimated
-# light), data/<scene>/caustic-reference.toml as it stands (its photon count
+# metal-ring-collimated): standard photon mapping with ~10 million caustic
+# photons (40 million under collimated light),
+# data/<scene>/caustic-reference.toml as it stands (its photon count
 # is in the job file; --divide divides it), to
 # data/<scene>/reference/caustic-reference.exr with the same half-float
 # colour and metadata; no preview. Water-wave ~30 s, water-wave-collimated
@@ -42,7 +43,7 @@ while (($#)); do
     --divide) divide="$2"; shift 2 ;;
     --caustic) photon_references=1; shift ;;
     --lt) photon_references=1; kind=lt-reference; shift ;;
-    -h|--help) sed -n '2,29p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,31p' "$0"; exit 0 ;;
     *) scenes+=("$1"); shift ;;
   esac
 done
