@@ -12,6 +12,12 @@ import sys
 from pathlib import Path
 
 
+def fail(message):
+    """Bad input or a missing prerequisite: one line on stderr, exit status 2."""
+    print(message, file=sys.stderr)
+    sys.exit(2)
+
+
 def main():
     args = sys.argv[1:]
     markdown = None
@@ -22,7 +28,7 @@ def main():
     build = Path(args[0] if args else "build")
     binary = build / "tools" / "bench" / "fluxgraph_bench"
     if not binary.exists():
-        sys.exit(f"{binary}: not built (cmake --build {build} -j2)")
+        fail(f"{binary}: not built (cmake --build {build} -j2)")
     out = subprocess.run([str(binary), "--benchmark_format=json", "--benchmark_filter=BM_EmbreeClosestHit|BM_PathTracer"], check=True, capture_output=True, text=True).stdout
     results = json.loads(out)["benchmarks"]
 

@@ -40,6 +40,13 @@ import sys
 import time
 from pathlib import Path
 
+
+def fail(message):
+    """Bad input or a missing prerequisite: one line on stderr, exit status 2."""
+    print(message, file=sys.stderr)
+    sys.exit(2)
+
+
 ROOT = Path(__file__).resolve().parent.parent
 
 
@@ -174,12 +181,12 @@ def main():
 
     binary = (ROOT / args.build / "fluxgraph").resolve()
     if not binary.exists():
-        sys.exit(f"{binary}: not built (cmake --build {args.build} -j2)")
+        fail(f"{binary}: not built (cmake --build {args.build} -j2)")
     if not shutil.which("oiiotool"):
-        sys.exit("oiiotool not found (Debian: openimageio-tools)")
+        fail("oiiotool not found (Debian: openimageio-tools)")
     job = ROOT / "data" / args.scene / "bre.toml"
     if not job.exists():
-        sys.exit(f"{job}: no bre job for scene {args.scene}")
+        fail(f"{job}: no bre job for scene {args.scene}")
     reference = Path(args.reference) if args.reference else ROOT / "data" / args.scene / "reference" / "reference.exr"
     out = Path(args.out)
     if not out.is_absolute():

@@ -52,6 +52,13 @@ import tomllib
 import zlib
 from pathlib import Path
 
+
+def fail(message):
+    """Bad input or a missing prerequisite: one line on stderr, exit status 2."""
+    print(message, file=sys.stderr)
+    sys.exit(2)
+
+
 ROOT = Path(__file__).resolve().parent.parent
 CAUSTIC_TARGET = 20000
 # Independent photon sets per setting in the 20k sweeps.
@@ -93,7 +100,7 @@ def caustic_eye(scene_dir):
     """Seed, film and eye pass of the scene's caustic reference, with the eye's direct light off."""
     job_path = scene_dir / "caustic-reference.toml"
     if not job_path.exists():
-        sys.exit(f"{job_path}: missing")
+        fail(f"{job_path}: missing")
     with open(job_path, "rb") as f:
         job = tomllib.load(f)
     film = job.get("film", {})
@@ -108,7 +115,7 @@ class Runner:
         self.binary = build / "fluxgraph"
         self.work = work
         if not self.binary.exists():
-            sys.exit(f"{self.binary}: not built")
+            fail(f"{self.binary}: not built")
 
     def render(self, scene, pipeline, name, photons, extra, sampling, png=False):
         job = self.work / f"{name}.toml"
@@ -132,9 +139,9 @@ def read_exr_rgb(path):
     """R, G, B of a single-part scanline EXR (uncompressed, ZIPS or ZIP; half, float or uint channels)."""
     data = Path(path).read_bytes()
     if struct.unpack_from("<I", data, 0)[0] != 20000630:
-        sys.exit(f"{path}: not an EXR file")
+        fail(f"{path}: not an EXR file")
     if struct.unpack_from("<I", data, 4)[0] & (0x200 | 0x800 | 0x1000):
-        sys.exit(f"{path}: tiled, deep or multi-part EXR is not supported")
+        fail(f"{path}: tiled, deep or multi-part EXR is not supported")
     pos, attributes = 8, {}
     while data[pos] != 0:
         end = data.index(b"\0", pos)
@@ -154,7 +161,7 @@ def read_exr_rgb(path):
     compression = attributes["compression"][0]
     lines_per_block = {0: 1, 2: 1, 3: 16}.get(compression)
     if lines_per_block is None:
-        sys.exit(f"{path}: EXR compression {compression} is not supported")
+        fail(f"{path}: EXR compression {compression} is not supported")
     blocks = (height + lines_per_block - 1) // lines_per_block
     sizes, formats = {0: 4, 1: 2, 2: 4}, {0: "I", 1: "e", 2: "f"}
     values = {name: [] for name, _ in channels}
@@ -226,19 +233,19 @@ class Study:
         # have no path-traced reference: their caustic reference is all there is.
         has_pt = self.pt_reference.exists() or (caustic and not (scene_dir / "pt.toml").exists())
         if not has_pt:
-            sys.exit(f"{self.pt_reference}: missing (tools/render_references.sh {self.tag})")
+            fail(f"{self.pt_reference}: missing (tools/render_references.sh {self.tag})")
         if not self.pt_reference.exists():
             self.pt_reference = None
         if caustic:
             self.reference = scene_dir / "reference" / "caustic-reference.exr"
             if not self.reference.exists():
-                sys.exit(f"{self.reference}: missing (tools/render_references.sh --caustic {self.tag})")
+                fail(f"{self.reference}: missing (tools/render_references.sh --caustic {self.tag})")
             self.sampling = caustic_eye(scene_dir)
             self.photon_extra = 'store = "caustic"\ncaustic_only_paths = true\n'
             # The unbiased second measure: path traced, or else light traced (collimated light).
             lt_reference = scene_dir / "reference" / "lt-reference.exr"
             if self.pt_reference is None and not lt_reference.exists() and (scene_dir / "lt-reference.toml").exists():
-                sys.exit(f"{lt_reference}: missing (tools/render_references.sh --lt {self.tag})")
+                fail(f"{lt_reference}: missing (tools/render_references.sh --lt {self.tag})")
             self.secondary = self.pt_reference or (lt_reference if lt_reference.exists() else None)
             self.secondary_label = "pt" if self.pt_reference else ("lt" if self.secondary else None)
             self.reference_pixels = read_exr_rgb(self.reference)
@@ -315,7 +322,7 @@ def emitted_for(runner, scene, caustic, tag):
                              'store = "caustic"\n\n[passes.gather]\nk_caustic = 10\n', sampling)
     found = counters(stats, "photon").get("caustic_photons", 0)
     if found == 0:
-        sys.exit(f"{scene}: the pilot run stored no caustic photons")
+        fail(f"{scene}: the pilot run stored no caustic photons")
     return max(1, round(pilot * caustic / found))
 
 
