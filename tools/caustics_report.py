@@ -63,6 +63,10 @@ ROOT = Path(__file__).resolve().parent.parent
 CAUSTIC_TARGET = 20000
 # Independent photon sets per setting in the 20k sweeps.
 REPEATS = 4
+# The 20k sweeps: k doubles and s grows by sqrt(2), the same steps in
+# bandwidth (SPM's h grows as sqrt(k), PDS's footprint as s).
+SWEEP_KS = [5, 10, 20, 40, 80, 160, 320, 640, 1280]
+SWEEP_SS = [2, 3, 4, 6, 8, 11, 16, 23, 32, 45, 64]
 # The case studies (data/<name>/), in the report's order.
 CASE_STUDIES = ("water-wave", "water-wave-collimated", "water-wave-sine", "metal-ring", "metal-ring-collimated")
 
@@ -392,15 +396,22 @@ def spm_ks(base, factor):
     return sorted(scaled | {k for k in base if k < min(scaled)})
 
 
+def sweeps(runner, study, emitted, ks, ss, repeats):
+    """SPM's k and PDS's s swept at `emitted` photon paths, every setting over `repeats` photon sets."""
+    tag = study.tag
+    spm = [repeated(lambda r, k=k: run_spm(runner, study, emitted, k, tag, repeat=r), repeats) for k in ks]
+    pds = [repeated(lambda r, s=s: run_pds(runner, study, emitted, s, tag, repeat=r), repeats) for s in ss]
+    return spm, pds
+
+
 def case_study(runner, scene_dir, out, quick):
     study = Study(scene_dir, caustic=True)
     tag = study.tag
     emitted = emitted_for(runner, study.scene, CAUSTIC_TARGET, tag)
-    ks = [5, 20, 80, 320, 1280] if quick else [5, 10, 20, 40, 80, 160, 320, 640, 1280]
-    ss = [2, 5, 12, 30, 75] if quick else [2, 3, 4, 6, 8, 11, 16, 23, 32, 45, 64]
+    ks = [5, 20, 80, 320, 1280] if quick else SWEEP_KS
+    ss = [2, 5, 12, 30, 75] if quick else SWEEP_SS
     repeats = 2 if quick else REPEATS
-    spm = [repeated(lambda r, k=k: run_spm(runner, study, emitted, k, tag, repeat=r), repeats) for k in ks]
-    pds = [repeated(lambda r, s=s: run_pds(runner, study, emitted, s, tag, repeat=r), repeats) for s in ss]
+    spm, pds = sweeps(runner, study, emitted, ks, ss, repeats)
     spm_r, spm_s = best(spm, "rmse"), best(spm, "ssim", larger=True)
     pds_r, pds_s = best(pds, "rmse"), best(pds, "ssim", larger=True)
     spm_d, pds_d = best(spm, "rmse_display"), best(pds, "rmse_display")

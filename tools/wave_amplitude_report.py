@@ -35,8 +35,6 @@ SCENE = ROOT / "data" / "water-wave-sine"
 COMMITTED = make_geometry.WATER_WAVES[0]
 REFRACTIVE_INDEX = 1.33
 WAVE_HEIGHT = 1.0  # above the floor, as in data/water-wave-sine
-KS = [5, 10, 20, 40, 80, 160, 320, 640, 1280]
-SS = [2, 3, 4, 6, 8, 11, 16, 23, 32, 45, 64]
 
 
 def build_scene(folder, amplitude):
@@ -60,10 +58,7 @@ def render_reference(binary, scene):
 def measure(runner, scene):
     study = report.Study(scene, caustic=True)
     emitted = report.emitted_for(runner, study.scene, report.CAUSTIC_TARGET, study.tag)
-    spm = [report.repeated(lambda r, k=k: report.run_spm(runner, study, emitted, k, study.tag, repeat=r),
-                           report.REPEATS) for k in KS]
-    pds = [report.repeated(lambda r, s=s: report.run_pds(runner, study, emitted, s, study.tag, repeat=r),
-                           report.REPEATS) for s in SS]
+    spm, pds = report.sweeps(runner, study, emitted, report.SWEEP_KS, report.SWEEP_SS, report.REPEATS)
     result = {}
     for key in ("rmse", "rmse_display"):
         a, b = report.best(spm, key), report.best(pds, key)
