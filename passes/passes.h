@@ -1,7 +1,7 @@
 // Registrations of the passes defined in passes/, collected by passes/registry.cpp.
 #pragma once
 
-#include "engine/pass.h"
+#include "engine/core/pass.h"
 
 namespace fg {
 

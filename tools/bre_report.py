@@ -264,7 +264,7 @@ def write_markdown(out, args, job, reference, rows, skipped, sweep):
               f"Error columns: whole image / crop `{args.crop or 'none'}` / that crop in 4 x 4-pixel block averages; "
               "the last column compares mean luminance over the crop. Where the reference is a path-traced image "
               "of a caustic scene, its own noise (fireflies of rare caustic paths) sets a floor under these errors: "
-              "once the estimate's error is below it they stop falling (see tests/passes/test_bre.cpp, which shows "
+              "once the estimate's error is below it they stop falling (see tests/passes/volume/test_bre.cpp, which shows "
               "the fall at 2k-32k photons).", ""]
     header = ("| volume photons | paths | photon tracing s (cpu) | radii s (cpu) | BVH s (cpu) | preprocess s | "
               "beam query s (cpu) | total s | nodes / ray | photons tested / ray | used / ray | mean r | "

@@ -1,12 +1,12 @@
 // The `compare` subcommand: reads a test image and a reference, prints the
-// metrics of engine/image_compare.h as machine-readable "name value" lines
+// metrics of engine/image/image_compare.h as machine-readable "name value" lines
 // and optionally writes a relative-error heatmap. Every failure is found
 // before anything is printed, so a run either prints all requested lines or
 // exactly one error line (exit code 2).
 #include "engine/cli/compare.h"
 
-#include "engine/error.h"
-#include "engine/image_compare.h"
+#include "engine/core/error.h"
+#include "engine/image/image_compare.h"
 
 #include <CLI/CLI.hpp>
 

@@ -2,10 +2,10 @@
 // Input errors print one line "file:line: message" and exit with code 2,
 // leaving no output file behind; internal errors exit with code 1.
 #include "engine/cli/compare.h"
-#include "engine/error.h"
-#include "engine/job.h"
-#include "engine/pass.h"
-#include "engine/render.h"
+#include "engine/core/error.h"
+#include "engine/core/job.h"
+#include "engine/core/pass.h"
+#include "engine/core/render.h"
 
 #include <CLI/CLI.hpp>
 

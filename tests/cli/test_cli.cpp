@@ -3,8 +3,8 @@
 // what it left on disk. Input errors must cost exactly one stderr line and
 // exit code 2 and leave no image behind; renders must be reproducible across
 // thread counts and carry their provenance in the EXR metadata.
-#include "engine/image_io.h"
-#include "engine/pass.h"
+#include "engine/image/image_io.h"
+#include "engine/core/pass.h"
 
 #include <gtest/gtest.h>
 

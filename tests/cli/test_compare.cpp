@@ -2,7 +2,7 @@
 // here. Output is one "name value" line per metric, the values those of
 // compareImages; every bad input costs exit code 2 and exactly one stderr line
 // with nothing on stdout; the heatmap is written atomically.
-#include "engine/image_compare.h"
+#include "engine/image/image_compare.h"
 
 #include <gtest/gtest.h>
 

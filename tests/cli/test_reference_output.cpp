@@ -1,9 +1,9 @@
 // Reference-image output (tools/render_references.sh): `output.half = true`
 // stores the colour channels as half floats while the AOVs keep 32 bits, and
 // the EXR records the command line that rendered it.
-#include "engine/error.h"
-#include "engine/image_io.h"
-#include "engine/job.h"
+#include "engine/core/error.h"
+#include "engine/image/image_io.h"
+#include "engine/core/job.h"
 
 #include <OpenImageIO/imageio.h>
 #include <gtest/gtest.h>

@@ -9,7 +9,7 @@
 // is far below the cell's counting noise.
 #pragma once
 
-#include "engine/math.h"
+#include "engine/core/math.h"
 
 #include <cstddef>
 #include <functional>

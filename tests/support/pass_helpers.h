@@ -2,10 +2,10 @@
 // built in the test (with test-only passes alongside the registered ones).
 #pragma once
 
-#include "engine/film.h"
-#include "engine/pass.h"
-#include "engine/scene.h"
-#include "engine/scheduler.h"
+#include "engine/image/film.h"
+#include "engine/core/pass.h"
+#include "engine/scene/scene.h"
+#include "engine/core/scheduler.h"
 
 #include <map>
 #include <memory>

@@ -2,12 +2,12 @@
 // and a stand-in `photon` pass that hands such maps to a pipeline.
 #pragma once
 
-#include "engine/bsdf.h"
-#include "engine/math.h"
-#include "engine/pass.h"
-#include "engine/photon_buffers.h"
-#include "engine/scene.h"
-#include "engine/texture.h"
+#include "engine/shading/bsdf.h"
+#include "engine/core/math.h"
+#include "engine/core/pass.h"
+#include "engine/buffers/photon_buffers.h"
+#include "engine/scene/scene.h"
+#include "engine/shading/texture.h"
 #include "jobs/random.h"
 
 #include <functional>

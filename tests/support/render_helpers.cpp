@@ -1,6 +1,6 @@
 #include "tests/support/render_helpers.h"
 
-#include "engine/ray_query.h"
+#include "engine/accel/ray_query.h"
 #include "jobs/parallel.h"
 
 #include <stdexcept>

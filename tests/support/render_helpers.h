@@ -2,9 +2,9 @@
 // scheduler and passes.
 #pragma once
 
-#include "engine/film.h"
-#include "engine/scene.h"
-#include "engine/scheduler.h"
+#include "engine/image/film.h"
+#include "engine/scene/scene.h"
+#include "engine/core/scheduler.h"
 
 #include <map>
 #include <string>

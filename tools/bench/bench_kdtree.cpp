@@ -4,7 +4,7 @@
 // "surface-like": points on the six faces of the cube, as photons land.
 //
 //   build/tools/bench/fluxgraph_bench --benchmark_filter=KdTree
-#include "engine/kdtree.h"
+#include "engine/accel/kdtree.h"
 #include "jobs/parallel.h"
 #include "jobs/random.h"
 

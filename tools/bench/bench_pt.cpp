@@ -3,10 +3,10 @@
 // tools/bench_report.py, which prints the ratios and parallel efficiencies.
 //
 //   build/tools/bench/fluxgraph_bench --benchmark_filter=. [--benchmark_format=json]
-#include "engine/ray_query.h"
-#include "engine/scene.h"
-#include "engine/scene_loader.h"
-#include "engine/scheduler.h"
+#include "engine/accel/ray_query.h"
+#include "engine/scene/scene.h"
+#include "engine/scene/scene_loader.h"
+#include "engine/core/scheduler.h"
 #include "jobs/parallel.h"
 #include "jobs/random.h"
 

@@ -1,0 +1,315 @@
+// End-to-end rendering of a job, and the reports a run leaves behind: the
+// per-pass table, the EXR metadata and the Chrome trace (chrome://tracing or
+// ui.perfetto.dev: one slice per pass, one per task chunk, a row per thread).
+#include "engine/core/render.h"
+
+#include "engine/core/error.h"
+#include "engine/image/image_io.h"
+#include "engine/accel/ray_query.h"
+#include "engine/scene/scene_loader.h"
+#include "jobs/parallel.h"
+
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <iomanip>
+#include <mutex>
+#include <sstream>
+#include <unistd.h>
+
+namespace fg {
+
+namespace {
+
+namespace fs = std::filesystem;
+
+// Writes and removes a probe file: permission bits alone do not tell (root,
+// ACLs, read-only mounts).
+bool canCreateFileIn(const fs::path& dir) {
+    const fs::path probe = dir / (".fluxgraph-write-test-" + std::to_string(::getpid()));
+    bool written = false;
+    {
+        std::ofstream out(probe);
+        written = out && (out << "x") && out.flush();
+    }
+    std::error_code ignored;
+    fs::remove(probe, ignored);
+    return written;
+}
+
+// Creates the output directory if needed and proves it is writable, before any
+// work is done, so that a long render never fails at the very end.
+void ensureWritableDirectory(const std::string& dir) {
+    std::error_code ec;
+    fs::create_directories(dir, ec);
+    if (ec || !fs::is_directory(dir)) throw InputError(dir + ": cannot create output directory");
+    if (!canCreateFileIn(dir)) throw InputError(dir + ": output directory is not writable");
+}
+
+// The trace is written after the render; its destination is checked before.
+void ensureWritableProfilePath(const std::string& path) {
+    const fs::path parent = fs::path(path).has_parent_path() ? fs::path(path).parent_path() : fs::path(".");
+    std::error_code ec;
+    if (fs::is_directory(path, ec)) throw InputError(path + ": cannot write profile: is a directory");
+    if (!fs::is_directory(parent, ec))
+        throw InputError(path + ": cannot write profile: no directory " + parent.string());
+    if (!canCreateFileIn(parent)) throw InputError(path + ": cannot write profile: directory is not writable");
+}
+
+std::string jsonEscape(const std::string& s) {
+    std::string out;
+    for (char c : s) {
+        switch (c) {
+        case '"': out += "\\\""; break;
+        case '\\': out += "\\\\"; break;
+        case '\n': out += "\\n"; break;
+        case '\t': out += "\\t"; break;
+        default:
+            if (static_cast<unsigned char>(c) < 0x20) {
+                char buf[8];
+                std::snprintf(buf, sizeof buf, "\\u%04x", c);
+                out += buf;
+            } else {
+                out += c;
+            }
+        }
+    }
+    return out;
+}
+
+std::string humanBytes(std::size_t bytes) {
+    std::ostringstream out;
+    out << std::fixed << std::setprecision(1);
+    if (bytes >= (1u << 30)) out << static_cast<double>(bytes) / (1u << 30) << " GiB";
+    else if (bytes >= (1u << 20)) out << static_cast<double>(bytes) / (1u << 20) << " MiB";
+    else if (bytes >= (1u << 10)) out << static_cast<double>(bytes) / (1u << 10) << " KiB";
+    else out << bytes << " B";
+    return out.str();
+}
+
+// Progress bar on stderr, one line per pass, redrawn at most every percent.
+class ProgressBar {
+public:
+    void update(const std::string& pass, double fraction) {
+        std::lock_guard lock(mutex_);
+        const int percent = static_cast<int>(fraction * 100.0);
+        if (pass == pass_ && percent == percent_) return;
+        if (pass != pass_ && !pass_.empty()) std::fputc('\n', stderr);
+        pass_ = pass;
+        percent_ = percent;
+        const int filled = percent * 30 / 100;
+        std::fprintf(stderr, "\r%-12s [%s%s] %3d%%", pass.c_str(), std::string(static_cast<std::size_t>(filled), '#').c_str(),
+                     std::string(static_cast<std::size_t>(30 - filled), '.').c_str(), percent);
+        std::fflush(stderr);
+    }
+    void finish() {
+        std::lock_guard lock(mutex_);
+        if (!pass_.empty()) std::fputc('\n', stderr);
+    }
+
+private:
+    std::mutex mutex_;
+    std::string pass_;
+    int percent_ = -1;
+};
+
+std::string pipelineDescription(const ExecutionPlan& plan) {
+    std::string text = plan.pipeline().name + ":";
+    for (int i : plan.topologicalOrder()) {
+        const PlannedPass& p = plan.passes()[static_cast<std::size_t>(i)];
+        text += " " + p.node.instance + (p.culled ? "(culled)" : "");
+    }
+    return text;
+}
+
+// Scene files may carry rendering hints (Mitsuba's sample_count, max_depth,
+// rfilter). They fill in what the job leaves unsaid: a pass parameter named
+// `spp` or `max_depth` that the job does not set, and the film filter when the
+// job has no [film] filter. The job file always wins.
+ExecutionPlan planWithSceneHints(const Job& job, const Scene& scene, FilmSettings& film) {
+    JobParams params = job.params;
+    const RenderHints& hints = scene.hints;
+    const std::string source = job.scenePath + " (scene hint)";
+    for (const PipelineNode& node : job.pipeline.nodes) {
+        const PassRegistration* registration = findPass(node.pass);
+        if (!registration) continue;  // build() reports it
+        auto& values = params.values[node.instance];
+        for (const ParamSpec& p : registration->spec.params) {
+            if (values.count(p.name)) continue;
+            if (p.name == "spp" && hints.samplesPerPixel > 0)
+                values[p.name] = {std::int64_t{hints.samplesPerPixel}, source};
+            if (p.name == "max_depth" && hints.maxDepth > 0)
+                values[p.name] = {std::int64_t{hints.maxDepth}, source};
+        }
+        if (values.empty()) params.values.erase(node.instance);
+    }
+    if (hints.filter && !job.filmFilterGiven) {
+        film.filter = *hints.filter;
+        if (hints.filterRadius > 0.0f) film.filterRadius = hints.filterRadius;
+        if (hints.gaussianSigma > 0.0f) film.gaussianSigma = hints.gaussianSigma;
+    }
+    return ExecutionPlan::build(job.pipeline, params, job.path);
+}
+
+}  // namespace
+
+ExecutionPlan validateJob(const Job& job) {
+    ExecutionPlan plan = ExecutionPlan::build(job.pipeline, job.params, job.path);
+    loadScene(job.scenePath, job.sceneDefines);
+    return plan;
+}
+
+RenderOutcome renderJob(const Job& job, const RenderOptions& options) {
+    // Validated before anything slow happens; rebuilt below with the scene's hints.
+    ExecutionPlan::build(job.pipeline, job.params, job.path);
+    ensureWritableDirectory(job.output.directory);
+    if (!options.profilePath.empty()) ensureWritableProfilePath(options.profilePath);
+    if (!options.statsPath.empty()) ensureWritableProfilePath(options.statsPath);
+
+    RenderOutcome outcome;
+    const std::int64_t t0 = jobs::wallNanos();
+    const Scene scene = loadScene(job.scenePath, job.sceneDefines);
+    const std::int64_t t1 = jobs::wallNanos();
+    outcome.sceneSeconds = 1e-9 * static_cast<double>(t1 - t0);
+
+    FilmSettings film = job.film;
+    if (!job.filmSizeGiven) {
+        film.width = scene.camera.width;
+        film.height = scene.camera.height;
+    }
+    const ExecutionPlan plan = planWithSceneHints(job, scene, film);
+    const jobs::ThreadLimit threadLimit(job.threads);
+    const RayQuery rays(scene);
+    outcome.accelSeconds = 1e-9 * static_cast<double>(jobs::wallNanos() - t1);
+
+    ProgressBar bar;
+    RunOptions runOptions;
+    runOptions.seed = job.seed;
+    runOptions.film = film;
+    if (options.showProgress) runOptions.progress = [&bar](const std::string& p, double f) { bar.update(p, f); };
+    auto& recorder = jobs::TraceRecorder::instance();
+    recorder.setEnabled(!options.profilePath.empty());
+    recorder.take();
+    outcome.run = execute(plan, scene, rays, runOptions);
+    recorder.setEnabled(false);
+    if (options.showProgress) bar.finish();
+
+    // Outputs: one EXR (+ PNG) per result buffer.
+    std::ostringstream timings;
+    for (const PassStats& s : outcome.run.stats) {
+        timings << s.instance << ": wall " << s.wallSeconds << " s, cpu " << s.cpuSeconds << " s, items " << s.items
+                << "\n";
+    }
+    Metadata metadata = {
+        {"version", FLUXGRAPH_VERSION},
+        {"job", job.text},
+        {"job_path", job.path},
+        {"scene", job.scenePath},
+        {"pipeline", pipelineDescription(plan)},
+        {"seed", std::to_string(job.seed)},
+        {"threads", std::to_string(jobs::maxThreads())},
+        {"pass_timings", timings.str()},
+    };
+    std::string overrides;
+    for (const std::string& o : job.overrides) overrides += (overrides.empty() ? "" : " ") + o;
+    if (!overrides.empty()) metadata.emplace_back("overrides", overrides);
+    std::string defines;
+    for (const auto& [name, value] : job.sceneDefines) defines += (defines.empty() ? "" : " ") + name + "=" + value;
+    if (!defines.empty()) metadata.emplace_back("scene_defines", defines);
+    if (!options.commandLine.empty()) metadata.emplace_back("command", options.commandLine);
+
+    for (const std::string& result : job.pipeline.results) {
+        const BufferHandle& handle = outcome.run.results.at(result);
+        if (handle.type != "Film") continue;
+        const Film& image = *static_cast<const Film*>(handle.data.get());
+        ImageChannels channels;
+        channels.width = image.width();
+        channels.height = image.height();
+        channels.rgb = image.resolve();
+        channels.extra = image.aovs();
+        const std::string stem = job.pipeline.results.size() == 1 ? job.output.name : job.output.name + "-" + result;
+        const fs::path base = fs::path(job.output.directory) / stem;
+        if (job.output.exr) {
+            writeExr(base.string() + ".exr", channels, metadata, job.output.half);
+            outcome.files.push_back(base.string() + ".exr");
+        }
+        if (job.output.png) {
+            writePngPreview(base.string() + ".png", channels, job.output.exposure);
+            outcome.files.push_back(base.string() + ".png");
+        }
+    }
+    const auto writeText = [](const std::string& path, const std::string& text) {
+        writeAtomically(path, [&](const std::string& tmp) {
+            std::ofstream out(tmp, std::ios::binary);
+            if (!(out << text) || !out.flush()) throw InputError(path + ": cannot write");
+        });
+    };
+    if (!options.profilePath.empty()) {
+        writeText(options.profilePath, chromeTraceJson(recorder.take()));
+        outcome.files.push_back(options.profilePath);
+    }
+    if (!options.statsPath.empty()) {
+        outcome.files.push_back(options.statsPath);
+        writeText(options.statsPath, statsJson(outcome));
+    }
+    return outcome;
+}
+
+std::string formatPassTable(const RenderOutcome& outcome) {
+    std::ostringstream out;
+    out << std::left << std::setw(16) << "pass" << std::right << std::setw(10) << "wall s" << std::setw(10) << "cpu s"
+        << std::setw(8) << "cpu/w" << std::setw(14) << "items" << std::setw(14) << "items/s" << std::setw(12)
+        << "out bytes" << "\n";
+    out << std::fixed;
+    for (const PassStats& s : outcome.run.stats) {
+        const double rate = s.wallSeconds > 0 ? static_cast<double>(s.items) / s.wallSeconds : 0.0;
+        out << std::left << std::setw(16) << s.instance << std::right << std::setprecision(3) << std::setw(10)
+            << s.wallSeconds << std::setw(10) << s.cpuSeconds << std::setprecision(2) << std::setw(8)
+            << (s.wallSeconds > 0 ? s.cpuSeconds / s.wallSeconds : 0.0) << std::setw(14) << s.items
+            << std::setprecision(0) << std::setw(14) << rate << std::setw(12) << humanBytes(s.outputBytes) << "\n";
+    }
+    out << std::setprecision(3) << "scene load " << outcome.sceneSeconds << " s, Embree build " << outcome.accelSeconds
+        << " s, passes " << outcome.run.wallSeconds << " s\n";
+    return out.str();
+}
+
+std::string statsJson(const RenderOutcome& outcome) {
+    std::ostringstream out;
+    out << std::setprecision(9) << "{\"scene_seconds\": " << outcome.sceneSeconds
+        << ", \"accel_seconds\": " << outcome.accelSeconds << ", \"passes_seconds\": " << outcome.run.wallSeconds
+        << ", \"passes\": [";
+    for (std::size_t i = 0; i < outcome.run.stats.size(); ++i) {
+        const PassStats& s = outcome.run.stats[i];
+        out << (i ? "," : "") << "\n  {\"instance\": \"" << jsonEscape(s.instance) << "\", \"pass\": \""
+            << jsonEscape(s.pass) << "\", \"start_seconds\": " << s.startSeconds
+            << ", \"wall_seconds\": " << s.wallSeconds << ", \"cpu_seconds\": " << s.cpuSeconds
+            << ", \"items\": " << s.items << ", \"output_bytes\": " << s.outputBytes << ", \"counters\": {";
+        bool first = true;
+        for (const auto& [name, value] : s.counters) {
+            out << (first ? "" : ", ") << "\"" << jsonEscape(name) << "\": " << value;
+            first = false;
+        }
+        out << "}}";
+    }
+    out << "\n]}\n";
+    return out.str();
+}
+
+std::string chromeTraceJson(const std::vector<jobs::TraceSlice>& slices) {
+    std::int64_t origin = INT64_MAX;
+    for (const auto& s : slices) origin = std::min(origin, s.beginNs);
+    std::ostringstream out;
+    out << "{\"displayTimeUnit\":\"ms\",\"traceEvents\":[";
+    bool first = true;
+    for (const auto& s : slices) {
+        out << (first ? "" : ",") << "\n{\"name\":\"" << jsonEscape(s.name) << "\",\"cat\":\"" << s.category
+            << "\",\"ph\":\"X\",\"pid\":1,\"tid\":" << s.thread << ",\"ts\":" << std::fixed << std::setprecision(3)
+            << 1e-3 * static_cast<double>(s.beginNs - origin) << ",\"dur\":"
+            << 1e-3 * static_cast<double>(s.endNs - s.beginNs) << ",\"args\":{\"items\":" << s.items << "}}";
+        first = false;
+    }
+    out << "\n]}\n";
+    return out.str();
+}
+
+}  // namespace fg

@@ -1,0 +1,106 @@
+// Wavefront OBJ meshes through tinyobjloader. OBJ indexes positions, normals
+// and texture coordinates separately; a renderer wants one index per vertex,
+// so every distinct (position, normal, uv) triple becomes one output vertex.
+// All groups and objects are merged into a single mesh; materials (.mtl) are
+// ignored because the scene file assigns materials per shape.
+#include "engine/core/error.h"
+#include "engine/scene/shape.h"
+
+#include <tiny_obj_loader.h>
+
+#include <filesystem>
+#include <unordered_map>
+
+namespace fg {
+
+namespace {
+
+struct CornerKey {
+    int position, normal, uv;
+    bool operator==(const CornerKey&) const = default;
+};
+
+struct CornerKeyHash {
+    std::size_t operator()(const CornerKey& k) const {
+        std::size_t h = static_cast<std::size_t>(static_cast<std::uint32_t>(k.position));
+        h = h * 0x9E3779B97F4A7C15ull ^ static_cast<std::uint32_t>(k.normal);
+        h = h * 0x9E3779B97F4A7C15ull ^ static_cast<std::uint32_t>(k.uv);
+        return h ^ (h >> 29);
+    }
+};
+
+std::string firstLine(const std::string& text) {
+    std::string line = text.substr(0, text.find('\n'));
+    while (!line.empty() && (line.back() == '\r' || line.back() == ' ')) line.pop_back();
+    return line;
+}
+
+}  // namespace
+
+TriangleMesh loadObjMesh(const std::string& path) {
+    std::error_code ec;
+    if (!std::filesystem::is_regular_file(path, ec)) throw InputError(path, 0, "OBJ file not found");
+
+    tinyobj::ObjReaderConfig config;
+    config.triangulate = true;
+    config.vertex_color = false;
+    tinyobj::ObjReader reader;
+    if (!reader.ParseFromFile(path, config)) {
+        const std::string why = firstLine(reader.Error());
+        throw InputError(path, 0, "cannot parse OBJ file" + (why.empty() ? std::string() : ": " + why));
+    }
+    const tinyobj::attrib_t& attrib = reader.GetAttrib();
+    const std::size_t positionCount = attrib.vertices.size() / 3;
+    const std::size_t normalCount = attrib.normals.size() / 3;
+    const std::size_t uvCount = attrib.texcoords.size() / 2;
+
+    // Normals (uvs) are kept only if every face corner has one; a half-specified
+    // attribute cannot be interpolated meaningfully.
+    bool allNormals = true, allUvs = true;
+    std::size_t cornerCount = 0;
+    for (const tinyobj::shape_t& shape : reader.GetShapes()) {
+        for (const tinyobj::index_t& idx : shape.mesh.indices) {
+            if (idx.vertex_index < 0 || static_cast<std::size_t>(idx.vertex_index) >= positionCount) {
+                throw InputError(path, 0, "face refers to a vertex that does not exist");
+            }
+            allNormals = allNormals && idx.normal_index >= 0 && static_cast<std::size_t>(idx.normal_index) < normalCount;
+            allUvs = allUvs && idx.texcoord_index >= 0 && static_cast<std::size_t>(idx.texcoord_index) < uvCount;
+            ++cornerCount;
+        }
+    }
+    if (cornerCount == 0) throw InputError(path, 0, "OBJ file contains no faces");
+
+    TriangleMesh mesh;
+    mesh.indices.reserve(cornerCount);
+    std::unordered_map<CornerKey, std::uint32_t, CornerKeyHash> vertexOf;
+    for (const tinyobj::shape_t& shape : reader.GetShapes()) {
+        std::size_t offset = 0;
+        for (const unsigned char faceSize : shape.mesh.num_face_vertices) {
+            if (faceSize != 3) throw InputError(path, 0, "face with " + std::to_string(faceSize) + " vertices after triangulation");
+            for (std::size_t c = 0; c < 3; ++c) {
+                const tinyobj::index_t& idx = shape.mesh.indices[offset + c];
+                const CornerKey key{idx.vertex_index, allNormals ? idx.normal_index : -1, allUvs ? idx.texcoord_index : -1};
+                auto [it, inserted] = vertexOf.try_emplace(key, static_cast<std::uint32_t>(mesh.positions.size()));
+                if (inserted) {
+                    const auto v = static_cast<std::size_t>(key.position);
+                    mesh.positions.emplace_back(attrib.vertices[3 * v], attrib.vertices[3 * v + 1], attrib.vertices[3 * v + 2]);
+                    if (allNormals) {
+                        const auto n = static_cast<std::size_t>(key.normal);
+                        const Vec3 normal(attrib.normals[3 * n], attrib.normals[3 * n + 1], attrib.normals[3 * n + 2]);
+                        const float length = glm::length(normal);
+                        mesh.normals.push_back(length > 0.0f ? normal / length : normal);
+                    }
+                    if (allUvs) {
+                        const auto t = static_cast<std::size_t>(key.uv);
+                        mesh.uvs.emplace_back(attrib.texcoords[2 * t], attrib.texcoords[2 * t + 1]);
+                    }
+                }
+                mesh.indices.push_back(it->second);
+            }
+            offset += 3;
+        }
+    }
+    return mesh;
+}
+
+}  // namespace fg

@@ -1,0 +1,109 @@
+// The pinhole camera (look-at frame, vertical field of view, raster y pointing
+// down, near and far clip planes, as Mitsuba's perspective sensor with
+// fov_axis = "y") and the scene-wide bookkeeping done once after loading:
+// bounds, the bounding sphere that infinite lights need, and light selection in
+// proportion to emitted power (luminance of Light::power(), as pbrt-v3's
+// PowerLightDistribution).
+#include "engine/scene/scene.h"
+
+#include <cmath>
+#include <limits>
+#include <vector>
+
+namespace fg {
+
+namespace {
+
+struct CameraFrame {
+    Vec3 forward, right, up;
+    float tanHalfFovY;
+    float aspect;
+};
+
+CameraFrame cameraFrame(const Camera& camera) {
+    CameraFrame frame;
+    frame.forward = glm::normalize(camera.target - camera.eye);
+    // right = forward x up keeps the world's handedness on screen: with up = +y
+    // and forward = +z, screen right is world -x, as in Mitsuba's look-at.
+    frame.right = glm::normalize(glm::cross(frame.forward, camera.up));
+    frame.up = glm::cross(frame.right, frame.forward);
+    if (camera.mirrored) frame.right = -frame.right;
+    frame.tanHalfFovY = std::tan(0.5f * camera.fovYDegrees * kPi / 180.0f);
+    frame.aspect = static_cast<float>(camera.width) / static_cast<float>(camera.height);
+    return frame;
+}
+
+}  // namespace
+
+Ray Camera::generateRay(const Vec2& raster) const {
+    const CameraFrame frame = cameraFrame(*this);
+    const float x = (2.0f * raster.x / static_cast<float>(width) - 1.0f) * frame.tanHalfFovY * frame.aspect;
+    const float y = (1.0f - 2.0f * raster.y / static_cast<float>(height)) * frame.tanHalfFovY;
+    Ray ray;
+    ray.direction = glm::normalize(frame.forward + x * frame.right + y * frame.up);
+    // Clip planes are perpendicular to the viewing axis, so the distances along
+    // this ray grow by 1 / cos of its angle to the axis.
+    const float invCos = 1.0f / glm::dot(ray.direction, frame.forward);
+    const float tNear = nearClip * invCos;
+    ray.origin = eye + tNear * ray.direction;
+    ray.tMax = farClip < kInfinity ? farClip * invCos - tNear : kInfinity;
+    return ray;
+}
+
+bool Camera::project(const Vec3& p, Vec2* raster) const {
+    const CameraFrame frame = cameraFrame(*this);
+    const Vec3 d = p - eye;
+    const float depth = glm::dot(d, frame.forward);
+    if (!(depth > 0.0f)) return false;
+    const float x = glm::dot(d, frame.right) / (depth * frame.tanHalfFovY * frame.aspect);
+    const float y = glm::dot(d, frame.up) / (depth * frame.tanHalfFovY);
+    if (raster) {
+        *raster = Vec2(0.5f * (x + 1.0f) * static_cast<float>(width), 0.5f * (1.0f - y) * static_cast<float>(height));
+    }
+    return true;
+}
+
+void Scene::finalize() {
+    Vec3 lo(std::numeric_limits<float>::max());
+    Vec3 hi(-std::numeric_limits<float>::max());
+    for (const Shape& shape : shapes) {
+        if (const auto* sphere = std::get_if<Sphere>(&shape.geometry)) {
+            lo = glm::min(lo, sphere->center - Vec3(sphere->radius));
+            hi = glm::max(hi, sphere->center + Vec3(sphere->radius));
+        } else {
+            for (const Vec3& p : std::get<TriangleMesh>(shape.geometry).positions) {
+                lo = glm::min(lo, p);
+                hi = glm::max(hi, p);
+            }
+        }
+    }
+    if (lo.x > hi.x) lo = hi = Vec3(0.0f);  // nothing to bound
+    boundsMin = lo;
+    boundsMax = hi;
+
+    const Vec3 center = 0.5f * (boundsMin + boundsMax);
+    const float radius = glm::length(boundsMax - center);
+    for (const auto& light : lights) light->setSceneBounds(center, radius);
+
+    // Power depends on the bounds for infinite lights, so it is read afterwards.
+    if (lights.empty()) {
+        lightPower = Distribution1D();
+        return;
+    }
+    std::vector<float> weights(lights.size());
+    for (std::size_t i = 0; i < lights.size(); ++i) {
+        const float w = luminance(lights[i]->power());
+        weights[i] = std::isfinite(w) && w > 0.0f ? w : 0.0f;
+    }
+    lightPower = Distribution1D(weights);
+}
+
+std::vector<int> Scene::infiniteLights() const {
+    std::vector<int> result;
+    for (std::size_t i = 0; i < lights.size(); ++i) {
+        if (lights[i]->isInfinite()) result.push_back(static_cast<int>(i));
+    }
+    return result;
+}
+
+}  // namespace fg

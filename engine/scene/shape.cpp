@@ -1,0 +1,87 @@
+#include "engine/scene/shape.h"
+
+#include <cmath>
+
+namespace fg {
+
+void TriangleMesh::transform(const Mat4& toWorld) {
+    for (Vec3& p : positions) p = Vec3(toWorld * Vec4(p, 1.0f));
+    // Normals transform with the inverse transpose; a mirroring transform flips
+    // the winding, which is undone so that geometric and shading normals agree.
+    const Mat3 normalMatrix = glm::transpose(glm::inverse(Mat3(toWorld)));
+    for (Vec3& n : normals) n = glm::normalize(normalMatrix * n);
+    if (glm::determinant(Mat3(toWorld)) < 0.0f) {
+        for (std::size_t t = 0; t + 2 < indices.size(); t += 3) std::swap(indices[t + 1], indices[t + 2]);
+    }
+}
+
+void TriangleMesh::flipNormals() {
+    for (std::size_t t = 0; t + 2 < indices.size(); t += 3) std::swap(indices[t + 1], indices[t + 2]);
+    for (Vec3& n : normals) n = -n;
+}
+
+float TriangleMesh::area() const {
+    double sum = 0.0;
+    for (std::size_t t = 0; t + 2 < indices.size(); t += 3) {
+        const Vec3& a = positions[indices[t]];
+        const Vec3& b = positions[indices[t + 1]];
+        const Vec3& c = positions[indices[t + 2]];
+        sum += 0.5 * glm::length(glm::cross(b - a, c - a));
+    }
+    return static_cast<float>(sum);
+}
+
+float Shape::area() const {
+    if (const auto* s = std::get_if<Sphere>(&geometry)) return 4.0f * kPi * s->radius * s->radius;
+    return std::get<TriangleMesh>(geometry).area();
+}
+
+TriangleMesh makeRectangleMesh() {
+    TriangleMesh m;
+    m.positions = {{-1, -1, 0}, {1, -1, 0}, {1, 1, 0}, {-1, 1, 0}};
+    m.normals = {{0, 0, 1}, {0, 0, 1}, {0, 0, 1}, {0, 0, 1}};
+    m.uvs = {{0, 0}, {1, 0}, {1, 1}, {0, 1}};
+    m.indices = {0, 1, 2, 0, 2, 3};
+    return m;
+}
+
+TriangleMesh makeDiskMesh(int segments) {
+    TriangleMesh m;
+    m.positions.push_back({0, 0, 0});
+    m.normals.push_back({0, 0, 1});
+    m.uvs.push_back({0.5f, 0.5f});
+    for (int i = 0; i < segments; ++i) {
+        const float phi = 2.0f * kPi * static_cast<float>(i) / static_cast<float>(segments);
+        const Vec3 p(std::cos(phi), std::sin(phi), 0.0f);
+        m.positions.push_back(p);
+        m.normals.push_back({0, 0, 1});
+        m.uvs.push_back({0.5f + 0.5f * p.x, 0.5f + 0.5f * p.y});
+    }
+    for (int i = 0; i < segments; ++i) {
+        m.indices.push_back(0);
+        m.indices.push_back(static_cast<std::uint32_t>(1 + i));
+        m.indices.push_back(static_cast<std::uint32_t>(1 + (i + 1) % segments));
+    }
+    return m;
+}
+
+TriangleMesh makeCubeMesh() {
+    TriangleMesh m;
+    // Six faces, each with its own four vertices so normals stay flat.
+    const Vec3 normals[6] = {{1, 0, 0}, {-1, 0, 0}, {0, 1, 0}, {0, -1, 0}, {0, 0, 1}, {0, 0, -1}};
+    for (const Vec3& n : normals) {
+        const Frame f(n);
+        const auto base = static_cast<std::uint32_t>(m.positions.size());
+        const Vec2 corners[4] = {{-1, -1}, {1, -1}, {1, 1}, {-1, 1}};
+        for (const Vec2& c : corners) {
+            m.positions.push_back(n + f.s * c.x + f.t * c.y);
+            m.normals.push_back(n);
+            m.uvs.push_back(0.5f * (c + Vec2(1.0f)));
+        }
+        // Frame(n) is right-handed (s x t = n), so this winding faces outwards.
+        m.indices.insert(m.indices.end(), {base, base + 1, base + 2, base, base + 2, base + 3});
+    }
+    return m;
+}
+
+}  // namespace fg

@@ -1,0 +1,66 @@
+// Scene geometry in world space: triangle meshes (from OBJ/PLY or generated
+// rectangles, disks and cubes) and analytic spheres. Spheres stay analytic all
+// the way into Embree (user geometry): refraction through a glass sphere is the
+// heart of the caustic scenes, and a tessellated sphere's facets would imprint
+// themselves on every caustic it focuses.
+#pragma once
+
+#include "engine/core/math.h"
+
+#include <cstdint>
+#include <string>
+#include <variant>
+#include <vector>
+
+namespace fg {
+
+struct TriangleMesh {
+    std::vector<Vec3> positions;
+    std::vector<Vec3> normals;  // per vertex, optional (empty: flat shading)
+    std::vector<Vec2> uvs;      // per vertex, optional
+    std::vector<std::uint32_t> indices;  // three per triangle
+
+    std::size_t triangleCount() const { return indices.size() / 3; }
+    void transform(const Mat4& toWorld);
+    void flipNormals();  // reverses winding and per-vertex normals
+    float area() const;
+};
+
+struct Sphere {
+    Vec3 center{0.0f};
+    float radius = 1.0f;
+};
+
+// Generators in object space, as Mitsuba defines them: rectangle [-1,1]^2 at z=0
+// facing +z; disk of radius 1 at z=0 facing +z; cube [-1,1]^3 facing outwards.
+TriangleMesh makeRectangleMesh();
+TriangleMesh makeDiskMesh(int segments = 128);
+TriangleMesh makeCubeMesh();
+// Loads a Wavefront OBJ (all groups merged); throws InputError naming file and problem.
+TriangleMesh loadObjMesh(const std::string& path);
+// Loads a Stanford PLY (ASCII or binary, either byte order; polygons are
+// triangulated, point and line elements rejected). Texture coordinates are
+// returned as stored in the file; throws InputError naming file and problem.
+TriangleMesh loadPlyMesh(const std::string& path);
+
+struct ShapeSample {
+    Vec3 p{0.0f};
+    Vec3 n{0.0f};
+    Vec2 uv{0.0f};
+    float pdfArea = 0.0f;
+};
+
+struct Shape {
+    std::string name;
+    std::variant<TriangleMesh, Sphere> geometry;
+    int bsdf = -1;            // index into Scene::bsdfs
+    int interiorMedium = -1;  // index into Scene::media, -1 = none
+    int exteriorMedium = -1;
+    int areaLight = -1;       // index into Scene::lights, -1 = not an emitter
+    bool flipNormals = false; // spheres: normals point inwards
+
+    bool isSphere() const { return std::holds_alternative<Sphere>(geometry); }
+    float area() const;
+};
+
+}  // namespace fg

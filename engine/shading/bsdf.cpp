@@ -1,0 +1,644 @@
+// Surface scattering models declared in engine/shading/bsdf.h:
+//  - Fresnel equations for dielectrics and for conductors with a complex index
+//    of refraction (exact unpolarised form, Born & Wolf, "Principles of Optics",
+//    Sec. 14.2), named IOR presets;
+//  - Lambertian diffuse, smooth dielectric, thin dielectric (a slab with
+//    infinitely many inter-reflections summed in closed form), smooth conductor;
+//  - GGX rough conductor and rough dielectric after Walter et al. 2007,
+//    "Microfacet Models for Refraction through Rough Surfaces" (Eqs. 20-21 for
+//    the BSDF, Eqs. 14-17 for the half-vector Jacobians), with the separable
+//    Smith shadowing G1(wo) G1(wi) and visible-normal sampling (Heitz 2018);
+//  - plastic: a smooth dielectric coating over a Lambertian base (the layered
+//    model of Weidlich & Wilkie 2007 in its simplest form, as Mitsuba's
+//    `plastic`), where light entering the coating is reflected diffusely and
+//    re-enters the base after internal Fresnel reflection, summed as a geometric
+//    series with the hemispherical internal reflectance Fdr;
+//  - the index-matched null interface and a two-sided adapter.
+// All conventions (eval includes |cos(theta_i)|, weight = eval / pdf, specular
+// pdf = discrete lobe probability) are those documented in bsdf.h.
+#include "engine/shading/bsdf.h"
+
+#include "engine/shading/microfacet.h"
+
+#include <array>
+#include <complex>
+#include <utility>
+
+namespace fg {
+
+namespace {
+
+Vec3 mirrorReflect(const Vec3& w) { return {-w.x, -w.y, w.z}; }
+Vec3 flipZ(const Vec3& w) { return {w.x, w.y, -w.z}; }
+
+// Hemispherical average of the Fresnel reflectance, 2 * integral of F(mu) mu dmu
+// over [0, 1] (the "diffuse Fresnel reflectance" Fdr). Evaluated by the midpoint
+// rule at construction time; the kink at the critical angle limits the error to
+// about N^-1.5, far below what a renderer can resolve.
+float diffuseFresnelReflectance(float eta) {
+    constexpr int kSteps = 1 << 14;
+    double sum = 0.0;
+    for (int i = 0; i < kSteps; ++i) {
+        const float mu = (static_cast<float>(i) + 0.5f) / kSteps;
+        sum += static_cast<double>(fresnelDielectric(mu, eta)) * mu;
+    }
+    return static_cast<float>(2.0 * sum / kSteps);
+}
+
+// ---------------------------------------------------------------------------
+
+class DiffuseBsdf final : public Bsdf {
+public:
+    explicit DiffuseBsdf(std::shared_ptr<Texture> reflectance) : reflectance_(std::move(reflectance)) {}
+
+    std::uint32_t lobes() const override { return BsdfLobe::Reflection | BsdfLobe::Diffuse; }
+
+    Rgb eval(const Vec3& wo, const Vec3& wi, const Vec2& uv, TransportMode) const override {
+        if (wo.z <= 0.0f || wi.z <= 0.0f) return Rgb(0.0f);
+        return reflectance_->eval(uv) * (kInvPi * wi.z);
+    }
+
+    std::optional<Rgb> constantReflectance(const Vec2& uv) const override { return reflectance_->eval(uv) * kInvPi; }
+
+    float pdf(const Vec3& wo, const Vec3& wi, const Vec2&) const override {
+        if (wo.z <= 0.0f || wi.z <= 0.0f) return 0.0f;
+        return cosineHemispherePdf(wi.z);
+    }
+
+    std::optional<BsdfSample> sample(const Vec3& wo, const Vec2& uv, float, const Vec2& u,
+                                     TransportMode) const override {
+        if (wo.z <= 0.0f) return std::nullopt;
+        BsdfSample s;
+        s.wi = sampleCosineHemisphere(u);
+        if (s.wi.z <= 0.0f) return std::nullopt;
+        s.pdf = cosineHemispherePdf(s.wi.z);
+        s.weight = reflectance_->eval(uv);
+        s.lobe = BsdfLobe::Reflection | BsdfLobe::Diffuse;
+        return s;
+    }
+
+private:
+    std::shared_ptr<Texture> reflectance_;
+};
+
+// ---------------------------------------------------------------------------
+
+class DielectricBsdf final : public Bsdf {
+public:
+    DielectricBsdf(float eta, const Rgb& specularReflectance, const Rgb& specularTransmittance)
+        : eta_(eta), specularReflectance_(specularReflectance), specularTransmittance_(specularTransmittance) {}
+
+    std::uint32_t lobes() const override {
+        return BsdfLobe::Reflection | BsdfLobe::Transmission | BsdfLobe::Specular;
+    }
+    Rgb eval(const Vec3&, const Vec3&, const Vec2&, TransportMode) const override { return Rgb(0.0f); }
+    float pdf(const Vec3&, const Vec3&, const Vec2&) const override { return 0.0f; }
+
+    std::optional<BsdfSample> sample(const Vec3& wo, const Vec2&, float uLobe, const Vec2&,
+                                     TransportMode mode) const override {
+        if (wo.z == 0.0f) return std::nullopt;
+        float cosThetaT = 0.0f;
+        const float reflectance = fresnelDielectric(wo.z, eta_, &cosThetaT);
+        BsdfSample s;
+        if (uLobe < reflectance) {
+            s.wi = mirrorReflect(wo);
+            s.pdf = reflectance;
+            s.weight = specularReflectance_;
+            s.lobe = BsdfLobe::Reflection | BsdfLobe::Specular;
+            return s;
+        }
+        // Relative IOR from the side of wo to the side of wi.
+        const float etaCrossed = wo.z > 0.0f ? eta_ : 1.0f / eta_;
+        s.wi = Vec3(-wo.x / etaCrossed, -wo.y / etaCrossed, cosThetaT);
+        s.pdf = 1.0f - reflectance;
+        // Radiance is compressed into a narrower cone when entering a denser
+        // medium; importance (photon flux) is not.
+        const float scale = mode == TransportMode::Radiance ? 1.0f / (etaCrossed * etaCrossed) : 1.0f;
+        s.weight = specularTransmittance_ * scale;
+        s.eta = etaCrossed;
+        s.lobe = BsdfLobe::Transmission | BsdfLobe::Specular;
+        return s;
+    }
+
+private:
+    float eta_;
+    Rgb specularReflectance_;
+    Rgb specularTransmittance_;
+};
+
+// ---------------------------------------------------------------------------
+
+// A slab of negligible thickness: both interfaces see the same angle, the
+// transmitted ray leaves undeviated and the inter-reflections inside the slab
+// form a geometric series R + T^2 R (1 + R^2 + R^4 + ...) = 2R / (1 + R).
+class ThinDielectricBsdf final : public Bsdf {
+public:
+    explicit ThinDielectricBsdf(float eta) : eta_(eta) {}
+
+    std::uint32_t lobes() const override {
+        return BsdfLobe::Reflection | BsdfLobe::Transmission | BsdfLobe::Specular;
+    }
+    Rgb eval(const Vec3&, const Vec3&, const Vec2&, TransportMode) const override { return Rgb(0.0f); }
+    float pdf(const Vec3&, const Vec3&, const Vec2&) const override { return 0.0f; }
+
+    std::optional<BsdfSample> sample(const Vec3& wo, const Vec2&, float uLobe, const Vec2&,
+                                     TransportMode) const override {
+        if (wo.z == 0.0f) return std::nullopt;
+        const float single = fresnelDielectric(absCosTheta(wo), eta_);
+        const float reflectance = single < 1.0f ? 2.0f * single / (1.0f + single) : 1.0f;
+        BsdfSample s;
+        s.weight = Rgb(1.0f);
+        if (uLobe < reflectance) {
+            s.wi = mirrorReflect(wo);
+            s.pdf = reflectance;
+            s.lobe = BsdfLobe::Reflection | BsdfLobe::Specular;
+        } else {
+            s.wi = -wo;
+            s.pdf = 1.0f - reflectance;
+            s.lobe = BsdfLobe::Transmission | BsdfLobe::Specular;
+        }
+        return s;
+    }
+
+private:
+    float eta_;
+};
+
+// ---------------------------------------------------------------------------
+
+class ConductorBsdf final : public Bsdf {
+public:
+    ConductorBsdf(const ConductorIor& ior, const Rgb& specularReflectance)
+        : ior_(ior), specularReflectance_(specularReflectance) {}
+
+    std::uint32_t lobes() const override { return BsdfLobe::Reflection | BsdfLobe::Specular; }
+    Rgb eval(const Vec3&, const Vec3&, const Vec2&, TransportMode) const override { return Rgb(0.0f); }
+    float pdf(const Vec3&, const Vec3&, const Vec2&) const override { return 0.0f; }
+
+    std::optional<BsdfSample> sample(const Vec3& wo, const Vec2&, float, const Vec2&, TransportMode) const override {
+        if (wo.z <= 0.0f) return std::nullopt;
+        BsdfSample s;
+        s.wi = mirrorReflect(wo);
+        s.pdf = 1.0f;
+        s.weight = specularReflectance_ * fresnelConductor(wo.z, ior_.eta, ior_.k);
+        s.lobe = BsdfLobe::Reflection | BsdfLobe::Specular;
+        return s;
+    }
+
+private:
+    ConductorIor ior_;
+    Rgb specularReflectance_;
+};
+
+// ---------------------------------------------------------------------------
+
+class RoughConductorBsdf final : public Bsdf {
+public:
+    RoughConductorBsdf(const ConductorIor& ior, float alpha, const Rgb& specularReflectance)
+        : ior_(ior), ggx_(alpha), specularReflectance_(specularReflectance) {}
+
+    std::uint32_t lobes() const override { return BsdfLobe::Reflection | BsdfLobe::Glossy; }
+
+    Rgb eval(const Vec3& wo, const Vec3& wi, const Vec2&, TransportMode) const override {
+        if (wo.z <= 0.0f || wi.z <= 0.0f) return Rgb(0.0f);
+        const Vec3 sum = wo + wi;
+        if (glm::dot(sum, sum) == 0.0f) return Rgb(0.0f);
+        const Vec3 m = glm::normalize(sum);
+        const Rgb fresnel = fresnelConductor(glm::dot(wo, m), ior_.eta, ior_.k);
+        // D G F / (4 cos_o cos_i), times cos_i.
+        return specularReflectance_ * fresnel * (ggx_.D(m) * ggx_.G(wo, wi) / (4.0f * wo.z));
+    }
+
+    float pdf(const Vec3& wo, const Vec3& wi, const Vec2&) const override {
+        if (wo.z <= 0.0f || wi.z <= 0.0f) return 0.0f;
+        const Vec3 sum = wo + wi;
+        if (glm::dot(sum, sum) == 0.0f) return 0.0f;
+        const Vec3 m = glm::normalize(sum);
+        const float cosOM = glm::dot(wo, m);
+        if (cosOM <= 0.0f) return 0.0f;
+        // Jacobian of the reflection mapping: d(omega_m)/d(omega_i) = 1 / (4 |wo.m|).
+        return ggx_.visibleNormalPdf(wo, m) / (4.0f * cosOM);
+    }
+
+    std::optional<BsdfSample> sample(const Vec3& wo, const Vec2&, float, const Vec2& u,
+                                     TransportMode) const override {
+        if (wo.z <= 0.0f) return std::nullopt;
+        const Vec3 m = ggx_.sampleVisibleNormal(wo, u);
+        const float cosOM = glm::dot(wo, m);
+        if (cosOM <= 0.0f) return std::nullopt;
+        BsdfSample s;
+        s.wi = reflect(wo, m);
+        if (s.wi.z <= 0.0f) return std::nullopt;
+        s.pdf = ggx_.visibleNormalPdf(wo, m) / (4.0f * cosOM);
+        if (!(s.pdf > 0.0f)) return std::nullopt;
+        // eval / pdf: D and G1(wo) cancel against the visible-normal density.
+        s.weight = specularReflectance_ * fresnelConductor(cosOM, ior_.eta, ior_.k) * ggx_.G1(s.wi);
+        s.lobe = BsdfLobe::Reflection | BsdfLobe::Glossy;
+        return s;
+    }
+
+private:
+    ConductorIor ior_;
+    GgxDistribution ggx_;
+    Rgb specularReflectance_;
+};
+
+// ---------------------------------------------------------------------------
+
+// The interface is symmetric under mirroring z together with inverting eta, so
+// every query is first brought to the configuration with wo above the surface.
+class RoughDielectricBsdf final : public Bsdf {
+public:
+    RoughDielectricBsdf(float eta, float alpha) : eta_(eta), ggx_(alpha) {}
+
+    std::uint32_t lobes() const override {
+        return BsdfLobe::Reflection | BsdfLobe::Transmission | BsdfLobe::Glossy;
+    }
+
+    Rgb eval(const Vec3& woIn, const Vec3& wiIn, const Vec2&, TransportMode mode) const override {
+        const Upper q = toUpper(woIn, wiIn);
+        if (!q.valid) return Rgb(0.0f);
+        const Half h = halfVector(q);
+        if (!h.valid) return Rgb(0.0f);
+        const float fresnel = fresnelDielectric(h.cosOM, q.eta);
+        const float dg = ggx_.D(h.m) * ggx_.G(q.wo, q.wi);
+        if (h.reflection) return Rgb(fresnel * dg / (4.0f * q.wo.z));
+        const float denom = h.cosOM + q.eta * h.cosIM;
+        // Walter et al. Eq. 21 (the radiance form) times |cos_i|. Its adjoint,
+        // used when tracing importance, carries an extra eta^2 (Veach 1997, Sec. 5.2).
+        float value = (1.0f - fresnel) * dg * std::abs(h.cosIM) * h.cosOM / (q.wo.z * denom * denom);
+        if (mode == TransportMode::Importance) value *= q.eta * q.eta;
+        return Rgb(value);
+    }
+
+    float pdf(const Vec3& woIn, const Vec3& wiIn, const Vec2&) const override {
+        const Upper q = toUpper(woIn, wiIn);
+        if (!q.valid) return 0.0f;
+        const Half h = halfVector(q);
+        if (!h.valid) return 0.0f;
+        const float fresnel = fresnelDielectric(h.cosOM, q.eta);
+        const float visible = ggx_.visibleNormalPdf(q.wo, h.m);
+        if (h.reflection) return fresnel * visible / (4.0f * h.cosOM);
+        const float denom = h.cosOM + q.eta * h.cosIM;
+        return (1.0f - fresnel) * visible * q.eta * q.eta * std::abs(h.cosIM) / (denom * denom);
+    }
+
+    std::optional<BsdfSample> sample(const Vec3& woIn, const Vec2&, float uLobe, const Vec2& u,
+                                     TransportMode mode) const override {
+        if (woIn.z == 0.0f) return std::nullopt;
+        const bool flipped = woIn.z < 0.0f;
+        const Vec3 wo = flipped ? flipZ(woIn) : woIn;
+        const float eta = flipped ? 1.0f / eta_ : eta_;
+
+        const Vec3 m = ggx_.sampleVisibleNormal(wo, u);
+        const float cosOM = glm::dot(wo, m);
+        if (cosOM <= 0.0f) return std::nullopt;
+        const float visible = ggx_.visibleNormalPdf(wo, m);
+        float cosThetaT = 0.0f;
+        const float fresnel = fresnelDielectric(cosOM, eta, &cosThetaT);
+
+        BsdfSample s;
+        if (uLobe < fresnel) {
+            s.wi = reflect(wo, m);
+            if (s.wi.z <= 0.0f) return std::nullopt;
+            s.pdf = fresnel * visible / (4.0f * cosOM);
+            s.weight = Rgb(ggx_.G1(s.wi));
+            s.lobe = BsdfLobe::Reflection | BsdfLobe::Glossy;
+        } else {
+            // Refraction about m; cosThetaT is the (negative) cosine to m.
+            s.wi = -wo / eta + (cosOM / eta + cosThetaT) * m;
+            if (s.wi.z >= 0.0f) return std::nullopt;
+            s.wi = glm::normalize(s.wi);
+            const float cosIM = glm::dot(s.wi, m);
+            const float denom = cosOM + eta * cosIM;
+            s.pdf = (1.0f - fresnel) * visible * eta * eta * std::abs(cosIM) / (denom * denom);
+            const float scale = mode == TransportMode::Radiance ? 1.0f / (eta * eta) : 1.0f;
+            s.weight = Rgb(ggx_.G1(s.wi) * scale);
+            s.eta = eta;
+            s.lobe = BsdfLobe::Transmission | BsdfLobe::Glossy;
+        }
+        if (!(s.pdf > 0.0f) || !std::isfinite(s.pdf)) return std::nullopt;
+        // A microfacet normal within rounding of the horizon can yield a
+        // direction whose reconstructed half vector is on the other side of
+        // the cone where pdf() drops to zero; such samples are discarded so
+        // that sample() never produces a direction pdf() calls impossible.
+        if (!halfVector(Upper{wo, s.wi, eta, true}).valid) return std::nullopt;
+        if (flipped) s.wi = flipZ(s.wi);
+        return s;
+    }
+
+private:
+    struct Upper {
+        Vec3 wo, wi;
+        float eta;  // relative IOR from wo's side to the other side
+        bool valid;
+    };
+    struct Half {
+        Vec3 m;
+        float cosOM, cosIM;
+        bool reflection;
+        bool valid;
+    };
+
+    Upper toUpper(const Vec3& wo, const Vec3& wi) const {
+        if (wo.z == 0.0f || wi.z == 0.0f) return {wo, wi, eta_, false};
+        if (wo.z > 0.0f) return {wo, wi, eta_, true};
+        return {flipZ(wo), flipZ(wi), 1.0f / eta_, true};
+    }
+
+    // Generalised half vector (Walter et al. Eq. 16), oriented towards wo's side,
+    // with the side conditions that make the microfacet configuration possible.
+    static Half halfVector(const Upper& q) {
+        Half h{};
+        h.reflection = q.wi.z > 0.0f;
+        const Vec3 sum = h.reflection ? q.wo + q.wi : q.wo + q.eta * q.wi;
+        const float lenSq = glm::dot(sum, sum);
+        if (!(lenSq > 0.0f)) return h;
+        h.m = sum / std::sqrt(lenSq);
+        if (h.m.z < 0.0f) h.m = -h.m;
+        h.cosOM = glm::dot(q.wo, h.m);
+        h.cosIM = glm::dot(q.wi, h.m);
+        h.valid = h.cosOM > 0.0f && (h.reflection ? h.cosIM > 0.0f : h.cosIM < 0.0f);
+        return h;
+    }
+
+    float eta_;
+    GgxDistribution ggx_;
+};
+
+// ---------------------------------------------------------------------------
+
+class PlasticBsdf final : public Bsdf {
+public:
+    PlasticBsdf(std::shared_ptr<Texture> diffuseReflectance, float eta, bool nonlinear)
+        : diffuse_(std::move(diffuseReflectance)),
+          eta_(eta),
+          invEta2_(1.0f / (eta * eta)),
+          fdrInternal_(diffuseFresnelReflectance(1.0f / eta)),
+          nonlinear_(nonlinear) {
+        // Lobe selection balances the specular albedo (1) against the mean
+        // diffuse albedo, each scaled by how much light reaches it.
+        const float diffuseMean = std::max(average(diffuse_->mean()), 0.0f);
+        specularSamplingWeight_ = 1.0f / (1.0f + diffuseMean);
+    }
+
+    std::uint32_t lobes() const override {
+        return BsdfLobe::Reflection | BsdfLobe::Specular | BsdfLobe::Diffuse;
+    }
+
+    Rgb eval(const Vec3& wo, const Vec3& wi, const Vec2& uv, TransportMode) const override {
+        if (wo.z <= 0.0f || wi.z <= 0.0f) return Rgb(0.0f);
+        return diffuseValue(wo, wi, uv) * (kInvPi * wi.z);
+    }
+
+    float pdf(const Vec3& wo, const Vec3& wi, const Vec2&) const override {
+        if (wo.z <= 0.0f || wi.z <= 0.0f) return 0.0f;
+        const float pSpecular = specularProbability(fresnelDielectric(wo.z, eta_));
+        return (1.0f - pSpecular) * cosineHemispherePdf(wi.z);
+    }
+
+    std::optional<BsdfSample> sample(const Vec3& wo, const Vec2& uv, float uLobe, const Vec2& u,
+                                     TransportMode) const override {
+        if (wo.z <= 0.0f) return std::nullopt;
+        const float fresnelIn = fresnelDielectric(wo.z, eta_);
+        const float pSpecular = specularProbability(fresnelIn);
+        BsdfSample s;
+        if (uLobe < pSpecular) {
+            s.wi = mirrorReflect(wo);
+            s.pdf = pSpecular;
+            s.weight = Rgb(fresnelIn / pSpecular);
+            s.lobe = BsdfLobe::Reflection | BsdfLobe::Specular;
+            return s;
+        }
+        s.wi = sampleCosineHemisphere(u);
+        if (s.wi.z <= 0.0f) return std::nullopt;
+        const float pDiffuse = 1.0f - pSpecular;
+        s.pdf = pDiffuse * cosineHemispherePdf(s.wi.z);
+        s.weight = diffuseValue(wo, s.wi, uv) / pDiffuse;
+        s.lobe = BsdfLobe::Reflection | BsdfLobe::Diffuse;
+        return s;
+    }
+
+private:
+    float specularProbability(float fresnelIn) const {
+        const float specular = fresnelIn * specularSamplingWeight_;
+        const float diffuse = (1.0f - fresnelIn) * (1.0f - specularSamplingWeight_);
+        const float total = specular + diffuse;
+        return total > 0.0f ? specular / total : 1.0f;
+    }
+
+    // Diffuse lobe without the 1/pi and cosine: light refracts in (1 - F_i),
+    // scatters on the base, and of what heads back up a fraction Fdr is
+    // reflected internally and rescattered. Summing the series gives
+    // rho / (1 - rho Fdr) ("nonlinear", colours saturate) or, with Mitsuba's
+    // default linearisation, rho / (1 - Fdr). Leaving through the coating
+    // costs (1 - F_o) and compresses the solid angle by 1/eta^2.
+    Rgb diffuseValue(const Vec3& wo, const Vec3& wi, const Vec2& uv) const {
+        const Rgb albedo = diffuse_->eval(uv);
+        const Rgb base = nonlinear_ ? albedo / (Rgb(1.0f) - albedo * fdrInternal_) : albedo / (1.0f - fdrInternal_);
+        const float transmission =
+            (1.0f - fresnelDielectric(wo.z, eta_)) * (1.0f - fresnelDielectric(wi.z, eta_));
+        return base * (invEta2_ * transmission);
+    }
+
+    std::shared_ptr<Texture> diffuse_;
+    float eta_;
+    float invEta2_;
+    float fdrInternal_;
+    bool nonlinear_;
+    float specularSamplingWeight_ = 0.5f;
+};
+
+// ---------------------------------------------------------------------------
+
+class NullBsdf final : public Bsdf {
+public:
+    std::uint32_t lobes() const override { return BsdfLobe::Null; }
+    Rgb eval(const Vec3&, const Vec3&, const Vec2&, TransportMode) const override { return Rgb(0.0f); }
+    float pdf(const Vec3&, const Vec3&, const Vec2&) const override { return 0.0f; }
+    std::optional<BsdfSample> sample(const Vec3& wo, const Vec2&, float, const Vec2&, TransportMode) const override {
+        BsdfSample s;
+        s.wi = -wo;
+        s.weight = Rgb(1.0f);
+        s.pdf = 1.0f;
+        s.lobe = BsdfLobe::Null | BsdfLobe::Transmission;
+        return s;
+    }
+};
+
+// ---------------------------------------------------------------------------
+
+class TwoSidedBsdf final : public Bsdf {
+public:
+    explicit TwoSidedBsdf(std::shared_ptr<Bsdf> inner) : inner_(std::move(inner)) {}
+
+    std::uint32_t lobes() const override { return inner_->lobes(); }
+
+    Rgb eval(const Vec3& wo, const Vec3& wi, const Vec2& uv, TransportMode mode) const override {
+        if (wo.z < 0.0f) return inner_->eval(flipZ(wo), flipZ(wi), uv, mode);
+        return inner_->eval(wo, wi, uv, mode);
+    }
+
+    float pdf(const Vec3& wo, const Vec3& wi, const Vec2& uv) const override {
+        if (wo.z < 0.0f) return inner_->pdf(flipZ(wo), flipZ(wi), uv);
+        return inner_->pdf(wo, wi, uv);
+    }
+
+    std::optional<BsdfSample> sample(const Vec3& wo, const Vec2& uv, float uLobe, const Vec2& u,
+                                     TransportMode mode) const override {
+        if (wo.z >= 0.0f) return inner_->sample(wo, uv, uLobe, u, mode);
+        std::optional<BsdfSample> s = inner_->sample(flipZ(wo), uv, uLobe, u, mode);
+        if (s) s->wi = flipZ(s->wi);
+        return s;
+    }
+
+private:
+    std::shared_ptr<Bsdf> inner_;
+};
+
+}  // namespace
+
+// ---------------------------------------------------------------------------
+
+// eta is the interior/exterior ratio. A negative cosThetaI means incidence from
+// the interior, where the wave sees the reciprocal ratio. cosThetaT comes back
+// with the sign opposite to cosThetaI (the refracted ray is on the other side),
+// and 0 under total internal reflection.
+float fresnelDielectric(float cosThetaI, float eta, float* cosThetaT) {
+    const bool fromInside = cosThetaI < 0.0f;
+    const float etaRel = fromInside ? 1.0f / eta : eta;
+    const float cosI = std::min(std::abs(cosThetaI), 1.0f);
+    if (etaRel == 1.0f) {
+        if (cosThetaT) *cosThetaT = -cosThetaI;
+        return 0.0f;
+    }
+    // Snell's law: sin_t = sin_i / eta.
+    const float sin2T = (1.0f - cosI * cosI) / (etaRel * etaRel);
+    if (sin2T >= 1.0f) {
+        if (cosThetaT) *cosThetaT = 0.0f;
+        return 1.0f;  // total internal reflection
+    }
+    const float cosT = std::sqrt(1.0f - sin2T);
+    if (cosThetaT) *cosThetaT = fromInside ? cosT : -cosT;
+    const float rs = (cosI - etaRel * cosT) / (cosI + etaRel * cosT);
+    const float rp = (etaRel * cosI - cosT) / (etaRel * cosI + cosT);
+    return 0.5f * (rs * rs + rp * rp);
+}
+
+Rgb fresnelConductor(float cosThetaI, const Rgb& eta, const Rgb& k) {
+    // Fresnel amplitudes with the complex relative index n = eta + i k and the
+    // complex transmitted cosine-term z = sqrt(n^2 - sin^2):
+    //   r_s = (cos - z) / (cos + z),  r_p = (n^2 cos - z) / (n^2 cos + z).
+    // Evaluated in double precision because |r| is close to 1 for metals.
+    using Complex = std::complex<double>;
+    const double cosI = std::clamp(static_cast<double>(std::abs(cosThetaI)), 0.0, 1.0);
+    const double sin2I = 1.0 - cosI * cosI;
+    Rgb result;
+    for (int c = 0; c < 3; ++c) {
+        const Complex n(eta[c], k[c]);
+        const Complex n2 = n * n;
+        const Complex z = std::sqrt(n2 - sin2I);
+        const Complex sDenom = cosI + z;
+        const Complex pDenom = n2 * cosI + z;
+        const double rs = std::abs(sDenom) > 0.0 ? std::norm((cosI - z) / sDenom) : 1.0;
+        const double rp = std::abs(pDenom) > 0.0 ? std::norm((n2 * cosI - z) / pDenom) : 1.0;
+        result[c] = static_cast<float>(std::clamp(0.5 * (rs + rp), 0.0, 1.0));
+    }
+    return result;
+}
+
+std::optional<ConductorIor> conductorPreset(std::string_view name) {
+    // Measured optical constants (luxpop.com database, as distributed with
+    // Mitsuba 0.5's data/ior/*.spd; Palik for Cr), linearly interpolated at the
+    // wavelengths 650 nm (R), 550 nm (G) and 450 nm (B).
+    struct Entry {
+        std::string_view name;
+        ConductorIor ior;
+    };
+    static const std::array<Entry, 6> kPresets = {{
+        {"Au", {Rgb(0.1678f, 0.3504f, 1.5085f), Rgb(3.1378f, 2.7141f, 1.8788f)}},
+        {"Ag", {Rgb(0.1394f, 0.1248f, 0.1517f), Rgb(4.1288f, 3.3396f, 2.4704f)}},
+        {"Al", {Rgb(1.4748f, 0.9586f, 0.6180f), Rgb(7.7941f, 6.6870f, 5.4694f)}},
+        {"Cu", {Rgb(0.2166f, 0.9582f, 1.1658f), Rgb(3.6377f, 2.5771f, 2.3939f)}},
+        {"Cr", {Rgb(3.6375f, 3.1158f, 1.9277f), Rgb(4.3644f, 4.4228f, 4.1675f)}},
+        // Mitsuba's "none": a perfect mirror; with eta = 0, k = 1 the exact
+        // conductor Fresnel term is 1 at every angle.
+        {"none", {Rgb(0.0f), Rgb(1.0f)}},
+    }};
+    for (const Entry& e : kPresets)
+        if (e.name == name) return e.ior;
+    return std::nullopt;
+}
+
+std::optional<float> dielectricIorPreset(std::string_view name) {
+    // Values at the sodium D line (589 nm), named as in Mitsuba's IOR table.
+    struct Entry {
+        std::string_view name;
+        float ior;
+    };
+    static const std::array<Entry, 26> kPresets = {{
+        {"vacuum", 1.0f},
+        {"helium", 1.00004f},
+        {"hydrogen", 1.00013f},
+        {"air", 1.000277f},
+        {"carbon dioxide", 1.00045f},
+        {"water", 1.333f},
+        {"acetone", 1.36f},
+        {"ethanol", 1.361f},
+        {"carbon tetrachloride", 1.461f},
+        {"glycerol", 1.4729f},
+        {"benzene", 1.501f},
+        {"silicone oil", 1.52045f},
+        {"bromine", 1.661f},
+        {"water ice", 1.31f},
+        {"fused quartz", 1.458f},
+        {"pyrex", 1.47f},
+        {"acrylic glass", 1.49f},
+        {"acrylic", 1.49f},
+        {"polypropylene", 1.49f},
+        {"bk7", 1.5046f},
+        {"glass", 1.5f},
+        {"sodium chloride", 1.544f},
+        {"amber", 1.55f},
+        {"pet", 1.575f},
+        {"polycarbonate", 1.585f},
+        {"diamond", 2.419f},
+    }};
+    for (const Entry& e : kPresets)
+        if (e.name == name) return e.ior;
+    return std::nullopt;
+}
+
+std::shared_ptr<Bsdf> makeDiffuse(std::shared_ptr<Texture> reflectance) {
+    return std::make_shared<DiffuseBsdf>(std::move(reflectance));
+}
+
+std::shared_ptr<Bsdf> makeDielectric(float eta, const Rgb& specularReflectance, const Rgb& specularTransmittance) {
+    return std::make_shared<DielectricBsdf>(eta, specularReflectance, specularTransmittance);
+}
+
+std::shared_ptr<Bsdf> makeThinDielectric(float eta) { return std::make_shared<ThinDielectricBsdf>(eta); }
+
+std::shared_ptr<Bsdf> makeConductor(const ConductorIor& ior, const Rgb& specularReflectance) {
+    return std::make_shared<ConductorBsdf>(ior, specularReflectance);
+}
+
+std::shared_ptr<Bsdf> makeRoughConductor(const ConductorIor& ior, float alpha, const Rgb& specularReflectance) {
+    return std::make_shared<RoughConductorBsdf>(ior, alpha, specularReflectance);
+}
+
+std::shared_ptr<Bsdf> makeRoughDielectric(float eta, float alpha) {
+    return std::make_shared<RoughDielectricBsdf>(eta, alpha);
+}
+
+std::shared_ptr<Bsdf> makePlastic(std::shared_ptr<Texture> diffuseReflectance, float eta, bool nonlinear) {
+    return std::make_shared<PlasticBsdf>(std::move(diffuseReflectance), eta, nonlinear);
+}
+
+std::shared_ptr<Bsdf> makeNull() { return std::make_shared<NullBsdf>(); }
+
+std::shared_ptr<Bsdf> makeTwoSided(std::shared_ptr<Bsdf> inner) {
+    return std::make_shared<TwoSidedBsdf>(std::move(inner));
+}
+
+}  // namespace fg

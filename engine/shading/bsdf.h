@@ -1,0 +1,100 @@
+// Surface scattering models. Every direction is given in the local shading
+// frame (normal = +z) and points away from the surface: wo towards the previous
+// vertex, wi towards the next. Conventions (as Mitsuba 3):
+//  - eval() returns f(wo, wi) * |cos(theta_i)|, zero for specular lobes;
+//  - sample() returns wi, its solid-angle pdf and weight = eval / pdf, or for a
+//    specular event the lobe's throughput weight with pdf set to the discrete
+//    probability of choosing that lobe (BsdfLobe::Specular set in `lobe`);
+//  - TransportMode::Importance is used by light-tracing passes (photons): the
+//    radiance-only eta^2 scaling at refraction is then not applied.
+// Materials that are not explicitly two-sided are black on their back side,
+// except the dielectrics, which are defined on both sides.
+#pragma once
+
+#include "engine/core/math.h"
+#include "engine/shading/texture.h"
+
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string_view>
+
+namespace fg {
+
+enum class TransportMode : std::uint8_t { Radiance, Importance };
+
+namespace BsdfLobe {
+inline constexpr std::uint32_t Reflection = 1u << 0;
+inline constexpr std::uint32_t Transmission = 1u << 1;
+inline constexpr std::uint32_t Diffuse = 1u << 2;
+inline constexpr std::uint32_t Glossy = 1u << 3;
+inline constexpr std::uint32_t Specular = 1u << 4;
+inline constexpr std::uint32_t Null = 1u << 5;  // index-matched pass-through
+}  // namespace BsdfLobe
+
+struct BsdfSample {
+    Vec3 wi{0.0f};
+    Rgb weight{0.0f};   // f * |cos| / pdf
+    float pdf = 0.0f;   // solid-angle pdf, or the lobe probability for specular events
+    float eta = 1.0f;   // relative IOR crossed (1 for reflection)
+    std::uint32_t lobe = 0;
+    bool isSpecular() const { return (lobe & BsdfLobe::Specular) != 0; }
+};
+
+class Bsdf {
+public:
+    virtual ~Bsdf() = default;
+    // Union of the lobes this material can produce.
+    virtual std::uint32_t lobes() const = 0;
+    virtual Rgb eval(const Vec3& wo, const Vec3& wi, const Vec2& uv, TransportMode mode) const = 0;
+    virtual float pdf(const Vec3& wo, const Vec3& wi, const Vec2& uv) const = 0;
+    // uLobe picks among lobes, u drives the direction within a lobe.
+    virtual std::optional<BsdfSample> sample(const Vec3& wo, const Vec2& uv, float uLobe, const Vec2& u,
+                                             TransportMode mode) const = 0;
+
+    // f_r itself when it is one constant for every pair of directions on the
+    // reflecting side (wo.z > 0, wi.z > 0: a Lambertian BRDF), so that callers
+    // evaluating one shading point many times can cache it; nullopt otherwise.
+    virtual std::optional<Rgb> constantReflectance(const Vec2& uv) const {
+        (void)uv;
+        return std::nullopt;
+    }
+
+    bool isNull() const { return lobes() == BsdfLobe::Null; }
+    bool hasSmoothLobe() const { return (lobes() & (BsdfLobe::Diffuse | BsdfLobe::Glossy)) != 0; }
+    bool isPurelySpecular() const { return !hasSmoothLobe() && !isNull(); }
+};
+
+// Fresnel reflectance of a dielectric interface for cos(theta_i) on the side of
+// relative IOR eta (= eta_transmitted / eta_incident); sets cosThetaT (signed as pbrt: negative).
+float fresnelDielectric(float cosThetaI, float eta, float* cosThetaT = nullptr);
+// Unpolarised Fresnel reflectance of a conductor with complex IOR eta + i k, per channel.
+Rgb fresnelConductor(float cosThetaI, const Rgb& eta, const Rgb& k);
+
+struct ConductorIor {
+    Rgb eta;
+    Rgb k;
+};
+// Complex IOR presets at the RGB primaries' wavelengths (names as Mitsuba: "Au",
+// "Ag", "Al", "Cu", plus "Cr", "none" = perfect mirror with eta=0,k=1 semantics handled by caller).
+std::optional<ConductorIor> conductorPreset(std::string_view name);
+// Named dielectric IORs ("vacuum", "air", "water", "bk7", "glass", "diamond", ...).
+std::optional<float> dielectricIorPreset(std::string_view name);
+
+std::shared_ptr<Bsdf> makeDiffuse(std::shared_ptr<Texture> reflectance);
+// eta = interior IOR / exterior IOR. The interior is the side the normal points away from.
+std::shared_ptr<Bsdf> makeDielectric(float eta, const Rgb& specularReflectance = Rgb(1.0f),
+                                     const Rgb& specularTransmittance = Rgb(1.0f));
+std::shared_ptr<Bsdf> makeThinDielectric(float eta);
+std::shared_ptr<Bsdf> makeConductor(const ConductorIor& ior, const Rgb& specularReflectance = Rgb(1.0f));
+// GGX microfacet conductor, alpha = GGX roughness (Mitsuba's `alpha`), sampled
+// with the distribution of visible normals (Heitz 2018).
+std::shared_ptr<Bsdf> makeRoughConductor(const ConductorIor& ior, float alpha, const Rgb& specularReflectance = Rgb(1.0f));
+std::shared_ptr<Bsdf> makeRoughDielectric(float eta, float alpha);
+// Smooth dielectric coating (IOR eta) over a diffuse base, Mitsuba's `plastic`.
+std::shared_ptr<Bsdf> makePlastic(std::shared_ptr<Texture> diffuseReflectance, float eta, bool nonlinear = false);
+std::shared_ptr<Bsdf> makeNull();
+// Applies `inner` on both sides by mirroring the frame when wo is on the back.
+std::shared_ptr<Bsdf> makeTwoSided(std::shared_ptr<Bsdf> inner);
+
+}  // namespace fg

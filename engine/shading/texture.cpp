@@ -1,0 +1,112 @@
+#include "engine/shading/texture.h"
+
+#include "engine/core/error.h"
+
+#include <OpenImageIO/imageio.h>
+
+#include <cmath>
+
+namespace fg {
+
+namespace {
+
+class ConstantTexture final : public Texture {
+public:
+    explicit ConstantTexture(const Rgb& v) : value_(v) {}
+    Rgb eval(const Vec2&) const override { return value_; }
+    Rgb mean() const override { return value_; }
+
+private:
+    Rgb value_;
+};
+
+class CheckerboardTexture final : public Texture {
+public:
+    CheckerboardTexture(const Rgb& even, const Rgb& odd, const Vec2& scale) : even_(even), odd_(odd), scale_(scale) {}
+    Rgb eval(const Vec2& uv) const override {
+        const auto cx = static_cast<long>(std::floor(uv.x * scale_.x));
+        const auto cy = static_cast<long>(std::floor(uv.y * scale_.y));
+        return ((cx + cy) & 1) == 0 ? even_ : odd_;
+    }
+    Rgb mean() const override { return 0.5f * (even_ + odd_); }
+
+private:
+    Rgb even_, odd_;
+    Vec2 scale_;
+};
+
+class BitmapTexture final : public Texture {
+public:
+    BitmapTexture(RgbImage image, const Vec2& uvScale) : image_(std::move(image)), uvScale_(uvScale) {
+        Rgb sum(0.0f);
+        for (const Rgb& p : image_.pixels) sum += p;
+        mean_ = sum / static_cast<float>(std::max<std::size_t>(1, image_.pixels.size()));
+    }
+    Rgb eval(const Vec2& uvIn) const override {
+        // v = 0 is the bottom row of the image (OBJ / Mitsuba convention).
+        const Vec2 uv = uvIn * uvScale_;
+        const float x = (uv.x - std::floor(uv.x)) * static_cast<float>(image_.width) - 0.5f;
+        const float y = (1.0f - (uv.y - std::floor(uv.y))) * static_cast<float>(image_.height) - 0.5f;
+        const int x0 = static_cast<int>(std::floor(x)), y0 = static_cast<int>(std::floor(y));
+        const float fx = x - static_cast<float>(x0), fy = y - static_cast<float>(y0);
+        auto texel = [&](int px, int py) {
+            px = ((px % image_.width) + image_.width) % image_.width;
+            py = ((py % image_.height) + image_.height) % image_.height;
+            return image_.at(px, py);
+        };
+        return (1 - fx) * (1 - fy) * texel(x0, y0) + fx * (1 - fy) * texel(x0 + 1, y0) +
+               (1 - fx) * fy * texel(x0, y0 + 1) + fx * fy * texel(x0 + 1, y0 + 1);
+    }
+    Rgb mean() const override { return mean_; }
+
+private:
+    RgbImage image_;
+    Vec2 uvScale_;
+    Rgb mean_{0.0f};
+};
+
+float srgbToLinear(float v) { return v <= 0.04045f ? v / 12.92f : std::pow((v + 0.055f) / 1.055f, 2.4f); }
+
+}  // namespace
+
+std::shared_ptr<Texture> makeConstantTexture(const Rgb& value) { return std::make_shared<ConstantTexture>(value); }
+
+std::shared_ptr<Texture> makeCheckerboardTexture(const Rgb& even, const Rgb& odd, const Vec2& scale) {
+    return std::make_shared<CheckerboardTexture>(even, odd, scale);
+}
+
+std::shared_ptr<Texture> loadBitmapTexture(const std::string& path, const Vec2& uvScale) {
+    return std::make_shared<BitmapTexture>(readRgbImage(path), uvScale);
+}
+
+std::shared_ptr<Texture> makeBitmapTexture(RgbImage image, const Vec2& uvScale) {
+    return std::make_shared<BitmapTexture>(std::move(image), uvScale);
+}
+
+RgbImage readRgbImage(const std::string& path) {
+    auto input = OIIO::ImageInput::open(path);
+    if (!input) throw InputError(path, 0, "cannot read image: " + OIIO::geterror());
+    const OIIO::ImageSpec& spec = input->spec();
+    const int channels = spec.nchannels;
+    std::vector<float> data(static_cast<std::size_t>(spec.width) * spec.height * channels);
+    if (!input->read_image(0, 0, 0, channels, OIIO::TypeDesc::FLOAT, data.data())) {
+        throw InputError(path, 0, "cannot decode image: " + input->geterror());
+    }
+    // 8/16-bit images are display-encoded unless they say otherwise; float formats are linear.
+    const std::string colorSpace = spec.get_string_attribute("oiio:ColorSpace");
+    const bool encoded = spec.format.basetype == OIIO::TypeDesc::UINT8 || spec.format.basetype == OIIO::TypeDesc::UINT16;
+    const bool linearise = encoded && colorSpace != "Linear" && colorSpace != "linear";
+    RgbImage image;
+    image.width = spec.width;
+    image.height = spec.height;
+    image.pixels.resize(static_cast<std::size_t>(spec.width) * spec.height);
+    for (std::size_t i = 0; i < image.pixels.size(); ++i) {
+        const float* p = &data[i * channels];
+        Rgb c = channels >= 3 ? Rgb(p[0], p[1], p[2]) : Rgb(p[0]);
+        if (linearise) c = Rgb(srgbToLinear(c.x), srgbToLinear(c.y), srgbToLinear(c.z));
+        image.pixels[i] = c;
+    }
+    return image;
+}
+
+}  // namespace fg

@@ -1,0 +1,62 @@
+// Pieces of the photon radiance estimate (Frisvad et al. 2014, Eq. 10) shared
+// by the gather and splat passes: Silverman's second-order kernel (Eq. 11) and
+// the BRDF at an eye vertex.
+#pragma once
+
+#include "engine/core/math.h"
+#include "engine/buffers/photon_buffers.h"
+#include "engine/scene/scene.h"
+
+namespace fg {
+
+// Silverman's second-order kernel K(x) = 3/pi (1 - x^2)^2 on the unit disk
+// (Eq. 11), taken as a function of x^2; it integrates to 1 over the disk.
+inline float silvermanKernel(float x2) { return x2 < 1.0f ? 3.0f * kInvPi * sqr(1.0f - x2) : 0.0f; }
+
+// Read-only view of the eye-vertex columns.
+struct EyeVertexView {
+    explicit EyeVertexView(const EyeVertexBuffer& b)
+        : position(b.column<EyePosition>()), normal(b.column<EyeNormal>()),
+          geometricNormal(b.column<EyeGeometricNormal>()), outgoing(b.column<EyeOutgoing>()),
+          bsdf(b.column<EyeBsdf>()), uv(b.column<EyeUv>()), throughput(b.column<EyeThroughput>()),
+          pixel(b.column<EyePixel>()) {}
+    std::span<const Vec3> position, normal, geometricNormal, outgoing;
+    std::span<const std::uint32_t> bsdf;
+    std::span<const Vec2> uv;
+    std::span<const Rgb> throughput;
+    std::span<const std::uint32_t> pixel;
+    std::size_t size() const { return position.size(); }
+};
+
+// The BSDF of one eye vertex in its shading frame.
+class VertexBrdf {
+public:
+    VertexBrdf(const Scene& scene, const EyeVertexView& eye, std::size_t v)
+        : bsdf_(*scene.bsdfs[eye.bsdf[v]]), frame_(eye.normal[v]), geometricNormal_(eye.geometricNormal[v]),
+          wo_(frame_.toLocal(eye.outgoing[v])), uv_(eye.uv[v]) {}
+
+    // f_r(x, wi, wo) for light arriving from direction wi (world space, pointing
+    // away from the surface). Bsdf::eval returns f_r |cos theta_i| (shading
+    // frame), so the cosine is divided out here: the density estimate already
+    // measures flux per area, which holds the incident cosine.
+    Rgb operator()(const Vec3& wi) const {
+        const Vec3 wiLocal = frame_.toLocal(wi);
+        const float cosine = std::abs(wiLocal.z);
+        // Shading normals must not let light through the geometric surface.
+        if (!(cosine > 1e-6f) || glm::dot(wi, geometricNormal_) * wiLocal.z <= 0.0f) return Rgb(0.0f);
+        return bsdf_.eval(wo_, wiLocal, uv_, TransportMode::Radiance) / cosine;
+    }
+
+private:
+    const Bsdf& bsdf_;
+    Frame frame_;
+    Vec3 geometricNormal_;
+    Vec3 wo_;
+    Vec2 uv_;
+};
+
+// Photons of class Direct only are light the eye pass already estimates by
+// next-event estimation; density estimates skip them.
+inline bool countsAsIndirect(std::uint8_t photonClass) { return photonClass != PhotonClass::Direct; }
+
+}  // namespace fg

@@ -1,0 +1,265 @@
+// One path segment of the reference path tracer. Emission found by BSDF or
+// phase sampling and light found by next-event estimation are combined with
+// the power heuristic (Veach 1997, Eq. 9.13); delta lights and specular
+// vertices take their single strategy with weight 1. Throughput in media uses
+// the spectral-MIS free-flight weights of HomogeneousMedium::sampleDistance.
+#include "passes/common/path_vertex.h"
+
+#include <algorithm>
+#include <array>
+
+namespace fg {
+
+namespace {
+
+// Relative length by which shadow rays stop short of the point they test.
+constexpr float kShadowEpsilon = 1e-3f;
+
+float lightSelectionPmf(const Scene& scene, int light) {
+    return scene.lightPower.discretePmf(static_cast<std::size_t>(light));
+}
+
+// Samples one light for next-event estimation from p. `scatter(wi)` returns the
+// scattering value (BSDF * |cos| or phase) and its sampling pdf for direction wi.
+template <class Scatter>
+void queueLightSample(const PathTracerScene& pts, const Vec3& p, const Vec3& ng, const Shape* shape, int medium,
+                      const Rgb& beta, jobs::Rng& rng, Scatter&& scatter, ShadowRequest& shadow) {
+    const Scene& scene = pts.scene;
+    if (scene.lights.empty()) return;
+    const float uLight = rng.uniform();
+    const Vec2 uPoint = rng.uniform2();
+    float pmf = 0.0f;
+    const std::size_t index = scene.lightPower.sampleDiscrete(uLight, &pmf);
+    const Light& light = *scene.lights[index];
+    const std::optional<LightSample> ls = light.sampleLi(p, uPoint);
+    if (!ls || ls->pdf <= 0.0f || isBlack(ls->value)) return;
+    const auto [f, scatterPdf] = scatter(ls->wi);
+    if (isBlack(f)) return;
+    const float lightPdf = ls->pdf * pmf;
+    const float weight = light.isDelta() ? 1.0f : powerHeuristic(lightPdf, scatterPdf);
+    shadow.contribution = beta * f * ls->value * (weight / lightPdf);
+    const bool onSurface = shape != nullptr;
+    shadow.ray.origin = onSurface ? offsetRayOrigin(p, ng, ls->wi) : p;
+    if (std::isinf(ls->distance) || ls->distance >= kInfinity) {
+        shadow.ray.direction = ls->wi;
+        shadow.ray.tMax = kInfinity;
+    } else {
+        // Aim from the offset origin at the sampled point and stop just short of
+        // it: the light's own surface must not count as a blocker, even for
+        // grazing directions where the normal offset changes the distance most.
+        const Vec3 toLight = ls->p - shadow.ray.origin;
+        const float distance = glm::length(toLight);
+        shadow.ray.direction = toLight / distance;
+        shadow.ray.tMax = distance * (1.0f - kShadowEpsilon);
+    }
+    shadow.medium = onSurface ? mediumAfterCrossing(*shape, ng, ls->wi, medium) : medium;
+    shadow.pending = true;
+}
+
+bool russianRoulette(const PathLimits& limits, PathVertexState& s) {
+    if (s.history.depth < limits.rrDepth) return true;
+    const float m = maxComponent(s.throughput * s.history.etaScale);
+    if (m >= 1.0f) return true;
+    const float q = std::max(0.05f, 1.0f - m);
+    if (s.rng.uniform() < q) return false;
+    s.throughput /= 1.0f - q;
+    return true;
+}
+
+}  // namespace
+
+PathTracerScene::PathTracerScene(const Scene& s, const RayQuery& r) : scene(s), rays(r), infiniteLights(s.infiniteLights()) {
+    shadowsNeedTransmittance = !s.media.empty();
+    for (const Shape& shape : s.shapes) {
+        if (shape.bsdf < 0 || s.bsdfs[static_cast<std::size_t>(shape.bsdf)]->isNull()) shadowsNeedTransmittance = true;
+    }
+}
+
+bool advancePath(const PathTracerScene& pts, const PathLimits& limits, const Hit& hit, PathVertexState& s,
+                 ShadowRequest& shadow) {
+    const Scene& scene = pts.scene;
+    PathHistory& h = s.history;
+    Rgb& beta = s.throughput;
+
+    // Medium: a real scattering event before the surface, or transmittance up to it.
+    if (h.medium >= 0) {
+        const HomogeneousMedium& medium = scene.media[static_cast<std::size_t>(h.medium)];
+        const float tSurface = hit.valid() ? hit.t : kInfinity;
+        const float uChannel = s.rng.uniform();
+        const float uDistance = s.rng.uniform();
+        const DistanceSample ds = medium.sampleDistance(tSurface, uChannel, uDistance, beta);
+        beta *= ds.weight;
+        if (isBlack(beta)) return false;
+        if (ds.scattered) {
+            if (++h.depth > limits.maxDepth) return false;
+            const Vec3 p = s.ray.origin + ds.t * s.ray.direction;
+            const Vec3 wo = -s.ray.direction;
+            const HenyeyGreenstein& phase = medium.phase();
+            queueLightSample(pts, p, Vec3(0.0f), nullptr, h.medium, beta, s.rng,
+                             [&](const Vec3& wi) {
+                                 const float value = phase.eval(wo, wi);
+                                 return std::pair<Rgb, float>(Rgb(value), value);
+                             },
+                             shadow);
+            const PhaseSample ps = phase.sample(wo, s.rng.uniform2());
+            if (ps.pdf <= 0.0f) return false;
+            h.previousPosition = p;
+            h.previousPdf = ps.pdf;
+            h.specular = false;
+            s.ray = Ray{p, ps.wi, kInfinity};
+            return russianRoulette(limits, s);
+        }
+    }
+
+    return advancePathAtSurface(pts, limits, hit, s, shadow);
+}
+
+bool advancePathAtSurface(const PathTracerScene& pts, const PathLimits& limits, const Hit& hit, PathVertexState& s,
+                          ShadowRequest& shadow) {
+    const Scene& scene = pts.scene;
+    PathHistory& h = s.history;
+    Rgb& beta = s.throughput;
+
+    if (!hit.valid()) {
+        for (int index : pts.infiniteLights) {
+            const Light& light = *scene.lights[static_cast<std::size_t>(index)];
+            const Rgb Le = light.environment(s.ray.direction);
+            if (isBlack(Le)) continue;
+            float weight = 1.0f;
+            if (!h.specular) {
+                const float lightPdf = lightSelectionPmf(scene, index) *
+                                       light.pdfLi(h.previousPosition, Vec3(0.0f), Vec3(0.0f), s.ray.direction);
+                weight = powerHeuristic(h.previousPdf, lightPdf);
+            }
+            s.radiance += beta * Le * weight;
+        }
+        return false;
+    }
+
+    const SurfacePoint sp = pts.rays.surface(s.ray, hit);
+    const Shape& shape = scene.shapes[sp.shape];
+
+    if (shape.areaLight >= 0) {
+        const Light& light = *scene.lights[static_cast<std::size_t>(shape.areaLight)];
+        const Rgb Le = light.emitted(sp.ng, -s.ray.direction);
+        if (!isBlack(Le)) {
+            float weight = 1.0f;
+            if (!h.specular) {
+                const float lightPdf = lightSelectionPmf(scene, shape.areaLight) *
+                                       light.pdfLi(h.previousPosition, sp.p, sp.ng, s.ray.direction);
+                weight = powerHeuristic(h.previousPdf, lightPdf);
+            }
+            s.radiance += beta * Le * weight;
+        }
+    }
+
+    const Bsdf* bsdf = shape.bsdf >= 0 ? scene.bsdfs[static_cast<std::size_t>(shape.bsdf)].get() : nullptr;
+    if (!bsdf || bsdf->isNull()) {
+        // Index-matched boundary: the ray goes straight on into the next medium;
+        // the previous vertex stays the reference for MIS.
+        h.medium = mediumAfterCrossing(shape, sp.ng, s.ray.direction, h.medium);
+        s.ray = Ray{offsetRayOrigin(sp.p, sp.ng, s.ray.direction), s.ray.direction, kInfinity};
+        return true;
+    }
+
+    if (++h.depth > limits.maxDepth) return false;
+    const Frame frame(sp.ns);
+    const Vec3 wo = frame.toLocal(-s.ray.direction);
+
+    if (bsdf->hasSmoothLobe()) {
+        queueLightSample(pts, sp.p, sp.ng, &shape, h.medium, beta, s.rng,
+                         [&](const Vec3& wi) {
+                             const Vec3 wiLocal = frame.toLocal(wi);
+                             // Shading normals must not let light through the geometric surface.
+                             if (glm::dot(wi, sp.ng) * wiLocal.z <= 0.0f) return std::pair<Rgb, float>(Rgb(0.0f), 0.0f);
+                             return std::pair<Rgb, float>(bsdf->eval(wo, wiLocal, sp.uv, TransportMode::Radiance),
+                                                          bsdf->pdf(wo, wiLocal, sp.uv));
+                         },
+                         shadow);
+    }
+
+    const float uLobe = s.rng.uniform();
+    const Vec2 uDir = s.rng.uniform2();
+    const std::optional<BsdfSample> bs = bsdf->sample(wo, sp.uv, uLobe, uDir, TransportMode::Radiance);
+    if (!bs || bs->pdf <= 0.0f || isBlack(bs->weight)) return false;
+    const Vec3 wi = frame.toWorld(bs->wi);
+    if (glm::dot(wi, sp.ng) * bs->wi.z <= 0.0f) return false;
+    beta *= bs->weight;
+    h.specular = bs->isSpecular();
+    h.previousPdf = bs->pdf;
+    h.previousPosition = sp.p;
+    if (bs->lobe & BsdfLobe::Transmission) {
+        h.etaScale *= sqr(bs->eta);
+        h.medium = mediumAfterCrossing(shape, sp.ng, wi, h.medium);
+    }
+    s.ray = Ray{offsetRayOrigin(sp.p, sp.ng, wi), wi, kInfinity};
+    return russianRoulette(limits, s);
+}
+
+void endPathAtEyeVertex(const PathTracerScene& pts, const Hit& hit, PathVertexState& state, bool segmentDone) {
+    PathLimits last;
+    last.maxDepth = state.history.depth + 1;
+    last.rrDepth = kNoRoulette;
+    ShadowRequest shadow;
+    bool alive = segmentDone ? advancePathAtSurface(pts, last, hit, state, shadow)
+                             : advancePath(pts, last, hit, state, shadow);
+    if (shadow.pending) state.radiance += shadow.contribution * shadowTransmittance(pts, shadow);
+    while (alive) {
+        ShadowRequest unused;  // no light is sampled past the depth limit
+        alive = advancePath(pts, last, pts.rays.intersect(state.ray), state, unused);
+    }
+}
+
+Rgb shadowTransmittance(const PathTracerScene& pts, const ShadowRequest& shadow) {
+    if (!pts.shadowsNeedTransmittance) return pts.rays.occluded(shadow.ray) ? Rgb(0.0f) : Rgb(1.0f);
+    const Scene& scene = pts.scene;
+    Rgb transmittance(1.0f);
+    Ray ray = shadow.ray;
+    int medium = shadow.medium;
+    // Null boundaries are crossed one at a time; the bound only guards against degenerate geometry.
+    for (int crossing = 0; crossing < 1024; ++crossing) {
+        const Hit hit = pts.rays.intersect(ray);
+        const float segment = hit.valid() ? hit.t : ray.tMax;
+        if (medium >= 0) transmittance *= segmentTransmittance(scene.media[static_cast<std::size_t>(medium)], segment);
+        if (!hit.valid() || isBlack(transmittance)) return transmittance;
+        const Shape& shape = scene.shapes[hit.shape];
+        if (shape.bsdf >= 0 && !scene.bsdfs[static_cast<std::size_t>(shape.bsdf)]->isNull()) return Rgb(0.0f);
+        const SurfacePoint sp = pts.rays.surface(ray, hit);
+        medium = mediumAfterCrossing(shape, sp.ng, ray.direction, medium);
+        const Vec3 origin = offsetRayOrigin(sp.p, sp.ng, ray.direction);
+        ray.tMax -= glm::length(origin - ray.origin);
+        ray.origin = origin;
+        if (ray.tMax <= 0.0f) return transmittance;
+    }
+    return Rgb(0.0f);
+}
+
+void resolveShadowRays(const PathTracerScene& pts, std::span<const std::uint32_t> paths,
+                       std::span<const ShadowRequest> shadows, std::span<Rgb> radiance) {
+    if (pts.shadowsNeedTransmittance) {
+        for (std::uint32_t p : paths)
+            if (shadows[p].pending) radiance[p] += shadows[p].contribution * shadowTransmittance(pts, shadows[p]);
+        return;
+    }
+    // Plain visibility: one occlusion stream for the whole chunk.
+    constexpr std::size_t kBatch = 256;
+    std::array<Ray, kBatch> rays;
+    std::array<std::uint32_t, kBatch> owner;
+    std::array<std::uint8_t, kBatch> blocked;
+    std::size_t n = 0;
+    const auto flush = [&] {
+        pts.rays.occluded(std::span<const Ray>(rays.data(), n), std::span<std::uint8_t>(blocked.data(), n));
+        for (std::size_t k = 0; k < n; ++k)
+            if (!blocked[k]) radiance[owner[k]] += shadows[owner[k]].contribution;
+        n = 0;
+    };
+    for (std::uint32_t p : paths) {
+        if (!shadows[p].pending) continue;
+        rays[n] = shadows[p].ray;
+        owner[n++] = p;
+        if (n == kBatch) flush();
+    }
+    if (n > 0) flush();
+}
+
+}  // namespace fg

@@ -1,0 +1,110 @@
+// Per-vertex path tracing logic shared by the path tracer's schedules (and by
+// later passes that need path-traced remainders): one call advances a path by
+// one segment — medium event or surface event — adding emission with MIS,
+// queueing a next-event shadow ray, and choosing the next direction.
+#pragma once
+
+#include "engine/core/math.h"
+#include "engine/accel/ray_query.h"
+#include "engine/scene/scene.h"
+#include "jobs/random.h"
+
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <span>
+#include <vector>
+
+namespace fg {
+
+struct PathTracerScene {
+    PathTracerScene(const Scene& scene, const RayQuery& rays);
+    const Scene& scene;
+    const RayQuery& rays;
+    std::vector<int> infiniteLights;
+    // Shadow rays must walk through null boundaries and media instead of a plain occlusion test.
+    bool shadowsNeedTransmittance = false;
+};
+
+struct PathLimits {
+    int maxDepth = 16;
+    int rrDepth = 5;
+};
+
+// What MIS and medium tracking need to remember about the previous vertex.
+struct PathHistory {
+    Vec3 previousPosition{0.0f};
+    float previousPdf = 0.0f;  // solid-angle pdf of the direction sampled there
+    float etaScale = 1.0f;     // product of eta^2 over refractions, undone for Russian roulette
+    int medium = -1;
+    int depth = 0;             // scattering events so far
+    bool specular = true;      // previous vertex was the camera or a specular event: no MIS for emission
+
+    static PathHistory atCamera(int cameraMedium) {
+        PathHistory h;
+        h.medium = cameraMedium;
+        return h;
+    }
+};
+
+struct ShadowRequest {
+    Ray ray;
+    Rgb contribution{0.0f};  // added to the path's radiance times the transmittance found
+    int medium = -1;
+    bool pending = false;
+};
+
+struct PathVertexState {
+    Ray& ray;
+    Rgb& throughput;
+    Rgb& radiance;
+    PathHistory& history;
+    jobs::Rng& rng;
+};
+
+// Consumes the hit of state.ray; returns false when the path ends. May fill `shadow`.
+bool advancePath(const PathTracerScene& pts, const PathLimits& limits, const Hit& hit, PathVertexState& state,
+                 ShadowRequest& shadow);
+// advancePath without its first step, the free-flight sampling in the current
+// medium: the path reaches the hit (or escapes) with no medium event. For
+// callers that account for the medium along the segment themselves, e.g. by
+// its transmittance.
+bool advancePathAtSurface(const PathTracerScene& pts, const PathLimits& limits, const Hit& hit,
+                          PathVertexState& state, ShadowRequest& shadow);
+
+// Transmittance along a shadow ray: 0 if blocked by a non-null surface.
+Rgb shadowTransmittance(const PathTracerScene& pts, const ShadowRequest& shadow);
+
+// Camera paths of the eye passes: their specular chains end by the depth limit,
+// never by Russian roulette, which would only add noise to the vertex weights.
+constexpr int kNoRoulette = std::numeric_limits<int>::max();
+
+// Ends a camera path at its eye vertex, the surface hit `hit`: adds to
+// state.radiance the vertex's emission, its next-event estimate and the
+// emission the BSDF-sampled ray reaches, and follows the path no further.
+// `segmentDone`: the medium along the segment to `hit` is already accounted
+// for (advancePathAtSurface); otherwise advancePath samples it first.
+void endPathAtEyeVertex(const PathTracerScene& pts, const Hit& hit, PathVertexState& state, bool segmentDone);
+
+// Resolves the pending shadow rays of `paths` and adds their contributions to radiance[path].
+void resolveShadowRays(const PathTracerScene& pts, std::span<const std::uint32_t> paths,
+                       std::span<const ShadowRequest> shadows, std::span<Rgb> radiance);
+
+// Transmittance over a segment that may be infinitely long (kInfinity or inf):
+// zero in channels that attenuate, one in the others.
+inline Rgb segmentTransmittance(const HomogeneousMedium& medium, float distance) {
+    if (std::isinf(distance) || distance >= kInfinity) {
+        const Rgb st = medium.sigmaT();
+        return {st.x > 0 ? 0.0f : 1.0f, st.y > 0 ? 0.0f : 1.0f, st.z > 0 ? 0.0f : 1.0f};
+    }
+    return medium.transmittance(distance);
+}
+
+// Medium on the side of a shape's surface that direction `dir` enters; shapes
+// that declare no media keep the current one.
+inline int mediumAfterCrossing(const Shape& shape, const Vec3& ng, const Vec3& dir, int current) {
+    if (shape.interiorMedium < 0 && shape.exteriorMedium < 0) return current;
+    return glm::dot(dir, ng) < 0.0f ? shape.interiorMedium : shape.exteriorMedium;
+}
+
+}  // namespace fg

@@ -1,0 +1,591 @@
+// Photon tracing (`photon`): photon paths leave the lights, each light chosen
+// in proportion to its power, and are traced through the scene's surfaces and
+// homogeneous media by BSDF and phase-function sampling in importance
+// transport (Jensen 1996, "Global Illumination using Photon Maps"; Jensen &
+// Christensen 1998, "Efficient Simulation of Light Transport in Scenes with
+// Participating Media using Photon Maps"), with Russian roulette on the path
+// throughput. Every hit on a surface with a smooth (diffuse or glossy) lobe is
+// a photon event, classified by the path so far:
+//   direct   L D       first event, stored only when asked (store_direct), in global_photons;
+//   caustic  L S+ D    only specular events before: caustic_photons;
+//   global   L ... D ... D   at least one non-specular event before: global_photons.
+// Each photon carries its share of the source's flux: flux / (pmf(light) N).
+//
+// Media. The medium a path is in is tracked as the path tracer does (camera /
+// shape interior and exterior, index-matched `null` boundaries crossed). A
+// path starts in its light's medium: the side of the emitting shape it leaves
+// by, when that shape declares media; otherwise the medium found by walking a
+// probe ray from the light to the first boundary that declares one (the
+// camera's medium when the light, like the camera, lies outside every such
+// boundary). In a medium the free-flight distance is sampled with
+// HomogeneousMedium::sampleDistance; a real scattering event before the next
+// surface stores a volume photon (class Volume, combined with the Direct,
+// Caustic or Global bit of its history: Volume|Direct is single scattering,
+// L V) in volume_photons, counts as a non-specular event of depth max_depth
+// shares with surfaces, and continues in a direction sampled from the phase
+// function (weight 1). The power of a volume photon is the emitted share times
+// the path throughput *including* the scattering weight
+// sigma_s Tr(t) / p(t) of its own event (the albedo, for grey media). So the
+// photons' power density estimates sigma_s L: the in-scattered radiance along
+// a camera ray is Eq. 3 of Jakob et al. 2011, sum_i K_i Tr f Phi_i, with no
+// further sigma_s (the convention of Jensen & Christensen 1998 and Jakob et
+// al., not the one of Jarosz et al. 2008).
+//
+// Photon counts. `photons` paths are emitted; with volume_photons > 0 paths
+// are emitted, in order, until exactly that many volume photons are stored
+// (the photons of later paths are dropped, and at most `photons` paths are
+// emitted), and every map's `emitted` is the number of paths up to and
+// including the one that stored the last volume photon. Powers are computed
+// for `photons` paths and rescaled to the count actually emitted at the end
+// (footprints by the square root: differentials are linear in the initial
+// lengths of Eqs. 5-6, which go as 1 / sqrt(N)).
+//
+// Photon differentials (Frisvad et al. 2014, §3; engine/shading/differentials.h) are
+// emitted with every path and followed across its leading chain of specular
+// events (Igehy 1999); they end at the first non-specular event, so caustic
+// and direct photons carry footprints (PhotonDu / PhotonDv) and global and
+// volume photons do not (zero vectors; global_photons.hasDifferentials stays
+// false). N_e of Eqs. 5-6 is the expected number of paths from the chosen
+// source, pmf(light) N. Photons whose footprint has collapsed are discarded
+// and counted.
+//
+// Batches. Paths are traced batch_size at a time. An output whose readers all
+// consume batches (the splat) is streamed: each batch's photons are handed
+// over as a PhotonMap of their own and dropped, so no map of all photons is
+// ever held (Frisvad et al. 2014, §2: splatting needs no photon map). With a
+// volume-photon target the powers are final only at the end, so streamed
+// maps are then handed over once, whole.
+//
+// Surfaces without a BSDF or with a `null` one are crossed without an event.
+//
+// Determinism: path i draws from the stream (seed, "photon", i); a batch is
+// split into fixed chunks, each chunk collects its photons in path order, and
+// chunks are appended in order, so the maps do not depend on the thread count
+// (nor on batch_size). Scenes without media draw exactly the random numbers
+// they drew before media were simulated.
+#include "passes/passes.h"
+#include "passes/common/path_vertex.h"
+
+#include "engine/shading/differentials.h"
+#include "engine/core/error.h"
+#include "engine/buffers/photon_buffers.h"
+#include "engine/accel/ray_query.h"
+#include "engine/scene/scene.h"
+#include "jobs/parallel.h"
+#include "jobs/random.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <utility>
+#include <vector>
+
+namespace fg {
+
+namespace {
+
+constexpr std::size_t kGrain = 256;
+// Paths of the first batch when emission stops at a volume-photon target.
+constexpr double kPilotPaths = 16384.0;
+// Null boundaries crossed by one segment; the bound only guards against degenerate geometry.
+constexpr int kMaxNullCrossings = 1024;
+
+struct Settings {
+    std::uint64_t photons = 0;
+    std::uint64_t volumeTarget = 0;  // 0: emit `photons` paths
+    int maxDepth = 16;
+    int rrDepth = 5;
+    bool storeCaustic = true;
+    bool storeGlobal = true;
+    bool storeVolume = true;
+    bool storeDirect = false;
+    bool storeSingleScattering = true;
+    bool causticOnlyPaths = false;
+    bool differentials = true;
+    float smoothing = 10.0f;
+    std::size_t batchSize = 1 << 18;
+};
+
+struct PhotonRecord {
+    Vec3 position;
+    Vec3 incident;
+    Rgb power;
+    Vec3 normal;
+    std::uint8_t photonClass;
+    Vec3 dxU;
+    Vec3 dxV;
+    std::uint64_t path;  // the path that stored it, for stopping at a photon-count target
+};
+
+// What one chunk of paths produced, in path order.
+struct ChunkResult {
+    std::vector<PhotonRecord> caustic;
+    std::vector<PhotonRecord> global;
+    std::vector<PhotonRecord> volume;
+    std::int64_t collapsedCaustic = 0;
+    std::int64_t collapsedGlobal = 0;
+    std::int64_t segments = 0;
+};
+
+// Where a probe ray from p first meets a boundary that declares media: the
+// medium on p's side, or nothing if it escapes.
+std::optional<int> probeMedium(const Scene& scene, const RayQuery& rays, const Vec3& p) {
+    // Any fixed direction works; this one is off the axes that scene walls tend to align with.
+    const Vec3 direction = glm::normalize(Vec3(0.267f, 0.803f, 0.535f));
+    Ray ray{p, direction, kInfinity};
+    for (int crossing = 0; crossing < kMaxNullCrossings; ++crossing) {
+        const Hit hit = rays.intersect(ray);
+        if (!hit.valid()) return std::nullopt;
+        const SurfacePoint sp = rays.surface(ray, hit);
+        const Shape& shape = scene.shapes[sp.shape];
+        if (shape.interiorMedium >= 0 || shape.exteriorMedium >= 0)
+            return glm::dot(direction, sp.ng) > 0.0f ? shape.interiorMedium : shape.exteriorMedium;
+        ray.origin = offsetRayOrigin(sp.p, sp.ng, direction);
+    }
+    return std::nullopt;
+}
+
+// Per light: the medium its photons start in, or -2 when it depends on the
+// side of the emitting shape they leave by (shapes that declare media).
+constexpr int kMediumBySide = -2;
+
+std::vector<int> lightMedia(const Scene& scene, const RayQuery& rays) {
+    std::vector<int> media(scene.lights.size(), -1);
+    if (scene.media.empty()) return media;
+    // The medium outside every boundary that declares one: the camera's, if the camera is out there too.
+    const std::optional<int> cameraProbe = probeMedium(scene, rays, scene.camera.eye);
+    const int outside = cameraProbe ? -1 : scene.camera.medium;
+    for (std::size_t l = 0; l < scene.lights.size(); ++l) {
+        const int shapeIndex = l < scene.lightShape.size() ? scene.lightShape[l] : -1;
+        if (shapeIndex >= 0) {
+            const Shape& shape = scene.shapes[static_cast<std::size_t>(shapeIndex)];
+            if (shape.interiorMedium >= 0 || shape.exteriorMedium >= 0) {
+                media[l] = kMediumBySide;
+                continue;
+            }
+        }
+        // Infinite lights have no position inside the scene: their photons start outside everything.
+        if (scene.lights[l]->isInfinite()) {
+            media[l] = outside;
+            continue;
+        }
+        const std::optional<EmissionSample> sample = scene.lights[l]->sampleEmission(Vec2(0.5f), Vec2(0.5f));
+        if (!sample) continue;
+        const std::optional<int> found = probeMedium(scene, rays, sample->origin);
+        media[l] = found ? *found : outside;
+    }
+    return media;
+}
+
+class PhotonTracer {
+public:
+    PhotonTracer(const Scene& scene, const RayQuery& rays, const Settings& settings, std::uint64_t seed)
+        : scene_(scene), rays_(rays), settings_(settings), seed_(seed), lightMedium_(lightMedia(scene, rays)) {}
+
+    void trace(std::uint64_t pathIndex, ChunkResult& out) const {
+        jobs::Rng rng(seed_, jobs::streamKey("photon"), pathIndex);
+        const float uLight = rng.uniform();
+        const Vec2 uPosition = rng.uniform2();
+        const Vec2 uDirection = rng.uniform2();
+        float pmf = 0.0f;
+        const std::size_t lightIndex = scene_.lightPower.sampleDiscrete(uLight, &pmf);
+        if (!(pmf > 0.0f)) return;
+        const std::optional<EmissionSample> emission = scene_.lights[lightIndex]->sampleEmission(uPosition, uDirection);
+        if (!emission) return;
+        const double photonsFromSource = static_cast<double>(pmf) * static_cast<double>(settings_.photons);
+        const Rgb power = emission->flux / static_cast<float>(photonsFromSource);
+        if (isBlack(power) || !isFinite(power)) return;
+
+        Vec3 direction = glm::normalize(emission->direction);
+        bool tracking = settings_.differentials;
+        PhotonDifferential differential;
+        if (tracking) {
+            differential = emitPhotonDifferential(direction, emission->normal, emission->emitterArea,
+                                                  emission->emitterSolidAngle, photonsFromSource, settings_.smoothing);
+        }
+        int medium = lightMedium_[lightIndex];
+        if (medium == kMediumBySide) {
+            const Shape& shape = scene_.shapes[static_cast<std::size_t>(scene_.lightShape[lightIndex])];
+            medium = mediumAfterCrossing(shape, emission->normal, direction, -1);
+        }
+        Vec3 previous = emission->origin;
+        Ray ray{offsetRayOrigin(emission->origin, emission->normal, direction), direction, kInfinity};
+        Rgb throughput(1.0f);
+        int depth = 0;
+        bool specularChain = true;  // every event so far was specular
+        int nullCrossings = 0;
+
+        const auto survivesRoulette = [&] {
+            if (depth < settings_.rrDepth) return true;
+            const float m = maxComponent(throughput);
+            if (m >= 1.0f) return true;
+            const float q = std::max(0.05f, 1.0f - m);
+            if (rng.uniform() < q) return false;
+            throughput /= 1.0f - q;
+            return true;
+        };
+
+        while (true) {
+            const Hit hit = rays_.intersect(ray);
+            ++out.segments;
+
+            if (medium >= 0) {
+                const HomogeneousMedium& m = scene_.media[static_cast<std::size_t>(medium)];
+                const float uChannel = rng.uniform();
+                const float uDistance = rng.uniform();
+                const DistanceSample ds = m.sampleDistance(hit.valid() ? hit.t : kInfinity, uChannel, uDistance,
+                                                           throughput);
+                throughput *= ds.weight;
+                if (isBlack(throughput) || !isFinite(throughput)) return;
+                if (ds.scattered) {
+                    ++depth;
+                    nullCrossings = 0;
+                    const Vec3 p = ray.origin + ds.t * ray.direction;
+                    const std::uint8_t history = depth == 1       ? PhotonClass::Direct
+                                                 : specularChain ? PhotonClass::Caustic
+                                                                 : PhotonClass::Global;
+                    storeVolume(static_cast<std::uint8_t>(PhotonClass::Volume | history), p, direction,
+                                power * throughput, pathIndex, out);
+                    if (settings_.causticOnlyPaths || depth >= settings_.maxDepth) return;
+                    const PhaseSample ps = m.phase().sample(-direction, rng.uniform2());
+                    if (!(ps.pdf > 0.0f)) return;
+                    specularChain = false;
+                    tracking = false;
+                    direction = ps.wi;
+                    previous = p;
+                    ray = Ray{p, direction, kInfinity};
+                    if (!survivesRoulette()) return;
+                    continue;
+                }
+            }
+            if (!hit.valid()) return;
+
+            const SurfacePoint sp = rays_.surface(ray, hit);
+            if (tracking) transferDifferential(differential, direction, glm::dot(sp.p - previous, direction), sp.ng);
+            previous = sp.p;
+            const Shape& shape = scene_.shapes[sp.shape];
+            const Bsdf* bsdf = shape.bsdf >= 0 ? scene_.bsdfs[static_cast<std::size_t>(shape.bsdf)].get() : nullptr;
+            if (!bsdf || bsdf->isNull()) {
+                if (++nullCrossings > kMaxNullCrossings) return;
+                medium = mediumAfterCrossing(shape, sp.ng, direction, medium);
+                ray = Ray{offsetRayOrigin(sp.p, sp.ng, direction), direction, kInfinity};
+                continue;
+            }
+            nullCrossings = 0;
+            ++depth;
+
+            if (bsdf->hasSmoothLobe()) {
+                const std::uint8_t photonClass =
+                    depth == 1 ? PhotonClass::Direct : (specularChain ? PhotonClass::Caustic : PhotonClass::Global);
+                store(photonClass, sp, direction, power * throughput, tracking ? &differential : nullptr, pathIndex,
+                      out);
+                if (settings_.causticOnlyPaths) return;
+            }
+            if (depth >= settings_.maxDepth) return;
+
+            const Frame frame(sp.ns);
+            const Vec3 wo = frame.toLocal(-direction);
+            const float uLobe = rng.uniform();
+            const Vec2 uBsdf = rng.uniform2();
+            const std::optional<BsdfSample> bs = bsdf->sample(wo, sp.uv, uLobe, uBsdf, TransportMode::Importance);
+            if (!bs || bs->pdf <= 0.0f || isBlack(bs->weight)) return;
+            const Vec3 wi = frame.toWorld(bs->wi);
+            const float cosGeometricIn = glm::dot(wi, sp.ng);
+            if (cosGeometricIn * bs->wi.z <= 0.0f) return;
+            // Shading normals make importance transport non-symmetric (Veach 1997, §5.3.2):
+            // the adjoint BSDF carries |wo.ns| |wi.ng| / (|wo.ng| |wi.ns|).
+            const float adjointDenominator = std::abs(glm::dot(direction, sp.ng)) * std::abs(bs->wi.z);
+            if (!(adjointDenominator > 0.0f)) return;
+            throughput *= bs->weight * (std::abs(wo.z) * std::abs(cosGeometricIn) / adjointDenominator);
+
+            if (bs->isSpecular()) {
+                if (tracking) {
+                    const Vec3 dnU = rays_.shadingNormalDifferential(ray, hit, differential.dxU);
+                    const Vec3 dnV = rays_.shadingNormalDifferential(ray, hit, differential.dxV);
+                    scatterDifferential(differential, direction, wi, sp.ns, dnU, dnV, *bs);
+                }
+            } else {
+                specularChain = false;
+                tracking = false;  // a differential means nothing after a non-specular event
+            }
+            if (bs->lobe & BsdfLobe::Transmission) medium = mediumAfterCrossing(shape, sp.ng, wi, medium);
+            direction = wi;
+            ray = Ray{offsetRayOrigin(sp.p, sp.ng, wi), wi, kInfinity};
+            if (!survivesRoulette()) return;
+        }
+    }
+
+private:
+    void store(std::uint8_t photonClass, const SurfacePoint& sp, const Vec3& direction, const Rgb& power,
+               const PhotonDifferential* differential, std::uint64_t path, ChunkResult& out) const {
+        const bool wanted = photonClass == PhotonClass::Direct    ? settings_.storeDirect
+                            : photonClass == PhotonClass::Caustic ? settings_.storeCaustic
+                                                                  : settings_.storeGlobal;
+        if (!wanted || isBlack(power) || !isFinite(power)) return;
+        const bool caustic = photonClass == PhotonClass::Caustic;
+        PhotonRecord record{sp.p, -direction, power, sp.ns, photonClass, Vec3(0.0f), Vec3(0.0f), path};
+        if (differential) {
+            if (footprintCollapsed(differential->dxU, differential->dxV, sp.ns)) {
+                ++(caustic ? out.collapsedCaustic : out.collapsedGlobal);
+                return;
+            }
+            record.dxU = differential->dxU;
+            record.dxV = differential->dxV;
+        }
+        (caustic ? out.caustic : out.global).push_back(record);
+    }
+
+    void storeVolume(std::uint8_t photonClass, const Vec3& position, const Vec3& direction, const Rgb& power,
+                     std::uint64_t path, ChunkResult& out) const {
+        if (!settings_.storeVolume || isBlack(power) || !isFinite(power)) return;
+        if ((photonClass & PhotonClass::Direct) && !settings_.storeSingleScattering) return;
+        out.volume.push_back(
+            PhotonRecord{position, -direction, power, Vec3(0.0f), photonClass, Vec3(0.0f), Vec3(0.0f), path});
+    }
+
+    const Scene& scene_;
+    const RayQuery& rays_;
+    const Settings& settings_;
+    std::uint64_t seed_;
+    std::vector<int> lightMedium_;
+};
+
+// Appends the records [0, count) of `records`.
+void append(PhotonBuffer& buffer, const std::vector<PhotonRecord>& records, std::size_t count) {
+    if (count == 0) return;
+    const std::size_t first = buffer.size();
+    buffer.resize(first + count);
+    auto position = buffer.column<PhotonPosition>();
+    auto incident = buffer.column<PhotonIncident>();
+    auto power = buffer.column<PhotonPower>();
+    auto normal = buffer.column<PhotonNormal>();
+    auto photonClass = buffer.column<PhotonClassColumn>();
+    auto du = buffer.column<PhotonDu>();
+    auto dv = buffer.column<PhotonDv>();
+    for (std::size_t k = 0; k < count; ++k) {
+        const PhotonRecord& r = records[k];
+        const std::size_t i = first + k;
+        position[i] = r.position;
+        incident[i] = r.incident;
+        power[i] = r.power;
+        normal[i] = r.normal;
+        photonClass[i] = r.photonClass;
+        du[i] = r.dxU;
+        dv[i] = r.dxV;
+    }
+}
+
+// Records of paths up to and including `lastPath` (records are in path order).
+std::size_t recordsUpTo(const std::vector<PhotonRecord>& records, std::uint64_t lastPath) {
+    return static_cast<std::size_t>(
+        std::partition_point(records.begin(), records.end(), [&](const PhotonRecord& r) { return r.path <= lastPath; }) -
+        records.begin());
+}
+
+// Powers were computed for `planned` paths; `emitted` were traced.
+void renormalise(PhotonMap& map, std::uint64_t planned, std::uint64_t emitted) {
+    if (planned == emitted || emitted == 0) return;
+    const float powerScale = static_cast<float>(static_cast<double>(planned) / static_cast<double>(emitted));
+    const float lengthScale = std::sqrt(powerScale);
+    for (Rgb& p : map.photons.column<PhotonPower>()) p *= powerScale;
+    for (Vec3& d : map.photons.column<PhotonDu>()) d *= lengthScale;
+    for (Vec3& d : map.photons.column<PhotonDv>()) d *= lengthScale;
+}
+
+class PhotonPass final : public Pass {
+public:
+    void run(PassContext& ctx) override {
+        const Scene& scene = ctx.scene();
+        const PassParams& params = ctx.params();
+        Settings settings;
+        settings.photons = static_cast<std::uint64_t>(params.getInt("photons"));
+        settings.volumeTarget = static_cast<std::uint64_t>(params.getInt("volume_photons"));
+        settings.maxDepth = static_cast<int>(params.getInt("max_depth"));
+        settings.rrDepth = static_cast<int>(params.getInt("rr_depth"));
+        const std::string& store = params.getString("store");
+        settings.storeCaustic = store == "caustic" || store == "surface" || store == "all";
+        settings.storeGlobal = store == "global" || store == "surface" || store == "all";
+        settings.storeVolume = store == "volume" || store == "all";
+        settings.storeDirect = params.getBool("store_direct");
+        settings.storeSingleScattering = params.getBool("store_single_scattering");
+        settings.causticOnlyPaths = params.getBool("caustic_only_paths");
+        settings.differentials = params.getBool("differentials");
+        settings.smoothing = static_cast<float>(params.getFloat("smoothing"));
+        settings.batchSize = static_cast<std::size_t>(params.getInt("batch_size"));
+        // An own seed gives an independent photon set at the same eye vertices (the job's
+        // seed keys the camera paths): what variance measurements and comparisons against a
+        // reference rendered with the job's seed need.
+        const std::int64_t ownSeed = params.getInt("seed");
+        const std::uint64_t seed = ownSeed == 0 ? ctx.seed() : static_cast<std::uint64_t>(ownSeed);
+        const bool targetMode = settings.volumeTarget > 0;
+        if (targetMode && !settings.storeVolume) {
+            throw InputError(scene.sourcePath, 0,
+                             "pass '" + ctx.instanceName() + "': volume_photons = " +
+                                 std::to_string(settings.volumeTarget) + " needs store = \"volume\" or \"all\"");
+        }
+
+        // A streamed map is handed over after every batch and begun afresh; with a
+        // volume-photon target the powers are only known at the end, so it is
+        // handed over once, whole.
+        const auto openMap = [&](const char* slot, bool differentials) {
+            const bool streamed = ctx.streamed(slot);
+            auto map = streamed ? std::make_shared<PhotonMap>() : std::shared_ptr<PhotonMap>();
+            PhotonMap& target = streamed ? *map : ctx.createOutput<PhotonMap>(slot);
+            target.emitted = settings.photons;
+            target.hasDifferentials = differentials;
+            return std::pair<std::shared_ptr<PhotonMap>, PhotonMap*>(map, &target);
+        };
+        auto [causticBatch, causticMap] = openMap("caustic_photons", settings.differentials);
+        auto [globalBatch, globalMap] = openMap("global_photons", false);
+        auto [volumeBatch, volumeMap] = openMap("volume_photons", false);
+        std::pair<const char*, std::shared_ptr<PhotonMap>*> streams[] = {
+            {"caustic_photons", &causticBatch}, {"global_photons", &globalBatch}, {"volume_photons", &volumeBatch}};
+        PhotonMap* maps[] = {causticMap, globalMap, volumeMap};
+        const auto handOver = [&] {
+            for (std::size_t k = 0; k < 3; ++k) {
+                std::shared_ptr<PhotonMap>& batch = *streams[k].second;
+                if (!batch) continue;
+                if (!batch->photons.empty()) {
+                    const auto next = std::make_shared<PhotonMap>();
+                    next->emitted = batch->emitted;
+                    next->hasDifferentials = batch->hasDifferentials;
+                    ctx.emitBatch<PhotonMap>(streams[k].first, std::exchange(batch, next));
+                }
+                maps[k] = batch.get();
+            }
+        };
+        if (scene.lights.empty() || !(scene.lightPower.total() > 0.0f)) {
+            ctx.addItems(static_cast<std::int64_t>(settings.photons));
+            return;
+        }
+
+        const PhotonTracer tracer(scene, ctx.rays(), settings, seed);
+        std::int64_t storedCaustic = 0, storedGlobal = 0, storedDirect = 0, storedVolume = 0, singleScattering = 0;
+        std::int64_t segments = 0;
+        std::uint64_t collapsed = 0;
+        std::uint64_t emitted = 0;
+        bool targetReached = false;
+        for (std::uint64_t batchStart = 0; batchStart < settings.photons && !targetReached;) {
+            std::uint64_t wanted = settings.batchSize;
+            if (targetMode) {
+                // A pilot batch, then enough paths for the photons still missing at the rate
+                // seen so far (plus a margin), so that paths are not traced in vain. The sizes
+                // depend only on earlier results, and the photons not on the sizes.
+                const std::uint64_t missing = settings.volumeTarget - static_cast<std::uint64_t>(storedVolume);
+                const double rate = storedVolume == 0 ? 0.0
+                                                      : static_cast<double>(storedVolume) /
+                                                            static_cast<double>(batchStart);
+                const double estimate = rate > 0.0 ? 1.1 * static_cast<double>(missing) / rate + 1024.0
+                                                   : static_cast<double>(batchStart == 0 ? kPilotPaths
+                                                                                         : 8 * batchStart);
+                wanted = std::min<std::uint64_t>(settings.batchSize,
+                                                 static_cast<std::uint64_t>(std::min(estimate, 1e15)));
+            }
+            const auto count =
+                static_cast<std::size_t>(std::min<std::uint64_t>(wanted, settings.photons - batchStart));
+            std::vector<ChunkResult> chunks((count + kGrain - 1) / kGrain);
+            jobs::parallelForChunks(count, kGrain, [&](jobs::IndexRange r) {
+                ChunkResult& out = chunks[r.begin / kGrain];
+                for (std::size_t i = r.begin; i != r.end; ++i) tracer.trace(batchStart + i, out);
+            });
+            emitted = batchStart + count;
+            for (const ChunkResult& chunk : chunks) {
+                std::size_t takeVolume = chunk.volume.size();
+                std::uint64_t lastPath = ~std::uint64_t(0);
+                if (targetMode && static_cast<std::uint64_t>(storedVolume) + takeVolume >= settings.volumeTarget) {
+                    takeVolume = static_cast<std::size_t>(settings.volumeTarget - static_cast<std::uint64_t>(storedVolume));
+                    lastPath = chunk.volume[takeVolume - 1].path;
+                    emitted = lastPath + 1;
+                    targetReached = true;
+                }
+                const std::size_t takeCaustic = recordsUpTo(chunk.caustic, lastPath);
+                const std::size_t takeGlobal = recordsUpTo(chunk.global, lastPath);
+                append(maps[0]->photons, chunk.caustic, takeCaustic);
+                append(maps[1]->photons, chunk.global, takeGlobal);
+                append(maps[2]->photons, chunk.volume, takeVolume);
+                maps[0]->collapsedFootprints += static_cast<std::uint64_t>(chunk.collapsedCaustic);
+                maps[1]->collapsedFootprints += static_cast<std::uint64_t>(chunk.collapsedGlobal);
+                collapsed += static_cast<std::uint64_t>(chunk.collapsedCaustic + chunk.collapsedGlobal);
+                storedCaustic += static_cast<std::int64_t>(takeCaustic);
+                storedVolume += static_cast<std::int64_t>(takeVolume);
+                for (std::size_t k = 0; k < takeVolume; ++k)
+                    singleScattering += (chunk.volume[k].photonClass & PhotonClass::Direct) != 0;
+                for (std::size_t k = 0; k < takeGlobal; ++k)
+                    ++(chunk.global[k].photonClass == PhotonClass::Direct ? storedDirect : storedGlobal);
+                segments += chunk.segments;
+                if (targetReached) break;
+            }
+            ctx.addItems(static_cast<std::int64_t>(count));
+            batchStart += count;
+            if (!targetMode) handOver();
+            ctx.reportProgress(targetMode ? static_cast<double>(storedVolume) /
+                                                static_cast<double>(settings.volumeTarget)
+                                          : static_cast<double>(batchStart) / static_cast<double>(settings.photons));
+        }
+        for (PhotonMap* map : maps) {
+            renormalise(*map, settings.photons, emitted);
+            map->emitted = emitted;
+        }
+        handOver();
+
+        ctx.addCounter("caustic_photons", storedCaustic);
+        ctx.addCounter("global_photons", storedGlobal);
+        ctx.addCounter("direct_photons", storedDirect);
+        ctx.addCounter("volume_photons", storedVolume);
+        ctx.addCounter("single_scattering_photons", singleScattering);
+        ctx.addCounter("emitted_paths", static_cast<std::int64_t>(emitted));
+        ctx.addCounter("collapsed_footprints", static_cast<std::int64_t>(collapsed));
+        ctx.addCounter("photon_segments", segments);
+    }
+};
+
+}  // namespace
+
+PassRegistration photonPass() {
+    PassSpec spec;
+    spec.name = "photon";
+    spec.doc = "Photon tracing from all lights (by power) through surfaces and homogeneous media, with Russian "
+               "roulette and optional photon differentials";
+    spec.outputs = {
+        {"caustic_photons", "PhotonMap", "photons at smooth surfaces after only specular events (L S+ D), with footprints",
+         true},
+        {"global_photons", "PhotonMap",
+         "photons at smooth surfaces after a non-specular event (and direct photons with store_direct)", true},
+        {"volume_photons", "PhotonMap",
+         "photons at scattering events in media (class Volume); power includes sigma_s: Eq. 3 needs no sigma_s", true},
+    };
+    spec.params = {
+        {"photons", ParamType::Int, std::int64_t{1000000}, 1, 1e15, {},
+         "photon paths emitted from all lights; with volume_photons > 0, the most that may be emitted"},
+        {"volume_photons", ParamType::Int, std::int64_t{0}, 0, 2147483647, {},
+         "if > 0: emit paths until exactly this many volume photons are stored (0 = emit `photons` paths)"},
+        {"max_depth", ParamType::Int, std::int64_t{16}, 1, 4096, {},
+         "maximum scattering events (surface or medium) per photon path; 1 = only the first event"},
+        {"rr_depth", ParamType::Int, std::int64_t{5}, 1, 4096, {},
+         "scattering events before Russian roulette may end a photon path"},
+        {"store", ParamType::String, std::string("all"), 0, 0, {"caustic", "global", "surface", "volume", "all"},
+         "which photons to keep: caustic (L S+ D), global (after a non-specular event), surface (both), "
+         "volume (medium events), or all"},
+        {"store_direct", ParamType::Bool, false, 0, 0, {},
+         "also keep direct photons (L D) in global_photons; usually next-event estimation covers them"},
+        {"store_single_scattering", ParamType::Bool, true, 0, 0, {},
+         "keep volume photons at a path's first event (L V, directly lit); off = multiple scattering only"},
+        {"caustic_only_paths", ParamType::Bool, false, 0, 0, {},
+         "end every path at its first non-specular event (enough for caustic photons)"},
+        {"differentials", ParamType::Bool, true, 0, 0, {},
+         "trace photon differentials and store footprints for caustic and direct photons"},
+        {"smoothing", ParamType::Float, 10.0, 1e-3, 1e4, {},
+         "smoothing s of the initial differentials: footprints of one source add up to s^2 times its area"},
+        {"batch_size", ParamType::Int, std::int64_t{1 << 18}, 1, 1 << 26, {},
+         "photon paths per batch (memory vs. parallelism; a streamed map is handed over per batch); does not "
+         "change the photons"},
+        {"seed", ParamType::Int, std::int64_t{0}, 0, 1e15, {},
+         "seed of the photon paths' random streams (0 = the job's seed); another seed traces an independent "
+         "photon set at the same eye vertices"},
+    };
+    return {spec, [] { return std::make_unique<PhotonPass>(); }};
+}
+
+}  // namespace fg

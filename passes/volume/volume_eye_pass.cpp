@@ -1,0 +1,258 @@
+// Volume eye pass (`volume_eye`): the camera half of the beam-radiance-estimate
+// pipeline (Jarosz, Zwicker & Jensen 2008; Jakob et al. 2011 §3.1-3.2, Eq. 1):
+//
+//   L(x, w) = Tr(x <-> x_b) L_s(x_b, w) + L_m(x, w, b).
+//
+// Each pixel sample follows the camera ray through index-matched (`null`)
+// boundaries and purely specular surfaces, as the `eye` pass does, up to the
+// first surface with a diffuse or glossy lobe. Media along the way are not
+// sampled: every stretch of the path inside a scattering medium is stored as
+// a segment (origin, direction, tNear, tFar, medium, pixel, throughput), the
+// domain of the media radiance L_m that the beam query estimates from volume
+// photons, and the path weight is multiplied by the stretch's transmittance.
+// A straight leg that crosses several media gives several segments with the
+// leg's origin; a specular bounce starts a new leg.
+//
+// The surface term Tr L_s is left to the surface part of the pipeline, exactly
+// as the `eye` pass leaves it: the first smooth vertex is stored as an eye
+// vertex whose throughput includes the transmittance to it (for photon
+// gathering of caustic and global photons), and the `direct` film receives
+// emission seen along the chain plus direct lighting at the vertex (next-event
+// estimation with shadow rays through media and null boundaries, and one BSDF
+// sample whose emission is found by free-flight sampling, power-heuristic MIS)
+// — the per-vertex code of path_vertex.h. So L_s = direct light + photon-mapped
+// indirect light (caustics L S+ D and global L ... D ... D, the latter
+// including light that scattered in a medium before reaching the surface).
+//
+// Sample weights include 1/spp; vertices and segments are stored in (pixel,
+// sample) order, segments of one sample in path order. Random numbers are
+// keyed by (seed, "volume_eye", sample index).
+#include "passes/common/eye_vertex_records.h"
+#include "passes/passes.h"
+#include "passes/common/path_vertex.h"
+
+#include "engine/buffers/beam_buffers.h"
+#include "engine/image/film.h"
+#include "engine/buffers/photon_buffers.h"
+#include "engine/accel/ray_query.h"
+#include "engine/scene/scene.h"
+#include "jobs/parallel.h"
+#include "jobs/random.h"
+
+#include <algorithm>
+
+namespace fg {
+
+namespace {
+
+// Samples traced per film round; bounds the temporary per-sample storage.
+constexpr std::size_t kWaveSamples = 1 << 18;
+// Null boundaries crossed in a row; the bound only guards against degenerate geometry.
+constexpr int kMaxNullCrossings = 1024;
+
+struct SegmentRecord {
+    Vec3 origin;
+    Vec3 direction;
+    float tNear;
+    float tFar;
+    std::int32_t medium;
+    std::uint32_t pixel;
+    Rgb throughput;
+};
+
+class VolumeEyeTracer {
+public:
+    VolumeEyeTracer(const PathTracerScene& pts, int maxSpecularDepth, float sampleWeight)
+        : pts_(pts), maxSpecularDepth_(maxSpecularDepth), sampleWeight_(sampleWeight) {}
+
+    // Traces one camera sample: returns the radiance for the `direct` film, fills
+    // `vertex` and appends the sample's segments.
+    Rgb trace(Ray ray, int cameraMedium, std::uint32_t pixel, jobs::Rng& rng, EyeRecord& vertex,
+              std::vector<SegmentRecord>& segments) const {
+        const Scene& scene = pts_.scene;
+        ray.direction = glm::normalize(ray.direction);
+        Rgb beta(1.0f), radiance(0.0f);
+        PathHistory history = PathHistory::atCamera(cameraMedium);
+        PathVertexState state{ray, beta, radiance, history, rng};
+        PathLimits chain;
+        chain.maxDepth = maxSpecularDepth_;
+        chain.rrDepth = kNoRoulette;
+        vertex.valid = false;
+        Vec3 legOrigin = ray.origin;
+        Vec3 legDirection = ray.direction;
+        int nullCrossings = 0;
+
+        for (;;) {
+            const Hit hit = pts_.rays.intersect(state.ray);
+            if (history.medium >= 0) {
+                const HomogeneousMedium& medium = scene.media[static_cast<std::size_t>(history.medium)];
+                const float tStart = glm::dot(state.ray.origin - legOrigin, legDirection);
+                if (!isBlack(medium.sigmaS()) && !isBlack(beta)) {
+                    segments.push_back({legOrigin, legDirection, tStart, hit.valid() ? tStart + hit.t : kInfinity,
+                                        history.medium, pixel, beta * sampleWeight_});
+                }
+                beta *= segmentTransmittance(medium, hit.valid() ? hit.t : kInfinity);
+            }
+            // Nothing further along can be seen (e.g. a ray escaping through a medium).
+            if (isBlack(beta)) return radiance;
+
+            if (hit.valid()) {
+                const Shape& shape = scene.shapes[hit.shape];
+                const Bsdf* bsdf = shape.bsdf >= 0 ? scene.bsdfs[static_cast<std::size_t>(shape.bsdf)].get() : nullptr;
+                if (bsdf && bsdf->hasSmoothLobe()) {
+                    const SurfacePoint sp = pts_.rays.surface(state.ray, hit);
+                    vertex.position = sp.p;
+                    vertex.normal = sp.ns;
+                    vertex.geometricNormal = sp.ng;
+                    vertex.outgoing = -state.ray.direction;
+                    vertex.uv = sp.uv;
+                    vertex.throughput = beta * sampleWeight_;
+                    vertex.bsdf = static_cast<std::uint32_t>(shape.bsdf);
+                    vertex.valid = true;
+
+                    // The segment's medium is in the throughput as transmittance already.
+                    endPathAtEyeVertex(pts_, hit, state, true);
+                    return radiance;
+                }
+                if (!bsdf || bsdf->isNull()) {
+                    if (++nullCrossings > kMaxNullCrossings) return radiance;
+                } else {
+                    nullCrossings = 0;
+                }
+            }
+            // A miss (environment), a null boundary or a purely specular event.
+            const Vec3 before = state.ray.direction;
+            ShadowRequest unused;  // specular surfaces sample no lights
+            if (!advancePathAtSurface(pts_, chain, hit, state, unused)) return radiance;
+            if (state.ray.direction != before) {
+                legOrigin = state.ray.origin;
+                legDirection = state.ray.direction;
+            }
+        }
+    }
+
+private:
+    const PathTracerScene& pts_;
+    int maxSpecularDepth_;
+    float sampleWeight_;
+};
+
+class VolumeEyePass final : public Pass {
+public:
+    void run(PassContext& ctx) override {
+        const Scene& scene = ctx.scene();
+        const int spp = static_cast<int>(ctx.params().getInt("spp"));
+        const int maxSpecularDepth = static_cast<int>(ctx.params().getInt("max_specular_depth"));
+
+        Camera camera = scene.camera;
+        camera.width = ctx.filmSettings().width;
+        camera.height = ctx.filmSettings().height;
+        const PathTracerScene pts(scene, ctx.rays());
+        const VolumeEyeTracer tracer(pts, maxSpecularDepth, 1.0f / static_cast<float>(spp));
+
+        Film& film = ctx.createOutput<Film>("direct", ctx.filmSettings());
+        EyeVertices& eye = ctx.createOutput<EyeVertices>("eye_vertices");
+        EyeSegments& segmentsOut = ctx.createOutput<EyeSegments>("eye_segments");
+        eye.samplesPerPixel = spp;
+        segmentsOut.samplesPerPixel = spp;
+        EyeVertexBuffer& out = eye.vertices;
+        SegmentBuffer& segmentBuffer = segmentsOut.segments;
+
+        const std::size_t pixelCount = film.pixelCount();
+        const auto samplesPerPixel = static_cast<std::size_t>(spp);
+        const std::size_t pixelsPerWave = std::max<std::size_t>(1, kWaveSamples / samplesPerPixel);
+        const std::size_t pixelGrain = std::max<std::size_t>(1, 256 / samplesPerPixel);
+        const std::uint64_t stream = jobs::streamKey("volume_eye");
+        std::vector<Vec2> raster;
+        std::vector<Rgb> radiance;
+        std::vector<EyeRecord> records;
+        std::vector<std::vector<SegmentRecord>> chunkSegments;
+        std::vector<std::size_t> slot;
+
+        for (std::size_t firstPixel = 0; firstPixel < pixelCount; firstPixel += pixelsPerWave) {
+            const std::size_t pixels = std::min(pixelsPerWave, pixelCount - firstPixel);
+            const std::size_t count = pixels * samplesPerPixel;
+            raster.resize(count);
+            radiance.resize(count);
+            records.resize(count);
+            chunkSegments.assign((pixels + pixelGrain - 1) / pixelGrain, {});
+            jobs::parallelForChunks(pixels, pixelGrain, [&](jobs::IndexRange range) {
+                std::vector<SegmentRecord>& segments = chunkSegments[range.begin / pixelGrain];
+                for (std::size_t local = range.begin; local != range.end; ++local) {
+                    const std::size_t pixel = firstPixel + local;
+                    const Vec2 corner(static_cast<float>(pixel % static_cast<std::size_t>(camera.width)),
+                                      static_cast<float>(pixel / static_cast<std::size_t>(camera.width)));
+                    for (std::size_t s = 0; s < samplesPerPixel; ++s) {
+                        const std::size_t i = local * samplesPerPixel + s;
+                        jobs::Rng rng(ctx.seed(), stream, static_cast<std::uint64_t>(pixel) * samplesPerPixel + s);
+                        raster[i] = corner + rng.uniform2();
+                        const Rgb L = tracer.trace(camera.generateRay(raster[i]), camera.medium,
+                                                   static_cast<std::uint32_t>(pixel), rng, records[i], segments);
+                        // A non-finite sample would poison every pixel its filter reaches.
+                        radiance[i] = isFinite(L) ? L : Rgb(0.0f);
+                    }
+                }
+            });
+            film.addRound({firstPixel, pixels, spp, raster, radiance});
+            appendEyeVertices(records, firstPixel, samplesPerPixel, out, slot, ctx);
+            appendSegments(chunkSegments, segmentBuffer, ctx);
+            ctx.addItems(static_cast<std::int64_t>(count));
+            ctx.reportProgress(static_cast<double>(firstPixel + pixels) / static_cast<double>(pixelCount));
+        }
+    }
+
+private:
+    static void appendSegments(const std::vector<std::vector<SegmentRecord>>& chunks, SegmentBuffer& out,
+                               PassContext& ctx) {
+        std::size_t total = 0;
+        for (const auto& chunk : chunks) total += chunk.size();
+        const std::size_t first = out.size();
+        out.resize(first + total);
+        const auto origin = out.column<SegmentOrigin>();
+        const auto direction = out.column<SegmentDirection>();
+        const auto tNear = out.column<SegmentTNear>();
+        const auto tFar = out.column<SegmentTFar>();
+        const auto medium = out.column<SegmentMedium>();
+        const auto pixel = out.column<SegmentPixel>();
+        const auto throughput = out.column<SegmentThroughput>();
+        std::size_t i = first;
+        for (const auto& chunk : chunks) {
+            for (const SegmentRecord& s : chunk) {
+                origin[i] = s.origin;
+                direction[i] = s.direction;
+                tNear[i] = s.tNear;
+                tFar[i] = s.tFar;
+                medium[i] = s.medium;
+                pixel[i] = s.pixel;
+                throughput[i] = s.throughput;
+                ++i;
+            }
+        }
+        ctx.addCounter("eye_segments", static_cast<std::int64_t>(total));
+    }
+};
+
+}  // namespace
+
+PassRegistration volumeEyePass() {
+    PassSpec spec;
+    spec.name = "volume_eye";
+    spec.doc = "Camera paths through null boundaries and specular chains to the first diffuse/glossy vertex: "
+               "stores the segments inside scattering media (for the beam query), the eye-vertex map, and "
+               "emission plus direct lighting (NEE + MIS, attenuated by transmittance) at those vertices";
+    spec.outputs = {
+        {"eye_vertices", "EyeVertices",
+         "first non-specular vertex of each camera sample, throughput including transmittance, (pixel, sample) order"},
+        {"direct", "Film", "emission seen through S* chains and media, and direct lighting at the eye vertices"},
+        {"eye_segments", "EyeSegments",
+         "camera-path segments inside scattering media, with the path weight at their start"},
+    };
+    spec.params = {
+        {"spp", ParamType::Int, std::int64_t{4}, 1, 1 << 16, {}, "camera samples per pixel (jittered)"},
+        {"max_specular_depth", ParamType::Int, std::int64_t{16}, 0, 4096, {},
+         "specular bounces followed before a camera path is given up (0: only directly seen surfaces)"},
+    };
+    return {spec, [] { return std::make_unique<VolumeEyePass>(); }};
+}
+
+}  // namespace fg

@@ -1,0 +1,213 @@
+// The reference path tracer against scenes with known answers.
+#include "engine/shading/bsdf.h"
+#include "engine/shading/light.h"
+#include "engine/scene/scene.h"
+#include "tests/support/airlight.h"
+#include "tests/support/render_helpers.h"
+
+#include <glm/gtc/matrix_transform.hpp>
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+namespace fg {
+namespace {
+
+using test::airlight;
+using test::renderPipeline;
+
+int addDiffuse(Scene& scene, const Rgb& albedo) {
+    scene.bsdfs.push_back(makeDiffuse(makeConstantTexture(albedo)));
+    return static_cast<int>(scene.bsdfs.size()) - 1;
+}
+
+FilmSettings smallFilm(int w, int h) {
+    FilmSettings f;
+    f.width = w;
+    f.height = h;
+    return f;
+}
+
+// Camera inside a diffuse sphere of albedo 0.5 lit by a point light of
+// intensity pi at its centre: direct radiance 0.5 / R^2, and every bounce adds
+// half the previous, so the radiance is exactly 1 everywhere for R = 1.
+TEST(PathTracer, FurnaceSphereHasUnitRadiance) {
+    Scene scene;
+    Shape sphere;
+    sphere.geometry = Sphere{Vec3(0.0f), 1.0f};
+    sphere.flipNormals = true;
+    sphere.bsdf = addDiffuse(scene, Rgb(0.5f));
+    scene.shapes.push_back(sphere);
+    scene.lights.push_back(makePointLight(Vec3(0.0f), Rgb(kPi)));
+    scene.lightShape.push_back(-1);
+    scene.camera.eye = Vec3(0.0f, 0.0f, 0.3f);
+    scene.camera.target = Vec3(0.3f, 0.2f, -1.0f);
+    scene.camera.fovYDegrees = 90.0f;
+    scene.finalize();
+
+    const auto image = renderPipeline(scene, "pt", {{"pt.spp", std::int64_t{64}}, {"pt.max_depth", std::int64_t{1000}}},
+                                      smallFilm(24, 24));
+    const Rgb mean = image.mean();
+    for (int c = 0; c < 3; ++c) EXPECT_NEAR(mean[c], 1.0f, 0.01f) << "channel " << c;
+    // Every pixel is an unbiased estimate of 1; 64 samples keep them well inside +-25 %.
+    for (const Rgb& p : image.pixels) EXPECT_NEAR(p.y, 1.0f, 0.25f);
+}
+
+// Irradiance below a diffuse disk emitter of radius r and radiance L, at height
+// h, at lateral distance l from the axis:
+//   E = pi L / 2 * [1 - (h^2 + l^2 - r^2) / sqrt((h^2 + l^2 + r^2)^2 - 4 l^2 r^2)],
+// which on the axis reduces to pi L r^2 / (h^2 + r^2). A white diffuse floor
+// then reflects E / pi towards the camera (direct light only: max_depth = 1).
+double diskIrradiance(double L, double r, double h, double l) {
+    const double a = h * h + l * l + r * r;
+    return 0.5 * M_PI * L * (1.0 - (h * h + l * l - r * r) / std::sqrt(a * a - 4.0 * l * l * r * r));
+}
+
+TEST(PathTracer, DiskLightIrradianceMatchesClosedForm) {
+    const float radius = 0.5f, height = 1.0f, radiance = 2.0f;
+    Scene scene;
+    Shape floor;
+    TriangleMesh plane = makeRectangleMesh();
+    plane.transform(glm::scale(Mat4(1.0f), Vec3(4.0f)));
+    floor.geometry = plane;
+    floor.bsdf = addDiffuse(scene, Rgb(1.0f));
+    scene.shapes.push_back(floor);
+
+    Shape disk;
+    TriangleMesh diskMesh = makeDiskMesh(512);
+    // Facing down (-z) at z = height.
+    diskMesh.transform(glm::translate(Mat4(1.0f), Vec3(0, 0, height)) *
+                       glm::rotate(Mat4(1.0f), kPi, Vec3(1, 0, 0)) * glm::scale(Mat4(1.0f), Vec3(radius)));
+    disk.geometry = diskMesh;
+    disk.bsdf = addDiffuse(scene, Rgb(0.0f));
+    disk.areaLight = 0;
+    scene.lights.push_back(makeAreaLight(disk, Rgb(radiance)));
+    scene.lightShape.push_back(1);
+    scene.shapes.push_back(disk);
+
+    // Looking obliquely at the floor from the side, below the disk's plane.
+    scene.camera.eye = Vec3(0.0f, -3.0f, 0.8f);
+    scene.camera.target = Vec3(0.0f, 0.0f, 0.0f);
+    scene.camera.up = Vec3(0, 0, 1);
+    scene.camera.fovYDegrees = 30.0f;
+    scene.finalize();
+
+    const int w = 32, h = 32;
+    const auto image = renderPipeline(scene, "pt", {{"pt.spp", std::int64_t{256}}, {"pt.max_depth", std::int64_t{1}}},
+                                      smallFilm(w, h));
+    // Compare 4x4 blocks against the closed form at the block's floor points.
+    Camera cam = scene.camera;
+    cam.width = w;
+    cam.height = h;
+    int checked = 0;
+    for (int by = 0; by < h; by += 4) {
+        for (int bx = 0; bx < w; bx += 4) {
+            double measured = 0.0, expected = 0.0;
+            int n = 0;
+            for (int y = by; y < by + 4; ++y) {
+                for (int x = bx; x < bx + 4; ++x) {
+                    const Ray ray = cam.generateRay(Vec2(x + 0.5f, y + 0.5f));
+                    if (ray.direction.z >= 0.0f) continue;
+                    const float t = -ray.origin.z / ray.direction.z;
+                    const Vec3 p = ray.origin + t * ray.direction;
+                    if (std::abs(p.x) > 3.5f || std::abs(p.y) > 3.5f) continue;
+                    const double l = std::hypot(p.x, p.y);
+                    expected += diskIrradiance(radiance, radius, height, l) / M_PI;
+                    measured += image.at(x, y).y;
+                    ++n;
+                }
+            }
+            if (n < 16) continue;  // blocks that straddle the horizon or the floor's edge
+            ++checked;
+            EXPECT_NEAR(measured / n, expected / n, 0.03 * expected / n + 1e-3) << "block " << bx << "," << by;
+        }
+    }
+    EXPECT_GT(checked, 20);
+}
+
+TEST(PathTracer, SingleScatteringMatchesAirlightIntegral) {
+    const float sigmaS = 0.4f, sigmaA = 0.1f, intensity = 10.0f;
+    const float wallDistance = 3.0f, h = 0.5f, delta = 1.2f;
+    Scene scene;
+    scene.media.emplace_back(Rgb(sigmaA), Rgb(sigmaS), 0.0f);
+    // A black wall ends the camera rays at distance T.
+    Shape wall;
+    TriangleMesh plane = makeRectangleMesh();
+    plane.transform(glm::translate(Mat4(1.0f), Vec3(0, 0, -wallDistance)) * glm::scale(Mat4(1.0f), Vec3(10.0f)));
+    wall.geometry = plane;
+    wall.bsdf = addDiffuse(scene, Rgb(0.0f));
+    scene.shapes.push_back(wall);
+    scene.lights.push_back(makePointLight(Vec3(h, 0.0f, -delta), Rgb(intensity)));
+    scene.lightShape.push_back(-1);
+    scene.camera.eye = Vec3(0.0f);
+    scene.camera.target = Vec3(0, 0, -1);
+    scene.camera.fovYDegrees = 2.0f;
+    scene.camera.medium = 0;
+    scene.finalize();
+
+    const auto image = renderPipeline(scene, "pt", {{"pt.spp", std::int64_t{256}}, {"pt.max_depth", std::int64_t{1}}},
+                                      smallFilm(16, 16));
+    // Average the closed form over the pixels' centre rays (they differ by < 1 degree).
+    Camera cam = scene.camera;
+    cam.width = cam.height = 16;
+    double expected = 0.0;
+    for (int y = 0; y < 16; ++y) {
+        for (int x = 0; x < 16; ++x) {
+            const Ray ray = cam.generateRay(Vec2(x + 0.5f, y + 0.5f));
+            const Vec3 d = glm::normalize(ray.direction);
+            const double T = wallDistance / -d.z;
+            const Vec3 light(h, 0.0f, -delta);
+            const double foot = glm::dot(light, d);
+            const double perp = glm::length(light - static_cast<float>(foot) * d);
+            expected += airlight(sigmaS, sigmaS + sigmaA, intensity, perp, foot, T);
+        }
+    }
+    expected /= 256.0;
+    EXPECT_NEAR(image.mean().y, expected, 0.01 * expected);
+}
+
+// A chain of two schedules over the same random streams gives the same image,
+// and so do 1 and 2 threads.
+TEST(PathTracer, WavefrontAndTileAgreeAndThreadCountDoesNotMatter) {
+    Scene scene;
+    Shape sphere;
+    sphere.geometry = Sphere{Vec3(0.0f), 1.0f};
+    sphere.flipNormals = true;
+    sphere.bsdf = addDiffuse(scene, Rgb(0.7f, 0.5f, 0.3f));
+    scene.shapes.push_back(sphere);
+    Shape glass;
+    glass.geometry = Sphere{Vec3(0.2f, 0.0f, -0.4f), 0.25f};
+    scene.bsdfs.push_back(makeDielectric(1.5f));
+    glass.bsdf = static_cast<int>(scene.bsdfs.size()) - 1;
+    scene.shapes.push_back(glass);
+    scene.lights.push_back(makePointLight(Vec3(0.0f, 0.5f, 0.0f), Rgb(3.0f)));
+    scene.lightShape.push_back(-1);
+    scene.camera.eye = Vec3(0.0f, 0.0f, 0.5f);
+    scene.camera.target = Vec3(0.0f, 0.0f, -1.0f);
+    scene.camera.fovYDegrees = 70.0f;
+    scene.finalize();
+
+    FilmSettings film = smallFilm(20, 16);
+    film.filter = FilterKind::Gaussian;
+    film.filterRadius = 1.5f;
+    const std::map<std::string, ParamValue> wave = {{"pt.spp", std::int64_t{8}}, {"pt.wave_size", std::int64_t{100}}};
+    std::map<std::string, ParamValue> tile = wave;
+    tile["pt.schedule"] = std::string("tile");
+    const auto a = renderPipeline(scene, "pt", wave, film, 7, 1);
+    const auto b = renderPipeline(scene, "pt", wave, film, 7, 2);
+    const auto c = renderPipeline(scene, "pt", tile, film, 7, 2);
+    ASSERT_EQ(a.pixels.size(), b.pixels.size());
+    bool anyNonZero = false;
+    for (std::size_t i = 0; i < a.pixels.size(); ++i) {
+        EXPECT_EQ(a.pixels[i], b.pixels[i]) << "pixel " << i;
+        EXPECT_EQ(a.pixels[i], c.pixels[i]) << "pixel " << i;
+        anyNonZero |= a.pixels[i].x > 0.0f;
+    }
+    EXPECT_TRUE(anyNonZero);
+    // A different seed changes the image.
+    const auto d = renderPipeline(scene, "pt", wave, film, 8, 2);
+    EXPECT_NE(a.pixels, d.pixels);
+}
+
+}  // namespace
+}  // namespace fg
