@@ -5,6 +5,19 @@
 //   using RayBuffer = SoaBuffer<RayOrigin, RayPixel>;
 //   buffer.column<RayOrigin>()[i] = ...;
 //
+// The column list is the only declaration: the record type of one item
+// (RayBuffer::Record, a value per column, addressed by tag), the copies
+// between records and columns, and the read-only view of all columns are
+// derived from it, so producers fill records and consumers read columns
+// without naming every column again:
+//
+//   RayBuffer::Record ray{origin, pixel};        // values in column order
+//   ray.get<RayPixel>() = 7;
+//   buffer.append(std::span(records));           // records, or types derived from Record
+//   buffer.set(i, ray);  ray = buffer.get(i);
+//   const RayBuffer::View view = buffer.view();  // spans of all columns
+//   view.column<RayOrigin>()[i];
+//
 // A buffer offers bulk resize, typed column spans, an atomic append mode for
 // producers running in parallel (reserve capacity, claim slots, commit), and
 // byte accounting for the profiler.
@@ -16,11 +29,13 @@
 #include <cstddef>
 #include <cstdint>
 #include <limits>
+#include <ranges>
 #include <span>
 #include <stdexcept>
 #include <string>
 #include <tuple>
 #include <type_traits>
+#include <utility>
 #include <vector>
 
 namespace fg {
@@ -31,10 +46,79 @@ namespace fg {
         static constexpr const char* name = Name;      \
     }
 
+namespace soa_detail {
+
+// Position of Column in Columns..., or sizeof...(Columns) if it is not there.
+template <class Column, class... Columns>
+constexpr std::size_t indexOf() {
+    constexpr std::array<bool, sizeof...(Columns)> matches{std::is_same_v<Column, Columns>...};
+    for (std::size_t i = 0; i < sizeof...(Columns); ++i)
+        if (matches[i]) return i;
+    return sizeof...(Columns);
+}
+
+template <class Column, class... Columns>
+constexpr std::size_t checkedIndexOf() {
+    constexpr std::size_t index = indexOf<Column, Columns...>();
+    static_assert(index < sizeof...(Columns), "column is not part of this buffer");
+    return index;
+}
+
+}  // namespace soa_detail
+
+// One item of a SoaBuffer<Columns...>: a value per column, addressed by the
+// column's tag. Producers may derive from it to carry what is not stored
+// (e.g. a validity flag); the buffer copies only the columns.
+template <class... Columns>
+struct SoaRecord {
+    SoaRecord() = default;
+    // Values in column order.
+    SoaRecord(const typename Columns::value_type&... columnValues) : values(columnValues...) {}
+
+    template <class Column>
+    typename Column::value_type& get() {
+        return std::get<soa_detail::checkedIndexOf<Column, Columns...>()>(values);
+    }
+    template <class Column>
+    const typename Column::value_type& get() const {
+        return std::get<soa_detail::checkedIndexOf<Column, Columns...>()>(values);
+    }
+
+    std::tuple<typename Columns::value_type...> values{};
+};
+
+// Read-only spans of all columns of a SoaBuffer<Columns...>, taken once: cheap
+// to copy into parallel loops, and valid until the buffer is resized.
+template <class... Columns>
+class SoaView {
+public:
+    using Record = SoaRecord<Columns...>;
+
+    SoaView() = default;
+    explicit SoaView(std::span<const typename Columns::value_type>... columnSpans) : columns_(columnSpans...) {}
+
+    std::size_t size() const { return std::get<0>(columns_).size(); }
+    bool empty() const { return size() == 0; }
+
+    template <class Column>
+    std::span<const typename Column::value_type> column() const {
+        return std::get<soa_detail::checkedIndexOf<Column, Columns...>()>(columns_);
+    }
+    Record get(std::size_t i) const {
+        return std::apply([i](const auto&... col) { return Record(col[i]...); }, columns_);
+    }
+
+private:
+    std::tuple<std::span<const typename Columns::value_type>...> columns_;
+};
+
 template <class... Columns>
 class SoaBuffer {
 public:
+    static_assert(sizeof...(Columns) > 0, "a buffer needs at least one column");
     static constexpr std::size_t kColumnCount = sizeof...(Columns);
+    using Record = SoaRecord<Columns...>;
+    using View = SoaView<Columns...>;
     static constexpr std::size_t kNoSlot = std::numeric_limits<std::size_t>::max();
 
     SoaBuffer() = default;
@@ -69,6 +153,41 @@ public:
     std::span<const typename Column::value_type> column() const {
         return std::span(columnsByTagConst<Column>());
     }
+    View view() const {
+        return std::apply([](const auto&... col) { return View(std::span(col)...); }, columns_);
+    }
+
+    // Record <-> columns. set() writes one item in place (slot i < size()), so
+    // parallel producers may fill disjoint slots concurrently.
+    Record get(std::size_t i) const {
+        return std::apply([i](const auto&... col) { return Record(col[i]...); }, columns_);
+    }
+    void set(std::size_t i, const Record& record) {
+        forEachColumnIndex([&]<std::size_t C>() { std::get<C>(columns_)[i] = std::get<C>(record.values); });
+    }
+
+    // Appends one record; returns its index.
+    std::size_t append(const Record& record) {
+        const std::size_t i = size_;
+        resize(i + 1);
+        set(i, record);
+        return i;
+    }
+    // Appends records in order: any sized range of Record or of types derived from it.
+    template <std::ranges::sized_range Records>
+        requires std::is_convertible_v<const std::ranges::range_value_t<Records>&, const Record&>
+    void append(const Records& records) {
+        const std::size_t first = size_;
+        resize(first + static_cast<std::size_t>(std::ranges::size(records)));
+        // Column pointers held in locals, so the loop does not reload them after each store.
+        auto destination = std::apply([first](auto&... col) { return std::tuple(col.data() + first...); }, columns_);
+        std::size_t k = 0;
+        for (const Record& record : records) {
+            forEachColumnIndex(
+                [&]<std::size_t C>() { std::get<C>(destination)[k] = std::get<C>(record.values); });
+            ++k;
+        }
+    }
 
     // Atomic append: beginAppend(capacity) makes room for `capacity` more items,
     // claim(n) hands out n consecutive slots from any thread (kNoSlot when full),
@@ -100,21 +219,18 @@ public:
 
 private:
     template <class Column>
-    static constexpr std::size_t indexOf() {
-        constexpr std::array<bool, kColumnCount> matches{std::is_same_v<Column, Columns>...};
-        for (std::size_t i = 0; i < kColumnCount; ++i)
-            if (matches[i]) return i;
-        return kColumnCount;
-    }
-    template <class Column>
     auto& columnsByTag() {
-        static_assert(indexOf<Column>() < kColumnCount, "column is not part of this buffer");
-        return std::get<indexOf<Column>()>(columns_);
+        return std::get<soa_detail::checkedIndexOf<Column, Columns...>()>(columns_);
     }
     template <class Column>
     const auto& columnsByTagConst() const {
-        static_assert(indexOf<Column>() < kColumnCount, "column is not part of this buffer");
-        return std::get<indexOf<Column>()>(columns_);
+        return std::get<soa_detail::checkedIndexOf<Column, Columns...>()>(columns_);
+    }
+    // Calls f.template operator()<C>() for every column index C.
+    template <class F>
+    static void forEachColumnIndex(F&& f) {
+        [&]<std::size_t... C>(std::index_sequence<C...>) { (f.template operator()<C>(), ...); }(
+            std::index_sequence_for<Columns...>{});
     }
 
     std::tuple<std::vector<typename Columns::value_type>...> columns_;

@@ -6,6 +6,7 @@
 
 #include <cstdint>
 #include <cstring>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -171,6 +172,79 @@ TEST(SoaBuffer, ParallelClaimsPastCapacityHandOutExactlyTheCapacity) {
     EXPECT_EQ(granted.load(), capacity);
     ASSERT_EQ(buffer.size(), capacity);
     for (std::size_t i = 0; i < capacity; ++i) EXPECT_NE(buffer.column<ItemId>()[i], 0u) << "slot " << i;
+}
+
+TEST(SoaRecord, HoldsOneValuePerColumnAddressedByTag) {
+    ItemBuffer::Record record{7u, 1.5, Triple{1.0f, 2.0f, 3.0f}};
+    EXPECT_EQ(record.get<ItemId>(), 7u);
+    EXPECT_EQ(record.get<ItemWeight>(), 1.5);
+    EXPECT_EQ(record.get<ItemPosition>().z, 3.0f);
+    record.get<ItemWeight>() = -2.0;
+    const ItemBuffer::Record& constant = record;
+    EXPECT_EQ(constant.get<ItemWeight>(), -2.0);
+    const ItemBuffer::Record zero;
+    EXPECT_EQ(zero.get<ItemId>(), 0u);
+    EXPECT_EQ(zero.get<ItemWeight>(), 0.0);
+}
+
+TEST(SoaRecord, RoundTripsThroughTheColumns) {
+    ItemBuffer buffer(4);
+    const ItemBuffer::Record record{42u, 0.25, Triple{-1.0f, 0.5f, 8.0f}};
+    buffer.set(2, record);
+    EXPECT_EQ(buffer.column<ItemId>()[2], 42u);
+    EXPECT_EQ(buffer.column<ItemWeight>()[2], 0.25);
+    EXPECT_EQ(buffer.column<ItemPosition>()[2].x, -1.0f);
+    EXPECT_EQ(buffer.column<ItemId>()[1], 0u) << "other slots untouched";
+    EXPECT_EQ(buffer.column<ItemId>()[3], 0u);
+    const ItemBuffer::Record back = buffer.get(2);
+    EXPECT_EQ(back.get<ItemId>(), 42u);
+    EXPECT_EQ(back.get<ItemWeight>(), 0.25);
+    EXPECT_EQ(std::memcmp(&back.get<ItemPosition>(), &record.get<ItemPosition>(), sizeof(Triple)), 0);
+}
+
+// What a producer keeps besides the columns; only the columns are stored.
+struct TaggedItem : ItemBuffer::Record {
+    bool keep = false;
+};
+
+TEST(SoaRecord, AppendCopiesRecordsInOrderAfterWhatIsThere) {
+    ItemBuffer buffer(1);
+    buffer.column<ItemId>()[0] = 99;
+    std::vector<TaggedItem> records(5);
+    for (std::size_t i = 0; i < records.size(); ++i) {
+        records[i].get<ItemId>() = static_cast<std::uint32_t>(10 + i);
+        records[i].get<ItemWeight>() = static_cast<double>(i) / 4.0;
+        records[i].get<ItemPosition>() = {static_cast<float>(i), 0.0f, 0.0f};
+    }
+    buffer.append(std::span(records).first(3));
+    ASSERT_EQ(buffer.size(), 4u);
+    EXPECT_EQ(buffer.column<ItemId>()[0], 99u);
+    for (std::size_t i = 0; i < 3; ++i) {
+        EXPECT_EQ(buffer.column<ItemId>()[1 + i], 10 + i);
+        EXPECT_EQ(buffer.column<ItemWeight>()[1 + i], static_cast<double>(i) / 4.0);
+        EXPECT_EQ(buffer.column<ItemPosition>()[1 + i].x, static_cast<float>(i));
+    }
+    buffer.append(std::vector<ItemBuffer::Record>{});
+    EXPECT_EQ(buffer.size(), 4u);
+    EXPECT_EQ(buffer.append(records[4]), 4u) << "one record goes to the end and gives its index";
+    ASSERT_EQ(buffer.size(), 5u);
+    EXPECT_EQ(buffer.column<ItemId>()[4], 14u);
+}
+
+TEST(SoaView, SpansEveryColumnOfTheBuffer) {
+    ItemBuffer buffer;
+    for (std::uint32_t i = 0; i < 6; ++i) buffer.append(ItemBuffer::Record{i, 2.0 * i, Triple{0.0f, 1.0f * i, 0.0f}});
+    const ItemBuffer::View view = buffer.view();
+    EXPECT_EQ(view.size(), 6u);
+    EXPECT_FALSE(view.empty());
+    EXPECT_EQ(view.column<ItemId>().data(), buffer.column<ItemId>().data());
+    EXPECT_EQ(view.column<ItemWeight>().data(), buffer.column<ItemWeight>().data());
+    EXPECT_EQ(view.column<ItemPosition>().size(), 6u);
+    EXPECT_EQ(view.column<ItemWeight>()[5], 10.0);
+    const ItemBuffer::Record record = view.get(3);
+    EXPECT_EQ(record.get<ItemId>(), 3u);
+    EXPECT_EQ(record.get<ItemPosition>().y, 3.0f);
+    EXPECT_TRUE(ItemBuffer().view().empty());
 }
 
 }  // namespace
