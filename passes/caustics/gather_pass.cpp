@@ -46,9 +46,9 @@ struct GatherSource {
 };
 
 // Radiance towards the eye at vertex v from one photon map; `ids`/`dist2` hold at least k entries.
-Rgb gatherRadiance(const EyeVertexView& eye, std::size_t v, const VertexBrdf& brdf, const GatherSource& source,
+Rgb gatherRadiance(const EyeVertexBuffer::View& eye, std::size_t v, const VertexBrdf& brdf, const GatherSource& source,
                    float maxRadius, std::span<std::uint32_t> ids, std::span<float> dist2, std::int64_t& used) {
-    const std::size_t found = source.index.nearest(eye.position[v], source.k, maxRadius, ids, dist2);
+    const std::size_t found = source.index.nearest(eye.column<EyePosition>()[v], source.k, maxRadius, ids, dist2);
     if (found == 0) return Rgb(0.0f);
     // Fewer than k inside a finite radius: the search disk is the support. With
     // no radius limit that only happens when the map is smaller than k.
@@ -94,7 +94,7 @@ public:
         for (const GatherSource& s : sources) maxK = std::max(maxK, s.k);
 
         Film& image = ctx.createOutput<Film>("image", base);
-        const EyeVertexView eye(eyeVertices.vertices);
+        const EyeVertexBuffer::View eye = eyeVertices.vertices.view();
         const std::size_t vertexCount = eye.size();
         std::vector<Rgb> contribution(vertexCount, Rgb(0.0f));
         std::atomic<std::int64_t> photonsUsed{0};
@@ -106,16 +106,17 @@ public:
                 const VertexBrdf brdf(scene, eye, v);
                 Rgb L(0.0f);
                 for (const GatherSource& s : sources) L += gatherRadiance(eye, v, brdf, s, maxRadius, ids, dist2, used);
-                const Rgb value = L * eye.throughput[v];
+                const Rgb value = L * eye.column<EyeThroughput>()[v];
                 contribution[v] = isFinite(value) ? value : Rgb(0.0f);
             }
             photonsUsed += used;
         });
 
         std::vector<Rgb> perPixel(image.pixelCount(), Rgb(0.0f));
+        const auto pixelOf = eye.column<EyePixel>();
         for (std::size_t v = 0; v < vertexCount; ++v) {
-            if (eye.pixel[v] >= perPixel.size()) throw std::logic_error("gather: eye vertex outside the film");
-            perPixel[eye.pixel[v]] += contribution[v];
+            if (pixelOf[v] >= perPixel.size()) throw std::logic_error("gather: eye vertex outside the film");
+            perPixel[pixelOf[v]] += contribution[v];
         }
         image.addToPixels(perPixel, 1.0f);
         ctx.addItems(static_cast<std::int64_t>(vertexCount));

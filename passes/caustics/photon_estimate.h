@@ -13,27 +13,13 @@ namespace fg {
 // (Eq. 11), taken as a function of x^2; it integrates to 1 over the disk.
 inline float silvermanKernel(float x2) { return x2 < 1.0f ? 3.0f * kInvPi * sqr(1.0f - x2) : 0.0f; }
 
-// Read-only view of the eye-vertex columns.
-struct EyeVertexView {
-    explicit EyeVertexView(const EyeVertexBuffer& b)
-        : position(b.column<EyePosition>()), normal(b.column<EyeNormal>()),
-          geometricNormal(b.column<EyeGeometricNormal>()), outgoing(b.column<EyeOutgoing>()),
-          bsdf(b.column<EyeBsdf>()), uv(b.column<EyeUv>()), throughput(b.column<EyeThroughput>()),
-          pixel(b.column<EyePixel>()) {}
-    std::span<const Vec3> position, normal, geometricNormal, outgoing;
-    std::span<const std::uint32_t> bsdf;
-    std::span<const Vec2> uv;
-    std::span<const Rgb> throughput;
-    std::span<const std::uint32_t> pixel;
-    std::size_t size() const { return position.size(); }
-};
-
 // The BSDF of one eye vertex in its shading frame.
 class VertexBrdf {
 public:
-    VertexBrdf(const Scene& scene, const EyeVertexView& eye, std::size_t v)
-        : bsdf_(*scene.bsdfs[eye.bsdf[v]]), frame_(eye.normal[v]), geometricNormal_(eye.geometricNormal[v]),
-          wo_(frame_.toLocal(eye.outgoing[v])), uv_(eye.uv[v]) {}
+    VertexBrdf(const Scene& scene, const EyeVertexBuffer::View& eye, std::size_t v)
+        : bsdf_(*scene.bsdfs[eye.column<EyeBsdf>()[v]]), frame_(eye.column<EyeNormal>()[v]),
+          geometricNormal_(eye.column<EyeGeometricNormal>()[v]), wo_(frame_.toLocal(eye.column<EyeOutgoing>()[v])),
+          uv_(eye.column<EyeUv>()[v]) {}
 
     // f_r(x, wi, wo) for light arriving from direction wi (world space, pointing
     // away from the surface). Bsdf::eval returns f_r |cos theta_i| (shading

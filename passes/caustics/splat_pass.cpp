@@ -125,13 +125,13 @@ public:
                              "enable them in the photon pass");
         }
         const Scene& scene = ctx.scene();
-        const EyeVertexView eye(ctx.input<EyeVertices>("eye_vertices").vertices);
+        const EyeVertexBuffer::View eye = ctx.input<EyeVertices>("eye_vertices").vertices.view();
         const PointIndex& eyeIndex = ctx.input<PointIndex>("eye_index");
         if (eyeIndex.size() != eye.size())
             throw std::logic_error("splat: the eye index was not built from these eye vertices");
         const std::size_t pixelCount = ctx.input<Film>("direct").pixelCount();
         if (blocks_.empty()) {
-            for (std::uint32_t pixel : eye.pixel)
+            for (std::uint32_t pixel : eye.column<EyePixel>())
                 if (pixel >= pixelCount) throw std::logic_error("splat: eye vertex outside the film");
             const std::size_t blockBytes = std::max<std::size_t>(1, pixelCount * sizeof(Rgb));
             blocks_.resize(std::clamp<std::size_t>(kAccumulatorBudget / blockBytes, 1, 64));
@@ -182,7 +182,8 @@ public:
                             return;
                         weight = target.weight;
                     } else {
-                        weight = kPi * VertexBrdf(scene, eye, target.vertex)(wi) * eye.throughput[target.vertex];
+                        weight = kPi * VertexBrdf(scene, eye, target.vertex)(wi) *
+                                 eye.column<EyeThroughput>()[target.vertex];
                     }
                     if (isBlack(weight)) return;
                     const Rgb value = silvermanKernel(filterRadius2) * weight * irradiance;
@@ -228,20 +229,23 @@ private:
         bool lambertian = false;
     };
 
-    void prepareTargets(const Scene& scene, const EyeVertexView& eye, const PointIndex& eyeIndex) {
+    void prepareTargets(const Scene& scene, const EyeVertexBuffer::View& eye, const PointIndex& eyeIndex) {
         targets_.assign(eye.size(), SplatTarget{});
         jobs::parallelFor(eye.size(), 4096, [&](std::size_t slot) {
             SplatTarget& t = targets_[slot];
             const std::uint32_t v = eyeIndex.slotId(static_cast<std::uint32_t>(slot));
             t.vertex = v;
-            t.pixel = eye.pixel[v];
-            t.normal = eye.normal[v];
-            t.geometricNormal = eye.geometricNormal[v];
-            const std::optional<Rgb> reflectance = scene.bsdfs[eye.bsdf[v]]->constantReflectance(eye.uv[v]);
+            const EyeVertexBuffer::Record vertex = eye.get(v);
+            t.pixel = vertex.get<EyePixel>();
+            t.normal = vertex.get<EyeNormal>();
+            t.geometricNormal = vertex.get<EyeGeometricNormal>();
+            const std::optional<Rgb> reflectance =
+                scene.bsdfs[vertex.get<EyeBsdf>()]->constantReflectance(vertex.get<EyeUv>());
             if (!reflectance) return;
             t.lambertian = true;
             // Seen from below its shading normal, a Lambertian surface reflects nothing.
-            if (glm::dot(eye.outgoing[v], eye.normal[v]) > 0.0f) t.weight = kPi * *reflectance * eye.throughput[v];
+            if (glm::dot(vertex.get<EyeOutgoing>(), t.normal) > 0.0f)
+                t.weight = kPi * *reflectance * vertex.get<EyeThroughput>();
         });
     }
 

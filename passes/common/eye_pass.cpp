@@ -66,13 +66,13 @@ Rgb traceEyeSample(const PathTracerScene& pts, const Camera& camera, Ray ray, jo
             const Bsdf* bsdf = shape.bsdf >= 0 ? scene.bsdfs[static_cast<std::size_t>(shape.bsdf)].get() : nullptr;
             if (bsdf && bsdf->hasSmoothLobe()) {
                 const SurfacePoint sp = pts.rays.surface(state.ray, hit);
-                vertex.position = sp.p;
-                vertex.normal = sp.ns;
-                vertex.geometricNormal = sp.ng;
-                vertex.outgoing = -glm::normalize(state.ray.direction);
-                vertex.uv = sp.uv;
-                vertex.throughput = beta * sampleWeight;
-                vertex.bsdf = static_cast<std::uint32_t>(shape.bsdf);
+                vertex.get<EyePosition>() = sp.p;
+                vertex.get<EyeNormal>() = sp.ns;
+                vertex.get<EyeGeometricNormal>() = sp.ng;
+                vertex.get<EyeOutgoing>() = -glm::normalize(state.ray.direction);
+                vertex.get<EyeUv>() = sp.uv;
+                vertex.get<EyeThroughput>() = beta * sampleWeight;
+                vertex.get<EyeBsdf>() = static_cast<std::uint32_t>(shape.bsdf);
                 vertex.valid = true;
                 if (!directLight) return Rgb(0.0f);
 

@@ -14,14 +14,8 @@
 
 namespace fg {
 
-struct EyeRecord {
-    Vec3 position{0.0f};
-    Vec3 normal{0.0f};
-    Vec3 geometricNormal{0.0f};
-    Vec3 outgoing{0.0f};
-    Vec2 uv{0.0f};
-    Rgb throughput{0.0f};
-    std::uint32_t bsdf = 0;
+// A camera sample's eye vertex; the pixel column is filled on appending.
+struct EyeRecord : EyeVertexBuffer::Record {
     bool valid = false;
 };
 
@@ -39,26 +33,11 @@ inline void appendEyeVertices(const std::vector<EyeRecord>& records, std::size_t
         if (records[i].valid) ++stored;
     }
     out.resize(stored);
-    const auto position = out.column<EyePosition>();
-    const auto normal = out.column<EyeNormal>();
-    const auto geometricNormal = out.column<EyeGeometricNormal>();
-    const auto outgoing = out.column<EyeOutgoing>();
-    const auto bsdf = out.column<EyeBsdf>();
-    const auto uv = out.column<EyeUv>();
-    const auto throughput = out.column<EyeThroughput>();
-    const auto pixelOf = out.column<EyePixel>();
     jobs::parallelFor(count, 4096, [&](std::size_t i) {
-        const EyeRecord& r = records[i];
-        if (!r.valid) return;
-        const std::size_t v = slot[i];
-        position[v] = r.position;
-        normal[v] = r.normal;
-        geometricNormal[v] = r.geometricNormal;
-        outgoing[v] = r.outgoing;
-        bsdf[v] = r.bsdf;
-        uv[v] = r.uv;
-        throughput[v] = r.throughput;
-        pixelOf[v] = static_cast<std::uint32_t>(firstPixel + i / samplesPerPixel);
+        if (!records[i].valid) return;
+        EyeVertexBuffer::Record vertex = records[i];
+        vertex.get<EyePixel>() = static_cast<std::uint32_t>(firstPixel + i / samplesPerPixel);
+        out.set(slot[i], vertex);
     });
     ctx.addCounter("eye_vertices", static_cast<std::int64_t>(stored - before));
 }

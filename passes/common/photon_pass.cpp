@@ -79,6 +79,7 @@
 #include <cstdint>
 #include <memory>
 #include <optional>
+#include <span>
 #include <utility>
 #include <vector>
 
@@ -108,15 +109,9 @@ struct Settings {
     std::size_t batchSize = 1 << 18;
 };
 
-struct PhotonRecord {
-    Vec3 position;
-    Vec3 incident;
-    Rgb power;
-    Vec3 normal;
-    std::uint8_t photonClass;
-    Vec3 dxU;
-    Vec3 dxV;
-    std::uint64_t path;  // the path that stored it, for stopping at a photon-count target
+// A photon and the path that stored it, for stopping at a photon-count target.
+struct PhotonRecord : PhotonBuffer::Record {
+    std::uint64_t path = 0;
 };
 
 // What one chunk of paths produced, in path order.
@@ -325,14 +320,14 @@ private:
                                                                   : settings_.storeGlobal;
         if (!wanted || isBlack(power) || !isFinite(power)) return;
         const bool caustic = photonClass == PhotonClass::Caustic;
-        PhotonRecord record{sp.p, -direction, power, sp.ns, photonClass, Vec3(0.0f), Vec3(0.0f), path};
+        PhotonRecord record{{sp.p, -direction, power, sp.ns, photonClass, Vec3(0.0f), Vec3(0.0f)}, path};
         if (differential) {
             if (footprintCollapsed(differential->dxU, differential->dxV, sp.ns)) {
                 ++(caustic ? out.collapsedCaustic : out.collapsedGlobal);
                 return;
             }
-            record.dxU = differential->dxU;
-            record.dxV = differential->dxV;
+            record.get<PhotonDu>() = differential->dxU;
+            record.get<PhotonDv>() = differential->dxV;
         }
         (caustic ? out.caustic : out.global).push_back(record);
     }
@@ -342,7 +337,7 @@ private:
         if (!settings_.storeVolume || isBlack(power) || !isFinite(power)) return;
         if ((photonClass & PhotonClass::Direct) && !settings_.storeSingleScattering) return;
         out.volume.push_back(
-            PhotonRecord{position, -direction, power, Vec3(0.0f), photonClass, Vec3(0.0f), Vec3(0.0f), path});
+            PhotonRecord{{position, -direction, power, Vec3(0.0f), photonClass, Vec3(0.0f), Vec3(0.0f)}, path});
     }
 
     const Scene& scene_;
@@ -354,27 +349,7 @@ private:
 
 // Appends the records [0, count) of `records`.
 void append(PhotonBuffer& buffer, const std::vector<PhotonRecord>& records, std::size_t count) {
-    if (count == 0) return;
-    const std::size_t first = buffer.size();
-    buffer.resize(first + count);
-    auto position = buffer.column<PhotonPosition>();
-    auto incident = buffer.column<PhotonIncident>();
-    auto power = buffer.column<PhotonPower>();
-    auto normal = buffer.column<PhotonNormal>();
-    auto photonClass = buffer.column<PhotonClassColumn>();
-    auto du = buffer.column<PhotonDu>();
-    auto dv = buffer.column<PhotonDv>();
-    for (std::size_t k = 0; k < count; ++k) {
-        const PhotonRecord& r = records[k];
-        const std::size_t i = first + k;
-        position[i] = r.position;
-        incident[i] = r.incident;
-        power[i] = r.power;
-        normal[i] = r.normal;
-        photonClass[i] = r.photonClass;
-        du[i] = r.dxU;
-        dv[i] = r.dxV;
-    }
+    buffer.append(std::span(records).first(count));
 }
 
 // Records of paths up to and including `lastPath` (records are in path order).
@@ -511,9 +486,9 @@ public:
                 storedCaustic += static_cast<std::int64_t>(takeCaustic);
                 storedVolume += static_cast<std::int64_t>(takeVolume);
                 for (std::size_t k = 0; k < takeVolume; ++k)
-                    singleScattering += (chunk.volume[k].photonClass & PhotonClass::Direct) != 0;
+                    singleScattering += (chunk.volume[k].get<PhotonClassColumn>() & PhotonClass::Direct) != 0;
                 for (std::size_t k = 0; k < takeGlobal; ++k)
-                    ++(chunk.global[k].photonClass == PhotonClass::Direct ? storedDirect : storedGlobal);
+                    ++(chunk.global[k].get<PhotonClassColumn>() == PhotonClass::Direct ? storedDirect : storedGlobal);
                 segments += chunk.segments;
                 if (targetReached) break;
             }

@@ -50,15 +50,7 @@ constexpr std::size_t kWaveSamples = 1 << 18;
 // Null boundaries crossed in a row; the bound only guards against degenerate geometry.
 constexpr int kMaxNullCrossings = 1024;
 
-struct SegmentRecord {
-    Vec3 origin;
-    Vec3 direction;
-    float tNear;
-    float tFar;
-    std::int32_t medium;
-    std::uint32_t pixel;
-    Rgb throughput;
-};
+using SegmentRecord = SegmentBuffer::Record;
 
 class VolumeEyeTracer {
 public:
@@ -101,13 +93,13 @@ public:
                 const Bsdf* bsdf = shape.bsdf >= 0 ? scene.bsdfs[static_cast<std::size_t>(shape.bsdf)].get() : nullptr;
                 if (bsdf && bsdf->hasSmoothLobe()) {
                     const SurfacePoint sp = pts_.rays.surface(state.ray, hit);
-                    vertex.position = sp.p;
-                    vertex.normal = sp.ns;
-                    vertex.geometricNormal = sp.ng;
-                    vertex.outgoing = -state.ray.direction;
-                    vertex.uv = sp.uv;
-                    vertex.throughput = beta * sampleWeight_;
-                    vertex.bsdf = static_cast<std::uint32_t>(shape.bsdf);
+                    vertex.get<EyePosition>() = sp.p;
+                    vertex.get<EyeNormal>() = sp.ns;
+                    vertex.get<EyeGeometricNormal>() = sp.ng;
+                    vertex.get<EyeOutgoing>() = -state.ray.direction;
+                    vertex.get<EyeUv>() = sp.uv;
+                    vertex.get<EyeThroughput>() = beta * sampleWeight_;
+                    vertex.get<EyeBsdf>() = static_cast<std::uint32_t>(shape.bsdf);
                     vertex.valid = true;
 
                     // The segment's medium is in the throughput as transmittance already.
@@ -206,28 +198,11 @@ private:
                                PassContext& ctx) {
         std::size_t total = 0;
         for (const auto& chunk : chunks) total += chunk.size();
-        const std::size_t first = out.size();
-        out.resize(first + total);
-        const auto origin = out.column<SegmentOrigin>();
-        const auto direction = out.column<SegmentDirection>();
-        const auto tNear = out.column<SegmentTNear>();
-        const auto tFar = out.column<SegmentTFar>();
-        const auto medium = out.column<SegmentMedium>();
-        const auto pixel = out.column<SegmentPixel>();
-        const auto throughput = out.column<SegmentThroughput>();
-        std::size_t i = first;
-        for (const auto& chunk : chunks) {
-            for (const SegmentRecord& s : chunk) {
-                origin[i] = s.origin;
-                direction[i] = s.direction;
-                tNear[i] = s.tNear;
-                tFar[i] = s.tFar;
-                medium[i] = s.medium;
-                pixel[i] = s.pixel;
-                throughput[i] = s.throughput;
-                ++i;
-            }
-        }
+        // One resize per wave: appending chunk by chunk would let the capacity run ahead of the size.
+        std::size_t i = out.size();
+        out.resize(i + total);
+        for (const auto& chunk : chunks)
+            for (const SegmentRecord& segment : chunk) out.set(i++, segment);
         ctx.addCounter("eye_segments", static_cast<std::int64_t>(total));
     }
 };

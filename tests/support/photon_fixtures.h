@@ -37,17 +37,7 @@ inline FilmSettings film(int width, int height) {
 inline std::size_t addPhoton(PhotonMap& map, const Vec3& position, const Vec3& incident, const Rgb& power,
                              const Vec3& normal = Vec3(0, 0, 1), std::uint8_t photonClass = PhotonClass::Global,
                              const Vec3& du = Vec3(0.0f), const Vec3& dv = Vec3(0.0f)) {
-    PhotonBuffer& b = map.photons;
-    const std::size_t i = b.size();
-    b.resize(i + 1);
-    b.column<PhotonPosition>()[i] = position;
-    b.column<PhotonIncident>()[i] = incident;
-    b.column<PhotonPower>()[i] = power;
-    b.column<PhotonNormal>()[i] = normal;
-    b.column<PhotonClassColumn>()[i] = photonClass;
-    b.column<PhotonDu>()[i] = du;
-    b.column<PhotonDv>()[i] = dv;
-    return i;
+    return map.photons.append(PhotonBuffer::Record{position, incident, power, normal, photonClass, du, dv});
 }
 
 // n photons uniformly on the square [-half, half]^2 of the plane z = 0, arriving
@@ -67,17 +57,8 @@ inline void addUniformPlanePhotons(PhotonMap& map, std::size_t n, float half, co
 inline void addEyeVertex(EyeVertices& eye, const Vec3& position, std::uint32_t pixel, const Rgb& throughput,
                          std::uint32_t bsdf = 0, const Vec3& normal = Vec3(0, 0, 1),
                          const Vec3& outgoing = glm::normalize(Vec3(0.3f, 0.1f, 1.0f))) {
-    EyeVertexBuffer& b = eye.vertices;
-    const std::size_t i = b.size();
-    b.resize(i + 1);
-    b.column<EyePosition>()[i] = position;
-    b.column<EyeNormal>()[i] = normal;
-    b.column<EyeGeometricNormal>()[i] = normal;
-    b.column<EyeOutgoing>()[i] = outgoing;
-    b.column<EyeBsdf>()[i] = bsdf;
-    b.column<EyeUv>()[i] = Vec2(0.0f);
-    b.column<EyeThroughput>()[i] = throughput;
-    b.column<EyePixel>()[i] = pixel;
+    eye.vertices.append(
+        EyeVertexBuffer::Record{position, normal, normal, outgoing, bsdf, Vec2(0.0f), throughput, pixel});
 }
 
 // A `photon` pass with the real pass's outputs whose maps come from `fill`.
