@@ -1,7 +1,9 @@
 // SoA buffers of the photon-based pipelines: photons (surface events, with
-// optional photon differentials, Frisvad et al. 2014 §3) and eye-path vertices
-// (the first non-specular vertex of each camera path, Frisvad et al. 2014 §3.3,
-// Herzog et al. 2007). Both are declared once, column by column, on SoaBuffer.
+// optional photon differentials, Frisvad et al. 2014 §3), volume photons
+// (scattering events in media, Jensen & Christensen 1998) and eye-path
+// vertices (the first non-specular vertex of each camera path, Frisvad et al.
+// 2014 §3.3, Herzog et al. 2007). All are declared once, column by column, on
+// SoaBuffer.
 #pragma once
 
 #include "engine/core/math.h"
@@ -41,6 +43,21 @@ struct PhotonMap {
 template <>
 struct BufferTypeName<PhotonMap> {
     static constexpr const char* value = "PhotonMap";
+};
+
+// Volume photons have no surface: no normal and no footprint (their paths
+// have left the specular chain that differentials follow). 37 bytes per
+// photon instead of a PhotonBuffer's 73.
+using VolumePhotonBuffer = SoaBuffer<PhotonPosition, PhotonIncident, PhotonPower, PhotonClassColumn>;
+
+struct VolumePhotonMap {
+    VolumePhotonBuffer photons;
+    std::uint64_t emitted = 0;  // photon paths emitted to make this map
+    std::size_t bytes() const { return photons.bytes(); }
+};
+template <>
+struct BufferTypeName<VolumePhotonMap> {
+    static constexpr const char* value = "VolumePhotonMap";
 };
 
 FG_SOA_COLUMN(EyePosition, Vec3, "position");

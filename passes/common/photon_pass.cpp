@@ -43,9 +43,10 @@
 // Photon differentials (Frisvad et al. 2014, §3; engine/shading/differentials.h) are
 // emitted with every path and followed across its leading chain of specular
 // events (Igehy 1999); they end at the first non-specular event, so caustic
-// and direct photons carry footprints (PhotonDu / PhotonDv) and global and
-// volume photons do not (zero vectors; global_photons.hasDifferentials stays
-// false). N_e of Eqs. 5-6 is the expected number of paths from the chosen
+// and direct photons carry footprints (PhotonDu / PhotonDv) and global
+// photons do not (zero vectors; global_photons.hasDifferentials stays false);
+// volume photons are stored without them (VolumePhotonMap). N_e of Eqs. 5-6
+// is the expected number of paths from the chosen
 // source, pmf(light) N. Photons whose footprint has collapsed are discarded
 // and counted.
 //
@@ -80,6 +81,7 @@
 #include <memory>
 #include <optional>
 #include <span>
+#include <type_traits>
 #include <utility>
 #include <vector>
 
@@ -110,15 +112,18 @@ struct Settings {
 };
 
 // A photon and the path that stored it, for stopping at a photon-count target.
-struct PhotonRecord : PhotonBuffer::Record {
+template <class Buffer>
+struct PathRecord : Buffer::Record {
     std::uint64_t path = 0;
 };
+using PhotonRecord = PathRecord<PhotonBuffer>;
+using VolumePhotonRecord = PathRecord<VolumePhotonBuffer>;
 
 // What one chunk of paths produced, in path order.
 struct ChunkResult {
     std::vector<PhotonRecord> caustic;
     std::vector<PhotonRecord> global;
-    std::vector<PhotonRecord> volume;
+    std::vector<VolumePhotonRecord> volume;
     std::int64_t collapsedCaustic = 0;
     std::int64_t collapsedGlobal = 0;
     std::int64_t segments = 0;
@@ -336,8 +341,7 @@ private:
                      std::uint64_t path, ChunkResult& out) const {
         if (!settings_.storeVolume || isBlack(power) || !isFinite(power)) return;
         if ((photonClass & PhotonClass::Direct) && !settings_.storeSingleScattering) return;
-        out.volume.push_back(
-            PhotonRecord{{position, -direction, power, Vec3(0.0f), photonClass, Vec3(0.0f), Vec3(0.0f)}, path});
+        out.volume.push_back(VolumePhotonRecord{{position, -direction, power, photonClass}, path});
     }
 
     const Scene& scene_;
@@ -348,7 +352,8 @@ private:
 };
 
 // Appends the records [0, count) of `records`.
-void append(PhotonBuffer& buffer, const std::vector<PhotonRecord>& records, std::size_t count) {
+template <class Buffer, class Record>
+void append(Buffer& buffer, const std::vector<Record>& records, std::size_t count) {
     buffer.append(std::span(records).first(count));
 }
 
@@ -360,13 +365,16 @@ std::size_t recordsUpTo(const std::vector<PhotonRecord>& records, std::uint64_t 
 }
 
 // Powers were computed for `planned` paths; `emitted` were traced.
-void renormalise(PhotonMap& map, std::uint64_t planned, std::uint64_t emitted) {
+template <class Map>
+void renormalise(Map& map, std::uint64_t planned, std::uint64_t emitted) {
     if (planned == emitted || emitted == 0) return;
     const float powerScale = static_cast<float>(static_cast<double>(planned) / static_cast<double>(emitted));
-    const float lengthScale = std::sqrt(powerScale);
-    for (Rgb& p : map.photons.column<PhotonPower>()) p *= powerScale;
-    for (Vec3& d : map.photons.column<PhotonDu>()) d *= lengthScale;
-    for (Vec3& d : map.photons.column<PhotonDv>()) d *= lengthScale;
+    for (Rgb& p : map.photons.template column<PhotonPower>()) p *= powerScale;
+    if constexpr (std::is_same_v<Map, PhotonMap>) {
+        const float lengthScale = std::sqrt(powerScale);
+        for (Vec3& d : map.photons.template column<PhotonDu>()) d *= lengthScale;
+        for (Vec3& d : map.photons.template column<PhotonDv>()) d *= lengthScale;
+    }
 }
 
 class PhotonPass final : public Pass {
@@ -404,32 +412,33 @@ public:
         // A streamed map is handed over after every batch and begun afresh; with a
         // volume-photon target the powers are only known at the end, so it is
         // handed over once, whole.
-        const auto openMap = [&](const char* slot, bool differentials) {
+        const auto openMap = [&]<class Map>(std::shared_ptr<Map>& batch, const char* slot) {
             const bool streamed = ctx.streamed(slot);
-            auto map = streamed ? std::make_shared<PhotonMap>() : std::shared_ptr<PhotonMap>();
-            PhotonMap& target = streamed ? *map : ctx.createOutput<PhotonMap>(slot);
+            if (streamed) batch = std::make_shared<Map>();
+            Map& target = streamed ? *batch : ctx.createOutput<Map>(slot);
             target.emitted = settings.photons;
-            target.hasDifferentials = differentials;
-            return std::pair<std::shared_ptr<PhotonMap>, PhotonMap*>(map, &target);
+            return &target;
         };
-        auto [causticBatch, causticMap] = openMap("caustic_photons", settings.differentials);
-        auto [globalBatch, globalMap] = openMap("global_photons", false);
-        auto [volumeBatch, volumeMap] = openMap("volume_photons", false);
-        std::pair<const char*, std::shared_ptr<PhotonMap>*> streams[] = {
-            {"caustic_photons", &causticBatch}, {"global_photons", &globalBatch}, {"volume_photons", &volumeBatch}};
-        PhotonMap* maps[] = {causticMap, globalMap, volumeMap};
-        const auto handOver = [&] {
-            for (std::size_t k = 0; k < 3; ++k) {
-                std::shared_ptr<PhotonMap>& batch = *streams[k].second;
-                if (!batch) continue;
-                if (!batch->photons.empty()) {
-                    const auto next = std::make_shared<PhotonMap>();
-                    next->emitted = batch->emitted;
-                    next->hasDifferentials = batch->hasDifferentials;
-                    ctx.emitBatch<PhotonMap>(streams[k].first, std::exchange(batch, next));
-                }
-                maps[k] = batch.get();
+        std::shared_ptr<PhotonMap> causticBatch, globalBatch;
+        std::shared_ptr<VolumePhotonMap> volumeBatch;
+        PhotonMap* causticMap = openMap(causticBatch, "caustic_photons");
+        PhotonMap* globalMap = openMap(globalBatch, "global_photons");
+        VolumePhotonMap* volumeMap = openMap(volumeBatch, "volume_photons");
+        causticMap->hasDifferentials = settings.differentials;
+        const auto handOverMap = [&]<class Map>(const char* slot, std::shared_ptr<Map>& batch, Map*& map) {
+            if (!batch) return;
+            if (!batch->photons.empty()) {
+                const auto next = std::make_shared<Map>();
+                next->emitted = batch->emitted;
+                if constexpr (std::is_same_v<Map, PhotonMap>) next->hasDifferentials = batch->hasDifferentials;
+                ctx.emitBatch<Map>(slot, std::exchange(batch, next));
             }
+            map = batch.get();
+        };
+        const auto handOver = [&] {
+            handOverMap("caustic_photons", causticBatch, causticMap);
+            handOverMap("global_photons", globalBatch, globalMap);
+            handOverMap("volume_photons", volumeBatch, volumeMap);
         };
         if (scene.lights.empty() || !(scene.lightPower.total() > 0.0f)) {
             ctx.addItems(static_cast<std::int64_t>(settings.photons));
@@ -477,11 +486,11 @@ public:
                 }
                 const std::size_t takeCaustic = recordsUpTo(chunk.caustic, lastPath);
                 const std::size_t takeGlobal = recordsUpTo(chunk.global, lastPath);
-                append(maps[0]->photons, chunk.caustic, takeCaustic);
-                append(maps[1]->photons, chunk.global, takeGlobal);
-                append(maps[2]->photons, chunk.volume, takeVolume);
-                maps[0]->collapsedFootprints += static_cast<std::uint64_t>(chunk.collapsedCaustic);
-                maps[1]->collapsedFootprints += static_cast<std::uint64_t>(chunk.collapsedGlobal);
+                append(causticMap->photons, chunk.caustic, takeCaustic);
+                append(globalMap->photons, chunk.global, takeGlobal);
+                append(volumeMap->photons, chunk.volume, takeVolume);
+                causticMap->collapsedFootprints += static_cast<std::uint64_t>(chunk.collapsedCaustic);
+                globalMap->collapsedFootprints += static_cast<std::uint64_t>(chunk.collapsedGlobal);
                 collapsed += static_cast<std::uint64_t>(chunk.collapsedCaustic + chunk.collapsedGlobal);
                 storedCaustic += static_cast<std::int64_t>(takeCaustic);
                 storedVolume += static_cast<std::int64_t>(takeVolume);
@@ -499,10 +508,12 @@ public:
                                                 static_cast<double>(settings.volumeTarget)
                                           : static_cast<double>(batchStart) / static_cast<double>(settings.photons));
         }
-        for (PhotonMap* map : maps) {
+        for (PhotonMap* map : {causticMap, globalMap}) {
             renormalise(*map, settings.photons, emitted);
             map->emitted = emitted;
         }
+        renormalise(*volumeMap, settings.photons, emitted);
+        volumeMap->emitted = emitted;
         handOver();
 
         ctx.addCounter("caustic_photons", storedCaustic);
@@ -528,7 +539,7 @@ PassRegistration photonPass() {
          true},
         {"global_photons", "PhotonMap",
          "photons at smooth surfaces after a non-specular event (and direct photons with store_direct)", true},
-        {"volume_photons", "PhotonMap",
+        {"volume_photons", "VolumePhotonMap",
          "photons at scattering events in media (class Volume); power includes sigma_s: Eq. 3 needs no sigma_s", true},
     };
     spec.params = {

@@ -60,7 +60,7 @@ public:
     void run(PassContext& ctx) override {
         const Scene& scene = ctx.scene();
         const EyeSegments& eyeSegments = ctx.input<EyeSegments>("eye_segments");
-        const PhotonMap& photons = ctx.input<PhotonMap>("photons");
+        const VolumePhotonMap& photons = ctx.input<VolumePhotonMap>("photons");
         const PhotonBvh& bvh = ctx.input<PhotonBvh>("bvh");
         const Film& base = ctx.input<Film>("base");
         const bool silverman = ctx.params().getString("kernel") == "silverman";
@@ -181,7 +181,7 @@ PassRegistration beamQueryPass() {
                "query-cost AOVs";
     spec.inputs = {
         {"eye_segments", "EyeSegments", "camera-ray segments inside media (volume_eye)"},
-        {"photons", "PhotonMap", "the volume photons the BVH was built over"},
+        {"photons", "VolumePhotonMap", "the volume photons the BVH was built over"},
         {"bvh", "PhotonBvh", "hierarchy over the photons' kernel spheres (photon_bvh)"},
         {"base", "Film", "the film the media radiance is added to (the surface part of the image)"},
     };

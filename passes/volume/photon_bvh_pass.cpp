@@ -18,7 +18,7 @@ namespace {
 class PhotonBvhPass final : public Pass {
 public:
     void run(PassContext& ctx) override {
-        const PhotonMap& map = ctx.input<PhotonMap>("photons");
+        const VolumePhotonMap& map = ctx.input<VolumePhotonMap>("photons");
         const PhotonRadii& radii = ctx.input<PhotonRadii>("radii");
         const auto positions = map.photons.column<PhotonPosition>();
         const auto r = radii.radii.column<PhotonRadius>();
@@ -49,7 +49,7 @@ PassRegistration photonBvhPass() {
     spec.name = "photon_bvh";
     spec.doc = "Bounding-volume hierarchy (binned SAH, SoA nodes) over the photons' kernel spheres, for beam queries";
     spec.inputs = {
-        {"photons", "PhotonMap", "the photons (usually volume_photons)"},
+        {"photons", "VolumePhotonMap", "the photons (usually volume_photons)"},
         {"radii", "PhotonRadii", "their kernel radii (photon_radius)"},
     };
     spec.outputs = {{"bvh", "PhotonBvh", "sphere hierarchy; leaves refer back to photon indices"}};

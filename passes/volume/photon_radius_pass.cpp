@@ -54,7 +54,7 @@ void collectLeaves(std::uint32_t begin, std::uint32_t end, std::uint32_t leafSiz
 class PhotonRadiusPass final : public Pass {
 public:
     void run(PassContext& ctx) override {
-        const PhotonMap& map = ctx.input<PhotonMap>("photons");
+        const VolumePhotonMap& map = ctx.input<VolumePhotonMap>("photons");
         const auto k = static_cast<std::size_t>(ctx.params().getInt("k"));
         const auto scale = static_cast<float>(ctx.params().getFloat("radius_scale"));
         const double maxRadiusParam = ctx.params().getFloat("max_radius");
@@ -216,7 +216,7 @@ PassRegistration photonRadiusPass() {
     spec.name = "photon_radius";
     spec.doc = "Pilot density estimate for the beam radiance estimate: each photon's kernel radius from its k "
                "nearest photons (r_i = radius_scale * distance to the k-th nearest other photon)";
-    spec.inputs = {{"photons", "PhotonMap", "the photons (usually volume_photons)"}};
+    spec.inputs = {{"photons", "VolumePhotonMap", "the photons (usually volume_photons)"}};
     spec.outputs = {{"radii", "PhotonRadii", "one kernel radius per photon, in photon order"}};
     spec.params = {
         {"k", ParamType::Int, std::int64_t{20}, 1, 4096, {},

@@ -40,6 +40,12 @@ inline std::size_t addPhoton(PhotonMap& map, const Vec3& position, const Vec3& i
     return map.photons.append(PhotonBuffer::Record{position, incident, power, normal, photonClass, du, dv});
 }
 
+// Appends one volume photon and returns its index.
+inline std::size_t addVolumePhoton(VolumePhotonMap& map, const Vec3& position, const Vec3& incident, const Rgb& power,
+                                   std::uint8_t photonClass = PhotonClass::Volume) {
+    return map.photons.append(VolumePhotonBuffer::Record{position, incident, power, photonClass});
+}
+
 // n photons uniformly on the square [-half, half]^2 of the plane z = 0, arriving
 // from cosine-distributed directions, carrying together irradiance E (per channel).
 inline void addUniformPlanePhotons(PhotonMap& map, std::size_t n, float half, const Rgb& irradiance,

@@ -113,7 +113,7 @@ TEST(VolumePhotons, SingleScatteringDensityAndPowerMatchTheClosedForm) {
                                 {{"photon.volume_photons", target}, {"photon.photons", std::int64_t{1} << 40},
                                  {"photon.max_depth", std::int64_t{1}}},
                                 boxFilm(4, 4));
-    const PhotonMap& map = run.get<PhotonMap>("volume_photons");
+    const VolumePhotonMap& map = run.get<VolumePhotonMap>("volume_photons");
     ASSERT_EQ(map.photons.size(), static_cast<std::size_t>(target)) << "the target is met exactly";
     EXPECT_EQ(map.emitted, static_cast<std::uint64_t>(target)) << "every path scatters once in an infinite medium";
     EXPECT_EQ(run.pass("photon").counters.at("emitted_paths"), target);
@@ -188,7 +188,7 @@ TEST(VolumePhotons, ClassesTargetsAndOptions) {
                                                       {"photon.photons", std::int64_t{1} << 40}};
     const PipelineRun all = runPipeline(scene, kPhotonsOnly, {"volume_photons", "global_photons", "caustic_photons"}, params,
                                 boxFilm(4, 4));
-    const PhotonMap& volume = all.get<PhotonMap>("volume_photons");
+    const VolumePhotonMap& volume = all.get<VolumePhotonMap>("volume_photons");
     ASSERT_EQ(volume.photons.size(), static_cast<std::size_t>(target));
     EXPECT_EQ(all.get<PhotonMap>("global_photons").emitted, volume.emitted);
     EXPECT_GT(volume.emitted, 1000u);
@@ -213,7 +213,7 @@ TEST(VolumePhotons, ClassesTargetsAndOptions) {
     // The same paths with a fixed count give the same photons, up to the power normalisation.
     const PipelineRun fixed = runPipeline(scene, kPhotonsOnly, {"volume_photons"},
                                   {{"photon.photons", static_cast<std::int64_t>(volume.emitted)}}, boxFilm(4, 4));
-    const PhotonMap& fixedVolume = fixed.get<PhotonMap>("volume_photons");
+    const VolumePhotonMap& fixedVolume = fixed.get<VolumePhotonMap>("volume_photons");
     ASSERT_GE(fixedVolume.photons.size(), volume.photons.size());
     for (std::size_t i = 0; i < volume.photons.size(); i += 97) {
         ASSERT_EQ(fixedVolume.photons.column<PhotonPosition>()[i], volume.photons.column<PhotonPosition>()[i]);
@@ -225,15 +225,15 @@ TEST(VolumePhotons, ClassesTargetsAndOptions) {
     auto noSingle = params;
     noSingle["photon.store_single_scattering"] = false;
     const PipelineRun multiple = runPipeline(scene, kPhotonsOnly, {"volume_photons"}, noSingle, boxFilm(4, 4));
-    for (std::uint8_t c : multiple.get<PhotonMap>("volume_photons").photons.column<PhotonClassColumn>())
+    for (std::uint8_t c : multiple.get<VolumePhotonMap>("volume_photons").photons.column<PhotonClassColumn>())
         ASSERT_FALSE(c & PhotonClass::Direct);
-    EXPECT_GT(multiple.get<PhotonMap>("volume_photons").emitted, volume.emitted);
+    EXPECT_GT(multiple.get<VolumePhotonMap>("volume_photons").emitted, volume.emitted);
 
     // store = "surface" keeps no volume photons; a target then makes no sense.
     const PipelineRun surface = runPipeline(scene, kPhotonsOnly, {"volume_photons"},
                                     {{"photon.photons", std::int64_t{5000}}, {"photon.store", std::string("surface")}},
                                     boxFilm(4, 4));
-    EXPECT_EQ(surface.get<PhotonMap>("volume_photons").photons.size(), 0u);
+    EXPECT_EQ(surface.get<VolumePhotonMap>("volume_photons").photons.size(), 0u);
     auto bad = params;
     bad["photon.store"] = std::string("surface");
     EXPECT_THROW(runPipeline(scene, kPhotonsOnly, {"volume_photons"}, bad, boxFilm(4, 4)), InputError);
@@ -245,12 +245,11 @@ TEST(VolumePhotons, ClassesTargetsAndOptions) {
 // For uniformly random photons of density rho, the ball out to the k-th other
 // neighbour holds k photons on average: E[rho 4/3 pi r^3] = k.
 TEST(PhotonRadius, BallsHoldKPhotonsOnAverage) {
-    auto map = std::make_shared<PhotonMap>();
+    auto map = std::make_shared<VolumePhotonMap>();
     const std::size_t n = 30000;
     for (std::size_t i = 0; i < n; ++i) {
         jobs::Rng rng(5, jobs::streamKey("uniform-volume"), i);
-        test::addPhoton(*map, Vec3(rng.uniform(), rng.uniform(), rng.uniform()), Vec3(0, 0, 1), Rgb(1.0f),
-                        Vec3(0.0f), PhotonClass::Volume);
+        test::addVolumePhoton(*map, Vec3(rng.uniform(), rng.uniform(), rng.uniform()), Vec3(0, 0, 1), Rgb(1.0f));
     }
     const PassRegistration* pass = findPass("photon_radius");
     ASSERT_NE(pass, nullptr);
@@ -274,14 +273,14 @@ TEST(PhotonRadius, BallsHoldKPhotonsOnAverage) {
     }
     // Each radius is exactly the distance to the k-th nearest other photon, by
     // brute force, also on clustered photons with duplicates.
-    auto clustered = std::make_shared<PhotonMap>();
+    auto clustered = std::make_shared<VolumePhotonMap>();
     for (std::size_t i = 0; i < 4000; ++i) {
         jobs::Rng rng(6, jobs::streamKey("clustered-volume"), i);
         Vec3 p(rng.uniform(), rng.uniform(), rng.uniform());
         if (i % 3 == 0) p = Vec3(0.2f) + 0.01f * p;  // a dense blob
         if (i % 7 == 0) p.y = 0.5f;                  // a plane
         if (i % 11 == 0 && i > 0) p = clustered->photons.column<PhotonPosition>()[i - 1];  // duplicates
-        test::addPhoton(*clustered, p, Vec3(0, 0, 1), Rgb(1.0f), Vec3(0.0f), PhotonClass::Volume);
+        test::addVolumePhoton(*clustered, p, Vec3(0, 0, 1), Rgb(1.0f));
     }
     const std::int64_t kExact = 12;
     const auto exact = test::runPass(*pass, scene, nullptr, boxFilm(4, 4), {{"photons", test::makeBuffer(clustered)}},
