@@ -272,6 +272,35 @@ void KdTree::build(std::span<const Vec3> positions, const BuildOptions& options)
     splits_ = std::move(splits);
 }
 
+KdTree KdTree::restore(std::vector<Vec3> sortedPositions, std::vector<std::uint32_t> permutation,
+                       std::vector<Split> splits, std::uint32_t maxLeafSize) {
+    const std::size_t n = sortedPositions.size();
+    if (n > static_cast<std::size_t>(std::numeric_limits<std::int32_t>::max()))
+        throw std::invalid_argument("KdTree: more than 2^31 - 1 points");
+    if (maxLeafSize == 0) throw std::invalid_argument("KdTree: leaf size 0");
+    if (permutation.size() != n)
+        throw std::invalid_argument("KdTree: " + std::to_string(n) + " positions but " +
+                                    std::to_string(permutation.size()) + " permutation entries");
+    // The heap layout is implied by (n, leaf size), so the split count is too.
+    const std::size_t expectedSplits = n == 0 ? 0 : innerNodeSlots(n, maxLeafSize);
+    if (splits.size() != expectedSplits)
+        throw std::invalid_argument("KdTree: " + std::to_string(splits.size()) + " splits, expected " +
+                                    std::to_string(expectedSplits));
+    for (const Split& split : splits)
+        if (split.axis > 2) throw std::invalid_argument("KdTree: split axis " + std::to_string(split.axis));
+    std::vector<bool> seen(n, false);
+    for (const std::uint32_t index : permutation) {
+        if (index >= n || seen[index]) throw std::invalid_argument("KdTree: the order is not a permutation");
+        seen[index] = true;
+    }
+    KdTree tree;
+    tree.sorted_ = std::move(sortedPositions);
+    tree.order_ = std::move(permutation);
+    tree.splits_ = std::move(splits);
+    tree.leafSize_ = maxLeafSize;
+    return tree;
+}
+
 std::size_t KdTree::bytes() const {
     return order_.capacity() * sizeof(std::uint32_t) + splits_.capacity() * sizeof(Split) +
            sorted_.capacity() * sizeof(Vec3);

@@ -70,6 +70,17 @@ public:
     // 2i + 1 (left) and 2i + 2 (right). Slots of leaves are unused.
     std::span<const Split> splits() const { return splits_; }
 
+    // The positions in tree order: slotPosition(slot) for every slot.
+    std::span<const Vec3> sortedPositions() const { return sorted_; }
+
+    // A tree from the arrays a built tree reports (sortedPositions(),
+    // permutation(), splits(), maxLeafSize()), for loading a saved one without
+    // rebuilding it. Throws std::invalid_argument unless they describe a tree
+    // that queries can walk safely: equal sizes, a permutation of 0 .. n - 1,
+    // one split per heap slot build() would use, axes below 3, leaf size >= 1.
+    static KdTree restore(std::vector<Vec3> sortedPositions, std::vector<std::uint32_t> permutation,
+                          std::vector<Split> splits, std::uint32_t maxLeafSize);
+
     // The squared distance every query compares against radius², exposed so
     // that callers (and tests) can reproduce a query's decisions bit for bit.
     static float distance2(const Vec3& a, const Vec3& b) {

@@ -32,6 +32,7 @@
 #include <limits>
 #include <memory>
 #include <stdexcept>
+#include <string>
 #include <vector>
 
 namespace fg {
@@ -376,6 +377,62 @@ void PhotonBvh::build(std::span<const Vec3> centers, std::span<const float> radi
             id[i] = items[i].id;
         }
     });
+}
+
+PhotonBvh PhotonBvh::restore(BvhNodeBuffer nodes, BvhSphereBuffer spheres, std::uint32_t depth) {
+    const std::size_t nodeCount = nodes.size();
+    const std::size_t sphereCount = spheres.size();
+    if (sphereCount > static_cast<std::size_t>(std::numeric_limits<std::int32_t>::max()))
+        throw std::invalid_argument("PhotonBvh: too many spheres");
+    if ((nodeCount == 0) != (sphereCount == 0))
+        throw std::invalid_argument("PhotonBvh: " + std::to_string(nodeCount) + " nodes for " +
+                                    std::to_string(sphereCount) + " spheres");
+    if (nodeCount > 2 * sphereCount)
+        throw std::invalid_argument("PhotonBvh: more nodes than a tree over the spheres can have");
+    const auto link = nodes.column<BvhNodeLink>();
+    const auto count = nodes.column<BvhNodeCount>();
+    // Walks the tree as a query would, so that a structure that passes cannot
+    // make a query read outside the arrays, loop, or overflow its stack.
+    std::uint32_t deepest = 0;
+    if (nodeCount > 0) {
+        std::vector<bool> reached(nodeCount, false);
+        std::size_t reachedCount = 0;
+        struct Pending {
+            std::size_t node;
+            std::uint32_t level;
+        };
+        std::vector<Pending> pending{{0, 1}};
+        while (!pending.empty()) {
+            const Pending at = pending.back();
+            pending.pop_back();
+            if (reached[at.node]) throw std::invalid_argument("PhotonBvh: a node is reached twice");
+            reached[at.node] = true;
+            ++reachedCount;
+            deepest = std::max(deepest, at.level);
+            if (at.level > static_cast<std::uint32_t>(kStackSize))
+                throw std::invalid_argument("PhotonBvh: deeper than a query's stack");
+            const std::uint32_t n = count[at.node];
+            if (n > 0) {
+                if (n > kMaxLeafSize || link[at.node] > sphereCount || n > sphereCount - link[at.node])
+                    throw std::invalid_argument("PhotonBvh: a leaf's spheres are out of range");
+                continue;
+            }
+            const std::size_t first = at.node + 1, second = link[at.node];
+            if (first >= nodeCount || second <= first || second >= nodeCount)
+                throw std::invalid_argument("PhotonBvh: an inner node's children are out of order or range");
+            pending.push_back({second, at.level + 1});
+            pending.push_back({first, at.level + 1});
+        }
+        if (reachedCount != nodeCount) throw std::invalid_argument("PhotonBvh: nodes outside the tree");
+    }
+    if (depth != deepest)
+        throw std::invalid_argument("PhotonBvh: depth " + std::to_string(depth) + ", but the tree has " +
+                                    std::to_string(deepest) + " levels");
+    PhotonBvh bvh;
+    bvh.nodes_ = std::move(nodes);
+    bvh.spheres_ = std::move(spheres);
+    bvh.depth_ = depth;
+    return bvh;
 }
 
 }  // namespace fg

@@ -92,6 +92,14 @@ public:
     const BvhSphereBuffer& spheres() const { return spheres_; }
     std::span<const std::uint32_t> sphereIds() const { return spheres_.column<BvhSphereId>(); }
 
+    // A hierarchy from what nodes(), spheres() and depth() reported, for
+    // loading a saved one without rebuilding it. Throws std::invalid_argument
+    // unless the nodes form one tree that a query can walk safely: children
+    // after their parent and inside the node array, every node reached once,
+    // leaves of 1 to 64 spheres inside the sphere array, and the given depth,
+    // which fits the traversal stack.
+    static PhotonBvh restore(BvhNodeBuffer nodes, BvhSphereBuffer spheres, std::uint32_t depth);
+
     // Squared distance from `center` to the segment origin + t direction,
     // t in [tNear, tFar] (direction of unit length), and the unclamped
     // parameter of the point of the line closest to `center`. Exposed so that

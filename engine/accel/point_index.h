@@ -16,6 +16,7 @@
 #include <cstdint>
 #include <span>
 #include <stdexcept>
+#include <string>
 #include <vector>
 
 namespace fg {
@@ -43,6 +44,24 @@ public:
         for (std::size_t j = 0; j < ids.size(); ++j) subset[j] = points[ids[j]];
         ids_ = std::move(ids);
         search_.build(subset);
+    }
+
+    // What a saved index holds: the caller's ids (empty: the identity) and the tree.
+    std::span<const std::uint32_t> ids() const { return ids_; }
+    const KdTree& tree() const { return search_; }
+    // An index from what ids() and tree() reported. Throws
+    // std::invalid_argument unless ids is empty or holds one increasing id per
+    // indexed point.
+    static PointIndex restore(KdTree tree, std::vector<std::uint32_t> ids) {
+        if (!ids.empty() && ids.size() != tree.size())
+            throw std::invalid_argument("PointIndex: " + std::to_string(ids.size()) + " ids for " +
+                                        std::to_string(tree.size()) + " points");
+        for (std::size_t j = 1; j < ids.size(); ++j)
+            if (ids[j] <= ids[j - 1]) throw std::invalid_argument("PointIndex: ids must be increasing");
+        PointIndex index;
+        index.ids_ = std::move(ids);
+        index.search_ = std::move(tree);
+        return index;
     }
 
     std::size_t size() const { return search_.size(); }

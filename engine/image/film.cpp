@@ -15,6 +15,7 @@
 
 #include <cmath>
 #include <stdexcept>
+#include <string>
 
 namespace fg {
 
@@ -40,6 +41,32 @@ Film::Film(const FilmSettings& settings) : settings_(settings) {
     validateSettings(settings_);
     weightedSum_.assign(pixelCount(), Rgb(0.0f));
     weightSum_.assign(pixelCount(), 0.0f);
+}
+
+Film Film::restore(const FilmSettings& settings, std::vector<Rgb> weightedSums, std::vector<float> weightSums,
+                   std::vector<Rgb> direct, bool hasDirect,
+                   std::vector<std::pair<std::string, std::vector<float>>> aovs) {
+    validateSettings(settings);
+    // Checked before the film is made: a corrupt width * height must fail here,
+    // not allocate.
+    const std::size_t pixels = static_cast<std::size_t>(settings.width) * static_cast<std::size_t>(settings.height);
+    if (weightedSums.size() != pixels || weightSums.size() != pixels)
+        throw std::invalid_argument("Film: expected " + std::to_string(pixels) + " weighted sums and weight sums");
+    if (direct.size() != (hasDirect ? pixels : 0))
+        throw std::invalid_argument("Film: expected " + std::to_string(hasDirect ? pixels : 0) + " direct values");
+    for (std::size_t i = 0; i < aovs.size(); ++i) {
+        if (aovs[i].second.size() != pixels)
+            throw std::invalid_argument("Film: AOV '" + aovs[i].first + "' does not hold one value per pixel");
+        for (std::size_t j = 0; j < i; ++j)
+            if (aovs[j].first == aovs[i].first) throw std::invalid_argument("Film: AOV '" + aovs[i].first + "' twice");
+    }
+    Film film(settings);
+    film.weightedSum_ = std::move(weightedSums);
+    film.weightSum_ = std::move(weightSums);
+    film.direct_ = std::move(direct);
+    film.hasDirect_ = hasDirect;
+    film.aovs_ = std::move(aovs);
+    return film;
 }
 
 void Film::addRound(const SampleRound& round) {

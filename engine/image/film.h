@@ -59,6 +59,18 @@ public:
 
     std::size_t bytes() const;
 
+    // The accumulated state, for saving a film and restoring it later.
+    const std::vector<Rgb>& weightedSums() const { return weightedSum_; }
+    const std::vector<float>& weightSums() const { return weightSum_; }
+    const std::vector<Rgb>& directSums() const { return direct_; }  // empty unless hasDirect()
+    bool hasDirect() const { return hasDirect_; }
+    // A film in the state the accessors above reported. Throws
+    // std::invalid_argument if the settings are invalid or an array does not
+    // hold one value per pixel (direct: none when !hasDirect).
+    static Film restore(const FilmSettings& settings, std::vector<Rgb> weightedSums, std::vector<float> weightSums,
+                        std::vector<Rgb> direct, bool hasDirect,
+                        std::vector<std::pair<std::string, std::vector<float>>> aovs);
+
 private:
     FilmSettings settings_;
     std::vector<Rgb> weightedSum_;

@@ -1,0 +1,207 @@
+// Codecs of the engine's buffer types, so that any buffer a pipeline makes can
+// be saved and loaded again (engine/core/codec.h). Each writes every scalar
+// member of its buffer before its arrays; the acceleration structures are
+// saved as built and checked structurally on loading (their restore()
+// functions), never rebuilt, so a loaded index answers queries bit for bit as
+// the saved one did.
+#include "engine/accel/photon_bvh.h"
+#include "engine/accel/point_index.h"
+#include "engine/buffers/beam_buffers.h"
+#include "engine/buffers/photon_buffers.h"
+#include "engine/core/codec.h"
+#include "engine/image/film.h"
+
+#include <string>
+#include <utility>
+#include <vector>
+
+namespace fg {
+
+namespace {
+
+// Passes divide by the sample count; a corrupt one must fail on loading.
+int readSamplesPerPixel(CodecReader& reader) {
+    const auto samplesPerPixel = reader.read<std::int32_t>();
+    if (samplesPerPixel < 1) reader.fail("corrupt buffer: " + std::to_string(samplesPerPixel) + " samples per pixel");
+    return samplesPerPixel;
+}
+
+template <class T, class Write, class Read>
+BufferCodec codecFor(Write write, Read read) {
+    BufferCodec codec;
+    codec.type = BufferTypeName<T>::value;
+    codec.write = [write](const void* buffer, CodecWriter& writer) { write(*static_cast<const T*>(buffer), writer); };
+    codec.read = [read](CodecReader& reader) { return makeBufferHandle<T>(read(reader)); };
+    return codec;
+}
+
+BufferCodec filmCodec() {
+    return codecFor<Film>(
+        [](const Film& film, CodecWriter& writer) {
+            const FilmSettings& settings = film.settings();
+            writer.setItemCount(film.pixelCount());
+            writer.write<std::int32_t>(settings.width);
+            writer.write<std::int32_t>(settings.height);
+            writer.write<std::uint32_t>(settings.filter == FilterKind::Gaussian ? 1 : 0);
+            writer.write(settings.filterRadius);
+            writer.write(settings.gaussianSigma);
+            writer.write(film.hasDirect());
+            writer.writeVector("weighted_sum", film.weightedSums());
+            writer.writeVector("weight_sum", film.weightSums());
+            writer.writeVector("direct", film.directSums());
+            writer.write(static_cast<std::uint32_t>(film.aovs().size()));
+            for (const auto& [name, values] : film.aovs()) {
+                writer.writeString(name);
+                writer.writeVector("aov." + name, values);
+            }
+        },
+        [](CodecReader& reader) {
+            FilmSettings settings;
+            settings.width = reader.read<std::int32_t>();
+            settings.height = reader.read<std::int32_t>();
+            const auto filter = reader.read<std::uint32_t>();
+            if (filter > 1) reader.fail("corrupt buffer: filter kind " + std::to_string(filter));
+            settings.filter = filter == 1 ? FilterKind::Gaussian : FilterKind::Box;
+            settings.filterRadius = reader.read<float>();
+            settings.gaussianSigma = reader.read<float>();
+            const bool hasDirect = reader.read<bool>();
+            std::vector<Rgb> weightedSums = reader.readVector<Rgb>("weighted_sum");
+            std::vector<float> weightSums = reader.readVector<float>("weight_sum");
+            std::vector<Rgb> direct = reader.readVector<Rgb>("direct");
+            const auto aovCount = reader.read<std::uint32_t>();
+            // Each AOV is a column, and the header holds no more columns than the file can.
+            if (aovCount > reader.columns().size())
+                reader.fail("corrupt buffer: " + std::to_string(aovCount) + " AOVs");
+            std::vector<std::pair<std::string, std::vector<float>>> aovs;
+            for (std::uint32_t i = 0; i < aovCount; ++i) {
+                std::string name = reader.readString();
+                std::vector<float> values = reader.readVector<float>("aov." + name);
+                aovs.emplace_back(std::move(name), std::move(values));
+            }
+            return Film::restore(settings, std::move(weightedSums), std::move(weightSums), std::move(direct),
+                                 hasDirect, std::move(aovs));
+        });
+}
+
+BufferCodec photonMapCodec() {
+    return codecFor<PhotonMap>(
+        [](const PhotonMap& map, CodecWriter& writer) {
+            writer.setItemCount(map.photons.size());
+            writer.write<std::uint64_t>(map.emitted);
+            writer.write<std::uint64_t>(map.collapsedFootprints);
+            writer.write(map.hasDifferentials);
+            writer.writeSoa("photons", map.photons);
+        },
+        [](CodecReader& reader) {
+            PhotonMap map;
+            map.emitted = reader.read<std::uint64_t>();
+            map.collapsedFootprints = reader.read<std::uint64_t>();
+            map.hasDifferentials = reader.read<bool>();
+            reader.readSoa("photons", map.photons);
+            return map;
+        });
+}
+
+BufferCodec eyeVerticesCodec() {
+    return codecFor<EyeVertices>(
+        [](const EyeVertices& eye, CodecWriter& writer) {
+            writer.setItemCount(eye.vertices.size());
+            writer.write<std::int32_t>(eye.samplesPerPixel);
+            writer.writeSoa("vertices", eye.vertices);
+        },
+        [](CodecReader& reader) {
+            EyeVertices eye;
+            eye.samplesPerPixel = readSamplesPerPixel(reader);
+            reader.readSoa("vertices", eye.vertices);
+            return eye;
+        });
+}
+
+BufferCodec photonRadiiCodec() {
+    return codecFor<PhotonRadii>(
+        [](const PhotonRadii& radii, CodecWriter& writer) {
+            writer.setItemCount(radii.radii.size());
+            writer.write<std::uint32_t>(radii.neighbours);
+            writer.write<float>(radii.scale);
+            writer.writeSoa("radii", radii.radii);
+        },
+        [](CodecReader& reader) {
+            PhotonRadii radii;
+            radii.neighbours = reader.read<std::uint32_t>();
+            radii.scale = reader.read<float>();
+            reader.readSoa("radii", radii.radii);
+            return radii;
+        });
+}
+
+BufferCodec eyeSegmentsCodec() {
+    return codecFor<EyeSegments>(
+        [](const EyeSegments& segments, CodecWriter& writer) {
+            writer.setItemCount(segments.segments.size());
+            writer.write<std::int32_t>(segments.samplesPerPixel);
+            writer.writeSoa("segments", segments.segments);
+        },
+        [](CodecReader& reader) {
+            EyeSegments segments;
+            segments.samplesPerPixel = readSamplesPerPixel(reader);
+            reader.readSoa("segments", segments.segments);
+            return segments;
+        });
+}
+
+BufferCodec pointIndexCodec() {
+    return codecFor<PointIndex>(
+        [](const PointIndex& index, CodecWriter& writer) {
+            const KdTree& tree = index.tree();
+            writer.setItemCount(index.size());
+            writer.write<std::uint32_t>(tree.maxLeafSize());
+            writer.writeVector("ids", index.ids());
+            writer.writeVector("tree.positions", tree.sortedPositions());
+            writer.writeVector("tree.permutation", tree.permutation());
+            writer.writeVector("tree.splits", tree.splits());
+        },
+        [](CodecReader& reader) {
+            const auto leafSize = reader.read<std::uint32_t>();
+            std::vector<std::uint32_t> ids = reader.readVector<std::uint32_t>("ids");
+            std::vector<Vec3> positions = reader.readVector<Vec3>("tree.positions");
+            std::vector<std::uint32_t> permutation = reader.readVector<std::uint32_t>("tree.permutation");
+            std::vector<KdTree::Split> splits = reader.readVector<KdTree::Split>("tree.splits");
+            return PointIndex::restore(
+                KdTree::restore(std::move(positions), std::move(permutation), std::move(splits), leafSize),
+                std::move(ids));
+        });
+}
+
+BufferCodec photonBvhCodec() {
+    return codecFor<PhotonBvh>(
+        [](const PhotonBvh& bvh, CodecWriter& writer) {
+            writer.setItemCount(bvh.size());
+            writer.write<std::uint32_t>(bvh.depth());
+            writer.writeSoa("nodes", bvh.nodes());
+            writer.writeSoa("spheres", bvh.spheres());
+        },
+        [](CodecReader& reader) {
+            const auto depth = reader.read<std::uint32_t>();
+            BvhNodeBuffer nodes;
+            BvhSphereBuffer spheres;
+            reader.readSoa("nodes", nodes);
+            reader.readSoa("spheres", spheres);
+            return PhotonBvh::restore(std::move(nodes), std::move(spheres), depth);
+        });
+}
+
+}  // namespace
+
+std::vector<BufferCodec> builtinCodecs() {
+    std::vector<BufferCodec> codecs;
+    codecs.push_back(filmCodec());
+    codecs.push_back(photonMapCodec());
+    codecs.push_back(eyeVerticesCodec());
+    codecs.push_back(photonRadiiCodec());
+    codecs.push_back(eyeSegmentsCodec());
+    codecs.push_back(pointIndexCodec());
+    codecs.push_back(photonBvhCodec());
+    return codecs;
+}
+
+}  // namespace fg
