@@ -1,4 +1,5 @@
-// Registrations of the passes defined in passes/, collected by passes/registry.cpp.
+// Registrations of the passes defined in passes/, collected by passes/registry.cpp
+// into the built-in registry that fluxgraph's main installs.
 #pragma once
 
 #include "engine/core/pass.h"
@@ -18,11 +19,14 @@ PassRegistration photonRadiusPass();
 PassRegistration photonBvhPass();
 PassRegistration beamQueryPass();
 PassRegistration lightTracePass();
+PassRegistration filmNoisePass();
 
-// The photon-mapping pipelines as data.
-Pipeline spmPipeline();
-Pipeline pdsPipeline();
-Pipeline brePipeline();
-Pipeline ltPipeline();
+// The passes and the pipelines of passes/pipelines/*.toml.
+const Registry& builtinRegistry();
+// Look-ups in the built-in registry.
+const std::vector<PassRegistration>& passRegistry();
+const PassRegistration* findPass(const std::string& name);
+const std::vector<Pipeline>& builtinPipelines();
+const Pipeline* findPipeline(const std::string& name);
 
 }  // namespace fg

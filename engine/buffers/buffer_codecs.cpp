@@ -7,6 +7,7 @@
 #include "engine/accel/photon_bvh.h"
 #include "engine/accel/point_index.h"
 #include "engine/buffers/beam_buffers.h"
+#include "engine/buffers/film_noise.h"
 #include "engine/buffers/photon_buffers.h"
 #include "engine/core/codec.h"
 #include "engine/image/film.h"
@@ -99,6 +100,47 @@ BufferCodec photonMapCodec() {
             map.hasDifferentials = reader.read<bool>();
             reader.readSoa("photons", map.photons);
             return map;
+        });
+}
+
+BufferCodec volumePhotonMapCodec() {
+    return codecFor<VolumePhotonMap>(
+        [](const VolumePhotonMap& map, CodecWriter& writer) {
+            writer.setItemCount(map.photons.size());
+            writer.write<std::uint64_t>(map.emitted);
+            writer.writeSoa("photons", map.photons);
+        },
+        [](CodecReader& reader) {
+            VolumePhotonMap map;
+            map.emitted = reader.read<std::uint64_t>();
+            reader.readSoa("photons", map.photons);
+            return map;
+        });
+}
+
+BufferCodec filmNoiseCodec() {
+    return codecFor<FilmNoise>(
+        [](const FilmNoise& noise, CodecWriter& writer) {
+            writer.setItemCount(noise.mean.size());
+            writer.write<std::int64_t>(noise.batches);
+            writer.write<double>(noise.relativeError);
+            writer.writeVector("previous_sums", noise.previousSums);
+            writer.writeVector("previous_weights", noise.previousWeights);
+            writer.writeVector("mean", noise.mean);
+            writer.writeVector("m2", noise.m2);
+        },
+        [](CodecReader& reader) {
+            FilmNoise noise;
+            noise.batches = reader.read<std::int64_t>();
+            noise.relativeError = reader.read<double>();
+            noise.previousSums = reader.readVector<Rgb>("previous_sums");
+            noise.previousWeights = reader.readVector<float>("previous_weights");
+            noise.mean = reader.readVector<double>("mean");
+            noise.m2 = reader.readVector<double>("m2");
+            const std::size_t pixels = noise.mean.size();
+            if (noise.previousSums.size() != pixels || noise.previousWeights.size() != pixels || noise.m2.size() != pixels)
+                reader.fail("FilmNoise columns disagree in length");
+            return noise;
         });
 }
 
@@ -196,6 +238,8 @@ std::vector<BufferCodec> builtinCodecs() {
     std::vector<BufferCodec> codecs;
     codecs.push_back(filmCodec());
     codecs.push_back(photonMapCodec());
+    codecs.push_back(volumePhotonMapCodec());
+    codecs.push_back(filmNoiseCodec());
     codecs.push_back(eyeVerticesCodec());
     codecs.push_back(photonRadiiCodec());
     codecs.push_back(eyeSegmentsCodec());

@@ -6,6 +6,7 @@
 #include "engine/core/job.h"
 #include "engine/core/pass.h"
 #include "engine/core/render.h"
+#include "passes/passes.h"
 
 #include <CLI/CLI.hpp>
 
@@ -18,12 +19,14 @@ namespace {
 constexpr int kInputErrorExit = 2;
 
 void printPasses() {
-    for (const fg::PassRegistration& r : fg::passRegistry()) {
+    for (const fg::PassRegistration& r : fg::installedRegistry().passes) {
         const fg::PassSpec& s = r.spec;
         std::cout << s.name << " — " << s.doc << "\n";
         for (const auto& in : s.inputs)
-            std::cout << "  in   " << in.name << " : " << in.type << (in.streamable ? " (batches)" : "") << "  " << in.doc
-                      << "\n";
+            std::cout << "  in   " << in.name << " : " << in.type << (in.streamable ? " (batches)" : "")
+                      << (in.optional ? " (optional)" : "") << "  " << in.doc << "\n";
+        for (const auto& io : s.inouts)
+            std::cout << "  inout " << io.name << " : " << io.type << "  " << io.doc << "\n";
         for (const auto& out : s.outputs)
             std::cout << "  out  " << out.name << " : " << out.type << (out.streamable ? " (batches)" : "") << "  "
                       << out.doc << "\n";
@@ -35,16 +38,23 @@ void printPasses() {
                 for (std::size_t i = 0; i < p.choices.size(); ++i) std::cout << (i ? "|" : "") << p.choices[i];
                 std::cout << "}";
             }
+            if (!p.sceneHint.empty()) std::cout << "  (scene hint: " << p.sceneHint << ")";
             std::cout << "\n      " << p.doc << "\n";
         }
+        for (const auto& signal : s.signals) std::cout << "  signal " << signal << "\n";
         std::cout << "\n";
     }
 }
 
 void printPipelines() {
-    for (const fg::Pipeline& p : fg::builtinPipelines()) {
-        std::cout << p.name << " — " << p.doc << "\n  passes:";
+    for (const fg::Pipeline& p : fg::installedRegistry().pipelines) {
+        std::cout << p.name << " — " << p.doc << "\n  file: " << p.file << "\n  passes:";
         for (const auto& n : p.nodes) std::cout << " " << n.instance;
+        for (const auto& b : p.blocks) {
+            std::cout << " repeat " << b.name << " x " << b.count << " {";
+            for (const auto& n : b.nodes) std::cout << " " << n.instance;
+            std::cout << " }";
+        }
         std::cout << "\n  results:";
         for (const auto& r : p.results) std::cout << " " << r;
         std::cout << "\n";
@@ -72,6 +82,7 @@ std::string shellCommandLine(int argc, char** argv) {
 }  // namespace
 
 int main(int argc, char** argv) {
+    fg::installRegistry(&fg::builtinRegistry());
     CLI::App app{"fluxgraph — a pass-based renderer for photon density estimation research"};
     app.require_subcommand(1);
 
@@ -84,6 +95,8 @@ int main(int argc, char** argv) {
 
     const auto addJobOptions = [&](CLI::App* cmd) {
         cmd->add_option("job", jobPath, "job file (TOML)")->required();
+        cmd->add_option("--import", overrides.imports,
+                        "read buffer NAME from a file saved with --save instead of producing it, NAME=path (repeatable)");
         cmd->add_option("--set", overrides.sets, "override a job value, e.g. passes.pt.spp=64 (repeatable)");
         cmd->add_option("--define", overrides.defines,
                         "set a parameter of a Mitsuba XML scene ($name), e.g. spp=64 (repeatable; wins over scene_defines)");
@@ -96,10 +109,14 @@ int main(int argc, char** argv) {
     render->add_option("--profile", profilePath, "write a Chrome trace-event JSON (open in ui.perfetto.dev)");
     render->add_option("--stats", statsPath, "write per-pass statistics and counters as JSON");
     render->add_flag("--quiet,-q", quiet, "no progress bar and no pass table");
+    render->add_option("--save", overrides.saves,
+                       "write buffer NAME (its final version) to a file when its producer finishes, NAME=path (repeatable)");
     CLI::App* validate = app.add_subcommand("validate", "check a job, its pipeline and its scene without rendering");
     addJobOptions(validate);
     CLI::App* graph = app.add_subcommand("graph", "print a job's pipeline as Graphviz DOT");
     addJobOptions(graph);
+    bool unroll = false;
+    graph->add_flag("--unroll", unroll, "draw every iteration of repeat blocks");
     app.add_subcommand("passes", "list every registered pass with its inputs, outputs and parameters");
     app.add_subcommand("pipelines", "list the built-in pipelines");
     fg::cli::CompareOptions compareOptions;
@@ -135,7 +152,9 @@ int main(int argc, char** argv) {
         const fg::Job job = fg::loadJob(jobPath, overrides);
 
         if (graph->parsed()) {
-            std::cout << fg::ExecutionPlan::build(job.pipeline, job.params, job.path).toDot();
+            std::cout << fg::ExecutionPlan::build(job.pipeline, job.params, job.path, fg::installedRegistry().passes,
+                                                  job.bufferFiles)
+                             .toDot(unroll);
             return 0;
         }
         if (validate->parsed()) {

@@ -7,6 +7,7 @@
 
 #include <toml++/toml.h>
 
+#include <algorithm>
 #include <charconv>
 #include <filesystem>
 #include <fstream>
@@ -164,9 +165,99 @@ void applyOverride(toml::table& root, const std::string& assignment) {
     table->insert_or_assign(keys.back(), *parsedValue.get("v"));
 }
 
+// A [pipeline] table: passes in order, repeat blocks placed among them by
+// where they stand in the file. `builtin` tables also carry a `doc`.
+Pipeline readPipeline(const JobReader& r, const toml::table& t, const toml::node& at, bool builtin) {
+    if (builtin) r.checkKeys(t, "pipeline.", {"name", "doc", "results", "pass", "repeat"});
+    else r.checkKeys(t, "pipeline.", {"name", "results", "pass", "repeat"});
+    Pipeline pipeline;
+    pipeline.name = r.getString(t, "name", "pipeline.name", "custom");
+    pipeline.doc = r.getString(t, "doc", "pipeline.doc", "");
+    pipeline.results = {"image"};
+    if (const toml::node* results = t.get("results")) {
+        const toml::array* arr = results->as_array();
+        if (!arr || arr->empty()) r.fail(*results, "pipeline.results", "'pipeline.results' must be a list of buffer names");
+        pipeline.results.clear();
+        for (const auto& v : *arr) {
+            if (!v.is_string()) r.fail(v, "pipeline.results", "result names must be strings");
+            pipeline.results.push_back(**v.as_string());
+        }
+    }
+    const auto readNodes = [&](const toml::table& owner, const toml::node& where, const std::string& keyPath,
+                               bool required) {
+        std::vector<PipelineNode> nodes;
+        const toml::node* passes = owner.get("pass");
+        const toml::array* arr = passes ? passes->as_array() : nullptr;
+        if (passes && !arr) r.fail(*passes, keyPath, "'" + keyPath + "' must be an array of tables ([[" + keyPath + "]])");
+        if (required && (!arr || arr->empty()))
+            r.fail(passes ? *passes : where, keyPath, "a pipeline needs [[" + keyPath + "]] entries");
+        if (!arr) return nodes;
+        for (const auto& entry : *arr) {
+            if (!entry.is_table()) r.fail(entry, keyPath, "each [[" + keyPath + "]] must be a table");
+            const toml::table& pt = *entry.as_table();
+            r.checkKeys(pt, keyPath + ".", {"pass", "name", "inputs", "outputs"});
+            PipelineNode node;
+            node.pass = r.getString(pt, "pass", keyPath + ".pass", "");
+            if (node.pass.empty()) r.fail(entry, keyPath, "[[" + keyPath + "]] needs 'pass = \"<registered pass>\"'");
+            node.instance = r.getString(pt, "name", keyPath + ".name", node.pass);
+            // Brackets are allowed in names: a pipeline may spell out a repeat block
+            // by hand with its unrolled names ("train[0].photon") and random streams.
+            if (node.instance.empty()) r.fail(entry, keyPath + ".name", "a pass instance name must not be empty");
+            node.inputBindings = r.stringMap(pt, "inputs", keyPath + ".inputs");
+            node.outputBindings = r.stringMap(pt, "outputs", keyPath + ".outputs");
+            node.sourceLine = static_cast<int>(entry.source().begin.line);
+            nodes.push_back(std::move(node));
+        }
+        return nodes;
+    };
+    const toml::node* repeats = t.get("repeat");
+    pipeline.nodes = readNodes(t, at, "pipeline.pass", repeats == nullptr);
+    if (repeats) {
+        const toml::array* arr = repeats->as_array();
+        if (!arr) r.fail(*repeats, "pipeline.repeat", "'pipeline.repeat' must be an array of tables ([[pipeline.repeat]])");
+        for (const auto& entry : *arr) {
+            if (!entry.is_table()) r.fail(entry, "pipeline.repeat", "each [[pipeline.repeat]] must be a table");
+            const toml::table& bt = *entry.as_table();
+            r.checkKeys(bt, "pipeline.repeat.", {"name", "count", "carry", "until", "seconds", "pass"});
+            RepeatBlock block;
+            block.name = r.getString(bt, "name", "pipeline.repeat.name", "");
+            if (block.name.empty() || block.name.find_first_of("[]. ") != std::string::npos)
+                r.fail(entry, "pipeline.repeat.name", "[[pipeline.repeat]] needs a plain 'name' (no dots, brackets or spaces)");
+            block.count = static_cast<int>(r.getInt(bt, "count", "pipeline.repeat.count", 1, 1, 1000000));
+            block.carry = r.stringMap(bt, "carry", "pipeline.repeat.carry");
+            block.until = r.getString(bt, "until", "pipeline.repeat.until", "");
+            block.seconds = r.getFloat(bt, "seconds", "pipeline.repeat.seconds", 0.0, 0.0, 1e9);
+            block.nodes = readNodes(bt, entry, "pipeline.repeat.pass", true);
+            block.sourceLine = static_cast<int>(entry.source().begin.line);
+            block.position = static_cast<std::size_t>(std::count_if(
+                pipeline.nodes.begin(), pipeline.nodes.end(),
+                [&](const PipelineNode& n) { return n.sourceLine > 0 && n.sourceLine < block.sourceLine; }));
+            pipeline.blocks.push_back(std::move(block));
+        }
+    }
+    return pipeline;
+}
+
 }  // namespace
 
-Job parseJob(const std::string& text, const std::string& path, const JobOverrides& overrides) {
+Pipeline parsePipelineFile(const std::string& text, const std::string& path) {
+    toml::table root;
+    try {
+        root = toml::parse(text, path);
+    } catch (const toml::parse_error& e) {
+        throw InputError(path, static_cast<int>(e.source().begin.line), std::string(e.description()));
+    }
+    const JobReader r(path, {});
+    r.checkKeys(root, "", {"pipeline"});
+    const toml::table* table = r.getTable(root, "pipeline", "pipeline");
+    if (!table) throw InputError(path + ": missing [pipeline] table");
+    Pipeline pipeline = readPipeline(r, *table, root, true);
+    pipeline.file = path;
+    return pipeline;
+}
+
+Job parseJob(const std::string& text, const std::string& path, const JobOverrides& overrides,
+             const Registry& registry) {
     toml::table root;
     try {
         root = toml::parse(text, path);
@@ -185,7 +276,7 @@ Job parseJob(const std::string& text, const std::string& path, const JobOverride
     job.text = text;
     job.overrides = overrides.sets;
     r.checkKeys(root, "", {"scene", "scene_defines", "pipeline", "seed", "threads", "stream_batches", "film", "output",
-                           "passes"});
+                           "passes", "import"});
 
     const toml::node* sceneNode = root.get("scene");
     if (!sceneNode) throw InputError(path + ": missing required key 'scene'");
@@ -224,45 +315,45 @@ Job parseJob(const std::string& text, const std::string& path, const JobOverride
     if (!pipelineNode) throw InputError(path + ": missing required key 'pipeline'");
     if (pipelineNode->is_string()) {
         const std::string name = **pipelineNode->as_string();
-        const Pipeline* builtin = findPipeline(name);
+        const Pipeline* builtin = registry.findPipeline(name);
         if (!builtin) {
             std::string known;
-            for (const auto& p : builtinPipelines()) known += (known.empty() ? "" : ", ") + p.name;
+            for (const auto& p : registry.pipelines) known += (known.empty() ? "" : ", ") + p.name;
             r.fail(*pipelineNode, "pipeline", "unknown pipeline '" + name + "' (built-in: " + known + ")");
         }
         job.pipeline = *builtin;
     } else if (pipelineNode->is_table()) {
-        const toml::table& t = *pipelineNode->as_table();
-        r.checkKeys(t, "pipeline.", {"name", "results", "pass"});
-        job.pipeline.name = r.getString(t, "name", "pipeline.name", "custom");
-        job.pipeline.results = {"image"};
-        if (const toml::node* results = t.get("results")) {
-            const toml::array* arr = results->as_array();
-            if (!arr || arr->empty()) r.fail(*results, "pipeline.results", "'pipeline.results' must be a list of buffer names");
-            job.pipeline.results.clear();
-            for (const auto& v : *arr) {
-                if (!v.is_string()) r.fail(v, "pipeline.results", "result names must be strings");
-                job.pipeline.results.push_back(**v.as_string());
-            }
-        }
-        const toml::node* passes = t.get("pass");
-        const toml::array* arr = passes ? passes->as_array() : nullptr;
-        if (!arr || arr->empty()) r.fail(passes ? *passes : *pipelineNode, "pipeline.pass", "a custom pipeline needs [[pipeline.pass]] entries");
-        for (const auto& entry : *arr) {
-            if (!entry.is_table()) r.fail(entry, "pipeline.pass", "each [[pipeline.pass]] must be a table");
-            const toml::table& pt = *entry.as_table();
-            r.checkKeys(pt, "pipeline.pass.", {"pass", "name", "inputs", "outputs"});
-            PipelineNode node;
-            node.pass = r.getString(pt, "pass", "pipeline.pass.pass", "");
-            if (node.pass.empty()) r.fail(entry, "pipeline.pass", "[[pipeline.pass]] needs 'pass = \"<registered pass>\"'");
-            node.instance = r.getString(pt, "name", "pipeline.pass.name", node.pass);
-            node.inputBindings = r.stringMap(pt, "inputs", "pipeline.pass.inputs");
-            node.outputBindings = r.stringMap(pt, "outputs", "pipeline.pass.outputs");
-            node.sourceLine = static_cast<int>(entry.source().begin.line);
-            job.pipeline.nodes.push_back(std::move(node));
-        }
+        job.pipeline = readPipeline(r, *pipelineNode->as_table(), *pipelineNode, false);
     } else {
         r.fail(*pipelineNode, "pipeline", "'pipeline' must be a pipeline name or a [pipeline] table");
+    }
+
+    // Buffers read from files instead of being produced ([import] NAME = "path", --import).
+    if (const toml::table* imports = r.getTable(root, "import", "import")) {
+        for (const auto& [key, value] : *imports) {
+            const std::string keyPath = "import." + std::string(key.str());
+            if (!value.is_string()) r.fail(value, keyPath, "'" + keyPath + "' must be a file path");
+            const std::string file = **value.as_string();
+            job.bufferFiles.imports[std::string(key.str())] =
+                fs::path(file).is_absolute() ? file : (jobDir / file).lexically_normal().string();
+            job.bufferFiles.sources[std::string(key.str())] = r.source(value, keyPath);
+        }
+    }
+    const auto bufferAssignment = [](const std::string& option, const std::string& assignment) {
+        const auto eq = assignment.find('=');
+        if (eq == std::string::npos || eq == 0 || eq + 1 == assignment.size())
+            throw InputError(option + " " + assignment + ": expected NAME=PATH");
+        return std::pair<std::string, std::string>(assignment.substr(0, eq), assignment.substr(eq + 1));
+    };
+    for (const std::string& assignment : overrides.imports) {
+        const auto [name, file] = bufferAssignment("--import", assignment);
+        job.bufferFiles.imports[name] = file;
+        job.bufferFiles.sources[name] = "--import " + assignment;
+    }
+    for (const std::string& assignment : overrides.saves) {
+        const auto [name, file] = bufferAssignment("--save", assignment);
+        job.bufferFiles.saves[name] = file;
+        job.bufferFiles.sources[name] = "--save " + assignment;
     }
 
     job.pipeline.streamBatches = r.getBool(root, "stream_batches", "stream_batches", true);
@@ -321,12 +412,12 @@ Job parseJob(const std::string& text, const std::string& path, const JobOverride
     return job;
 }
 
-Job loadJob(const std::string& path, const JobOverrides& overrides) {
+Job loadJob(const std::string& path, const JobOverrides& overrides, const Registry& registry) {
     std::ifstream in(path, std::ios::binary);
     if (!in) throw InputError(path + ": cannot open job file");
     std::stringstream buffer;
     buffer << in.rdbuf();
-    return parseJob(buffer.str(), path, overrides);
+    return parseJob(buffer.str(), path, overrides, registry);
 }
 
 }  // namespace fg

@@ -36,6 +36,20 @@
 //   name = "pt"                     # instance name (default: the pass name)
 //   outputs = { image = "image" }
 //
+// A repeat block runs its passes `count` times (see RepeatBlock in pass.h):
+//
+//   [[pipeline.repeat]]
+//   name = "progressive"
+//   count = 64
+//   carry = { image = "image" }     # iteration i+1 reads iteration i's image
+//   until = "noise.converged"       # optional: stop when pass instance noise raises it
+//   seconds = 60                    # optional: stop after the iteration that ends past 60 s
+//   [[pipeline.repeat.pass]]
+//   pass = "pt"
+//
+//   [import]                        # buffers read from files (fluxgraph render --save) instead of made
+//   photons = "photons.fgbuf"
+//
 // Every key is checked: unknown keys, wrong types and nonsense values are
 // errors naming the file and line.
 #pragma once
@@ -74,6 +88,7 @@ struct Job {
     std::uint64_t seed = 1;
     OutputSettings output;
     std::vector<std::string> overrides;  // the --set arguments, for the metadata
+    BufferFiles bufferFiles;  // [import] and --import, --save
 };
 
 struct JobOverrides {
@@ -82,10 +97,17 @@ struct JobOverrides {
     std::optional<int> threads;
     std::optional<std::uint64_t> seed;
     std::optional<std::string> outputDirectory;
+    std::vector<std::string> imports;  // "--import NAME=path"
+    std::vector<std::string> saves;    // "--save NAME=path"
 };
 
 // Throws InputError naming file:line (or the --set argument) on any problem.
-Job loadJob(const std::string& path, const JobOverrides& overrides = {});
-Job parseJob(const std::string& text, const std::string& path, const JobOverrides& overrides = {});
+// `registry` names the built-in pipelines (default: the installed registry).
+Job loadJob(const std::string& path, const JobOverrides& overrides = {}, const Registry& registry = installedRegistry());
+Job parseJob(const std::string& text, const std::string& path, const JobOverrides& overrides = {},
+             const Registry& registry = installedRegistry());
+// A pipeline file (passes/pipelines/*.toml): one [pipeline] table in the job
+// format, plus `doc`. Throws InputError naming the file and line.
+Pipeline parsePipelineFile(const std::string& text, const std::string& path);
 
 }  // namespace fg

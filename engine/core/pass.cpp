@@ -3,7 +3,10 @@
 // without pulling in every registered pass.
 #include "engine/core/pass.h"
 
+#include "jobs/random.h"
+
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <sstream>
 #include <stdexcept>
@@ -84,15 +87,48 @@ bool PassContext::streamed(const std::string& outputSlot) const {
     return std::find(streamedOutputs_.begin(), streamedOutputs_.end(), outputSlot) != streamedOutputs_.end();
 }
 
-void PassContext::emitErased(const std::string& slot, std::shared_ptr<void> batch, std::size_t bytes) {
+bool PassContext::emitErased(const std::string& slot, std::shared_ptr<void> batch, std::size_t bytes) {
     if (!batchSink_) throw std::logic_error("pass '" + instance_ + "' emitted a batch, but nothing reads its batches");
-    batchSink_(slot, std::move(batch), bytes);
+    return batchSink_(slot, std::move(batch), bytes);
+}
+
+std::uint64_t PassContext::streamKey() const { return jobs::streamKey(instance_); }
+
+void PassContext::signal(const std::string& name) {
+    if (std::find(declaredSignals_.begin(), declaredSignals_.end(), name) == declaredSignals_.end())
+        throw std::logic_error("pass '" + instance_ + "' raised undeclared signal '" + name + "'");
+    if (!signalled(name)) signals_.push_back(name);
+}
+
+const PassRegistration* Registry::findPass(const std::string& name) const {
+    for (const auto& r : passes)
+        if (r.spec.name == name) return &r;
+    return nullptr;
+}
+
+const Pipeline* Registry::findPipeline(const std::string& name) const {
+    for (const auto& p : pipelines)
+        if (p.name == name) return &p;
+    return nullptr;
+}
+
+namespace {
+std::atomic<const Registry*> gInstalledRegistry{nullptr};
+}
+
+void installRegistry(const Registry* registry) { gInstalledRegistry.store(registry); }
+
+const Registry& installedRegistry() {
+    const Registry* registry = gInstalledRegistry.load();
+    if (!registry) throw std::logic_error("no pass registry installed (fg::installRegistry)");
+    return *registry;
 }
 
 BufferHandle* PassContext::checked(const std::map<std::string, BufferHandle*>& slots, const std::string& slot,
                                    const char* type, const char* kind) {
     const auto it = slots.find(slot);
     if (it == slots.end()) throw std::logic_error(std::string("pass used undeclared ") + kind + " '" + slot + "'");
+    if (!it->second) throw std::logic_error(std::string("optional ") + kind + " '" + slot + "' is not bound in this run");
     if (it->second->type != type) {
         throw std::logic_error(std::string(kind) + " '" + slot + "' is " + it->second->type + ", not " + type);
     }

@@ -3,17 +3,21 @@
 // ui.perfetto.dev: one slice per pass, one per task chunk, a row per thread).
 #include "engine/core/render.h"
 
+#include "engine/core/codec.h"
 #include "engine/core/error.h"
 #include "engine/image/image_io.h"
 #include "engine/accel/ray_query.h"
 #include "engine/scene/scene_loader.h"
 #include "jobs/parallel.h"
 
+#include <algorithm>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <iomanip>
+#include <map>
 #include <mutex>
+#include <set>
 #include <sstream>
 #include <unistd.h>
 
@@ -46,14 +50,15 @@ void ensureWritableDirectory(const std::string& dir) {
     if (!canCreateFileIn(dir)) throw InputError(dir + ": output directory is not writable");
 }
 
-// The trace is written after the render; its destination is checked before.
-void ensureWritableProfilePath(const std::string& path) {
+// Traces, statistics and saved buffers are written during or after the
+// render; their destinations are checked before it.
+void ensureWritableFilePath(const std::string& path, const std::string& what) {
     const fs::path parent = fs::path(path).has_parent_path() ? fs::path(path).parent_path() : fs::path(".");
     std::error_code ec;
-    if (fs::is_directory(path, ec)) throw InputError(path + ": cannot write profile: is a directory");
+    if (fs::is_directory(path, ec)) throw InputError(path + ": cannot write " + what + ": is a directory");
     if (!fs::is_directory(parent, ec))
-        throw InputError(path + ": cannot write profile: no directory " + parent.string());
-    if (!canCreateFileIn(parent)) throw InputError(path + ": cannot write profile: directory is not writable");
+        throw InputError(path + ": cannot write " + what + ": no directory " + parent.string());
+    if (!canCreateFileIn(parent)) throw InputError(path + ": cannot write " + what + ": directory is not writable");
 }
 
 std::string jsonEscape(const std::string& s) {
@@ -123,48 +128,97 @@ std::string pipelineDescription(const ExecutionPlan& plan) {
 }
 
 // Scene files may carry rendering hints (Mitsuba's sample_count, max_depth,
-// rfilter). They fill in what the job leaves unsaid: a pass parameter named
-// `spp` or `max_depth` that the job does not set, and the film filter when the
+// rfilter). They fill in what the job leaves unsaid, and only for parameters
+// that declare they take that hint (ParamSpec::sceneHint): the path tracer's
+// depth, not the photon pass's. The film filter comes from the scene when the
 // job has no [film] filter. The job file always wins.
-ExecutionPlan planWithSceneHints(const Job& job, const Scene& scene, FilmSettings& film) {
+ExecutionPlan planWithSceneHints(const Job& job, const Scene& scene, FilmSettings& film, const Registry& registry) {
     JobParams params = job.params;
     const RenderHints& hints = scene.hints;
     const std::string source = job.scenePath + " (scene hint)";
-    for (const PipelineNode& node : job.pipeline.nodes) {
-        const PassRegistration* registration = findPass(node.pass);
-        if (!registration) continue;  // build() reports it
+    const auto addHints = [&](const PipelineNode& node) {
+        const PassRegistration* registration = registry.findPass(node.pass);
+        if (!registration) return;  // build() reports it
         auto& values = params.values[node.instance];
         for (const ParamSpec& p : registration->spec.params) {
             if (values.count(p.name)) continue;
-            if (p.name == "spp" && hints.samplesPerPixel > 0)
+            if (p.sceneHint == "sample_count" && hints.samplesPerPixel > 0)
                 values[p.name] = {std::int64_t{hints.samplesPerPixel}, source};
-            if (p.name == "max_depth" && hints.maxDepth > 0)
+            if (p.sceneHint == "max_depth" && hints.maxDepth > 0)
                 values[p.name] = {std::int64_t{hints.maxDepth}, source};
         }
         if (values.empty()) params.values.erase(node.instance);
-    }
+    };
+    for (const PipelineNode& node : job.pipeline.nodes) addHints(node);
+    for (const RepeatBlock& block : job.pipeline.blocks)
+        for (const PipelineNode& node : block.nodes) addHints(node);
     if (hints.filter && !job.filmFilterGiven) {
         film.filter = *hints.filter;
         if (hints.filterRadius > 0.0f) film.filterRadius = hints.filterRadius;
         if (hints.gaussianSigma > 0.0f) film.gaussianSigma = hints.gaussianSigma;
     }
-    return ExecutionPlan::build(job.pipeline, params, job.path);
+    return ExecutionPlan::build(job.pipeline, params, job.path, registry.passes, job.bufferFiles);
+}
+
+// Every live pass checks the scene and its parameters before any work.
+void runPreflights(const ExecutionPlan& plan, const Scene& scene) {
+    const auto& passes = plan.passes();
+    std::set<std::string> checked;  // a block pass is checked once, not once per iteration
+    for (const PlannedPass& p : passes) {
+        if (p.culled || !p.registration->preflight || !checked.insert(p.paramsKey).second) continue;
+        const auto producerOf = [&](const std::string& slot) -> const PlannedPass* {
+            const auto it = p.node.inputBindings.find(slot);
+            if (it == p.node.inputBindings.end() || it->second.empty()) return nullptr;
+            for (const PlannedPass& q : passes)
+                for (const auto& [outSlot, version] : q.node.outputBindings)
+                    if (version == it->second) return &q;
+            return nullptr;
+        };
+        const PreflightContext context{
+            scene, p.params, p.paramsKey, p.source,
+            [&](const std::string& slot) -> const PassParams* {
+                const PlannedPass* producer = producerOf(slot);
+                return producer ? &producer->params : nullptr;
+            },
+            [&](const std::string& slot) -> std::string {
+                const PlannedPass* producer = producerOf(slot);
+                return producer ? producer->node.pass : std::string();
+            }};
+        p.registration->preflight(context);
+    }
+}
+
+// Imported buffers are loaded (and checked) before any work.
+std::map<std::string, BufferHandle> loadImports(const ExecutionPlan& plan) {
+    std::map<std::string, BufferHandle> loaded;
+    for (const auto& [version, typeAndPath] : plan.imports())
+        loaded[version] = loadBuffer(typeAndPath.second, typeAndPath.first, version);
+    return loaded;
 }
 
 }  // namespace
 
-ExecutionPlan validateJob(const Job& job) {
-    ExecutionPlan plan = ExecutionPlan::build(job.pipeline, job.params, job.path);
-    loadScene(job.scenePath, job.sceneDefines);
+ExecutionPlan validateJob(const Job& job, const Registry& registry) {
+    ExecutionPlan::build(job.pipeline, job.params, job.path, registry.passes, job.bufferFiles);
+    const Scene scene = loadScene(job.scenePath, job.sceneDefines);
+    FilmSettings film = job.film;
+    ExecutionPlan plan = planWithSceneHints(job, scene, film, registry);
+    runPreflights(plan, scene);
+    for (const auto& [version, typeAndPath] : plan.imports()) {
+        const BufferFileInfo info = readBufferInfo(typeAndPath.second);
+        if (info.type != typeAndPath.first)
+            throw InputError(typeAndPath.second + ": holds a " + info.type + " buffer, but '" + version + "' is a " +
+                             typeAndPath.first);
+    }
     return plan;
 }
 
-RenderOutcome renderJob(const Job& job, const RenderOptions& options) {
+RenderOutcome renderJob(const Job& job, const RenderOptions& options, const Registry& registry) {
     // Validated before anything slow happens; rebuilt below with the scene's hints.
-    ExecutionPlan::build(job.pipeline, job.params, job.path);
+    ExecutionPlan::build(job.pipeline, job.params, job.path, registry.passes, job.bufferFiles);
     ensureWritableDirectory(job.output.directory);
-    if (!options.profilePath.empty()) ensureWritableProfilePath(options.profilePath);
-    if (!options.statsPath.empty()) ensureWritableProfilePath(options.statsPath);
+    if (!options.profilePath.empty()) ensureWritableFilePath(options.profilePath, "profile");
+    if (!options.statsPath.empty()) ensureWritableFilePath(options.statsPath, "profile");
 
     RenderOutcome outcome;
     const std::int64_t t0 = jobs::wallNanos();
@@ -177,7 +231,10 @@ RenderOutcome renderJob(const Job& job, const RenderOptions& options) {
         film.width = scene.camera.width;
         film.height = scene.camera.height;
     }
-    const ExecutionPlan plan = planWithSceneHints(job, scene, film);
+    const ExecutionPlan plan = planWithSceneHints(job, scene, film, registry);
+    runPreflights(plan, scene);
+    std::map<std::string, BufferHandle> imported = loadImports(plan);
+    for (const auto& [version, path] : plan.saves()) ensureWritableFilePath(path, "saved buffer");
     const jobs::ThreadLimit threadLimit(job.threads);
     const RayQuery rays(scene);
     outcome.accelSeconds = 1e-9 * static_cast<double>(jobs::wallNanos() - t1);
@@ -186,6 +243,12 @@ RenderOutcome renderJob(const Job& job, const RenderOptions& options) {
     RunOptions runOptions;
     runOptions.seed = job.seed;
     runOptions.film = film;
+    runOptions.imported = std::move(imported);
+    runOptions.save = [&job, &outcome](const std::string& version, const std::string& path, const BufferHandle& buffer) {
+        saveBuffer(buffer, path, job.text);
+        outcome.files.push_back(path);
+        (void)version;
+    };
     if (options.showProgress) runOptions.progress = [&bar](const std::string& p, double f) { bar.update(p, f); };
     auto& recorder = jobs::TraceRecorder::instance();
     recorder.setEnabled(!options.profilePath.empty());
@@ -210,6 +273,11 @@ RenderOutcome renderJob(const Job& job, const RenderOptions& options) {
         {"threads", std::to_string(jobs::maxThreads())},
         {"pass_timings", timings.str()},
     };
+    std::string iterations;
+    for (const auto& [block, count] : outcome.run.iterations)
+        iterations += (iterations.empty() ? "" : " ") + block + "=" + std::to_string(count);
+    // A time budget is not deterministic: the count run is what reproduces the image.
+    if (!iterations.empty()) metadata.emplace_back("iterations", iterations);
     std::string overrides;
     for (const std::string& o : job.overrides) overrides += (overrides.empty() ? "" : " ") + o;
     if (!overrides.empty()) metadata.emplace_back("overrides", overrides);
@@ -255,19 +323,52 @@ RenderOutcome renderJob(const Job& job, const RenderOptions& options) {
     return outcome;
 }
 
+std::vector<PassStats> blockPassSums(const std::vector<PassStats>& stats) {
+    std::vector<PassStats> sums;
+    std::map<std::pair<std::string, std::string>, std::size_t> row;
+    for (const PassStats& s : stats) {
+        if (s.block.empty()) continue;
+        const auto key = std::make_pair(s.block, s.blockPass);
+        auto [it, added] = row.emplace(key, sums.size());
+        if (added) {
+            PassStats sum;
+            sum.instance = s.block + "[*]." + s.blockPass;
+            sum.pass = s.pass;
+            sum.block = s.block;
+            sum.blockPass = s.blockPass;
+            sum.startSeconds = s.startSeconds;
+            sums.push_back(sum);
+        }
+        PassStats& sum = sums[it->second];
+        sum.wallSeconds += s.wallSeconds;
+        sum.cpuSeconds += s.cpuSeconds;
+        sum.items += s.items;
+        sum.outputBytes = std::max(sum.outputBytes, s.outputBytes);
+        sum.batchesEmitted += s.batchesEmitted;
+        for (const auto& [name, value] : s.counters) sum.counters[name] += value;
+        ++sum.counters["instances"];
+    }
+    return sums;
+}
+
 std::string formatPassTable(const RenderOutcome& outcome) {
     std::ostringstream out;
-    out << std::left << std::setw(16) << "pass" << std::right << std::setw(10) << "wall s" << std::setw(10) << "cpu s"
-        << std::setw(8) << "cpu/w" << std::setw(14) << "items" << std::setw(14) << "items/s" << std::setw(12)
-        << "out bytes" << "\n";
+    std::size_t width = 16;
+    for (const PassStats& s : outcome.run.stats) width = std::max(width, s.instance.size() + 2);
+    out << std::left << std::setw(static_cast<int>(width)) << "pass" << std::right << std::setw(10) << "wall s"
+        << std::setw(10) << "cpu s" << std::setw(8) << "cpu/w" << std::setw(14) << "items" << std::setw(14)
+        << "items/s" << std::setw(12) << "out bytes" << "\n";
     out << std::fixed;
-    for (const PassStats& s : outcome.run.stats) {
+    const auto row = [&](const PassStats& s) {
         const double rate = s.wallSeconds > 0 ? static_cast<double>(s.items) / s.wallSeconds : 0.0;
-        out << std::left << std::setw(16) << s.instance << std::right << std::setprecision(3) << std::setw(10)
-            << s.wallSeconds << std::setw(10) << s.cpuSeconds << std::setprecision(2) << std::setw(8)
+        out << std::left << std::setw(static_cast<int>(width)) << s.instance << std::right << std::setprecision(3)
+            << std::setw(10) << s.wallSeconds << std::setw(10) << s.cpuSeconds << std::setprecision(2) << std::setw(8)
             << (s.wallSeconds > 0 ? s.cpuSeconds / s.wallSeconds : 0.0) << std::setw(14) << s.items
             << std::setprecision(0) << std::setw(14) << rate << std::setw(12) << humanBytes(s.outputBytes) << "\n";
-    }
+    };
+    for (const PassStats& s : outcome.run.stats) row(s);
+    for (const PassStats& s : blockPassSums(outcome.run.stats)) row(s);
+    for (const auto& [block, count] : outcome.run.iterations) out << "repeat " << block << ": " << count << " iterations\n";
     out << std::setprecision(3) << "scene load " << outcome.sceneSeconds << " s, Embree build " << outcome.accelSeconds
         << " s, passes " << outcome.run.wallSeconds << " s\n";
     return out.str();
@@ -276,22 +377,35 @@ std::string formatPassTable(const RenderOutcome& outcome) {
 std::string statsJson(const RenderOutcome& outcome) {
     std::ostringstream out;
     out << std::setprecision(9) << "{\"scene_seconds\": " << outcome.sceneSeconds
-        << ", \"accel_seconds\": " << outcome.accelSeconds << ", \"passes_seconds\": " << outcome.run.wallSeconds
-        << ", \"passes\": [";
-    for (std::size_t i = 0; i < outcome.run.stats.size(); ++i) {
-        const PassStats& s = outcome.run.stats[i];
-        out << (i ? "," : "") << "\n  {\"instance\": \"" << jsonEscape(s.instance) << "\", \"pass\": \""
-            << jsonEscape(s.pass) << "\", \"start_seconds\": " << s.startSeconds
-            << ", \"wall_seconds\": " << s.wallSeconds << ", \"cpu_seconds\": " << s.cpuSeconds
-            << ", \"items\": " << s.items << ", \"output_bytes\": " << s.outputBytes << ", \"counters\": {";
-        bool first = true;
-        for (const auto& [name, value] : s.counters) {
-            out << (first ? "" : ", ") << "\"" << jsonEscape(name) << "\": " << value;
-            first = false;
+        << ", \"accel_seconds\": " << outcome.accelSeconds << ", \"passes_seconds\": " << outcome.run.wallSeconds;
+    const auto list = [&](const char* key, const std::vector<PassStats>& rows) {
+        out << ", \"" << key << "\": [";
+        for (std::size_t i = 0; i < rows.size(); ++i) {
+            const PassStats& s = rows[i];
+            out << (i ? "," : "") << "\n  {\"instance\": \"" << jsonEscape(s.instance) << "\", \"pass\": \""
+                << jsonEscape(s.pass) << "\", ";
+            if (!s.block.empty()) out << "\"block\": \"" << jsonEscape(s.block) << "\", ";
+            out << "\"start_seconds\": " << s.startSeconds << ", \"wall_seconds\": " << s.wallSeconds
+                << ", \"cpu_seconds\": " << s.cpuSeconds << ", \"items\": " << s.items
+                << ", \"output_bytes\": " << s.outputBytes << ", \"counters\": {";
+            bool first = true;
+            for (const auto& [name, value] : s.counters) {
+                out << (first ? "" : ", ") << "\"" << jsonEscape(name) << "\": " << value;
+                first = false;
+            }
+            out << "}}";
         }
-        out << "}}";
+        out << "\n]";
+    };
+    list("passes", outcome.run.stats);
+    list("block_passes", blockPassSums(outcome.run.stats));
+    out << ", \"iterations\": {";
+    bool first = true;
+    for (const auto& [block, count] : outcome.run.iterations) {
+        out << (first ? "" : ", ") << "\"" << jsonEscape(block) << "\": " << count;
+        first = false;
     }
-    out << "\n]}\n";
+    out << "}}\n";
     return out.str();
 }
 

@@ -28,9 +28,12 @@ struct RenderOutcome {
 
 // Everything except rendering: the job's pipeline and parameters, its scene,
 // and the output directory. Throws InputError.
-ExecutionPlan validateJob(const Job& job);
-RenderOutcome renderJob(const Job& job, const RenderOptions& options);
+// Runs every pass's preflight after loading the scene. Throws InputError.
+ExecutionPlan validateJob(const Job& job, const Registry& registry = installedRegistry());
+RenderOutcome renderJob(const Job& job, const RenderOptions& options, const Registry& registry = installedRegistry());
 
+// One row per pass of each repeat block: its instances summed ("block[*].name").
+std::vector<PassStats> blockPassSums(const std::vector<PassStats>& stats);
 // Human-readable per-pass table (wall, CPU, items, items/s, bytes).
 std::string formatPassTable(const RenderOutcome& outcome);
 // The run's statistics as JSON: per pass (instance, pass, start, wall, cpu,

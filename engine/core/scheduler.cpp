@@ -9,6 +9,8 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <limits>
+#include <memory>
 #include <mutex>
 #include <set>
 #include <sstream>
@@ -83,101 +85,363 @@ ParamValue convertSetting(const ParamSpec& spec, const ParamSetting& setting, co
 
 }  // namespace
 
+namespace {
+
+// All slots of a pass that read a buffer: inputs, then in-out slots.
+std::vector<const SlotSpec*> readSlots(const PassSpec& spec) {
+    std::vector<const SlotSpec*> slots;
+    for (const SlotSpec& s : spec.inputs) slots.push_back(&s);
+    for (const SlotSpec& s : spec.inouts) slots.push_back(&s);
+    return slots;
+}
+// All slots that make a buffer version: outputs, then in-out slots.
+std::vector<const SlotSpec*> writeSlots(const PassSpec& spec) {
+    std::vector<const SlotSpec*> slots;
+    for (const SlotSpec& s : spec.outputs) slots.push_back(&s);
+    for (const SlotSpec& s : spec.inouts) slots.push_back(&s);
+    return slots;
+}
+bool isInout(const PassSpec& spec, const std::string& slot) {
+    return std::any_of(spec.inouts.begin(), spec.inouts.end(), [&](const SlotSpec& s) { return s.name == slot; });
+}
+
+// Turns the pipeline's declaration into a flat list of pass instances whose
+// bindings name buffer versions (see scheduler.h). Block iterations are
+// instances of their own: "block[i].name".
+class Unroller {
+public:
+    Unroller(const Pipeline& pipeline, const std::vector<PassRegistration>& registry, const std::string& origin,
+             const BufferFiles& files)
+        : pipeline_(pipeline), registry_(registry), origin_(origin), files_(files) {}
+
+    std::vector<PlannedPass> passes;
+    std::vector<PlannedBlock> blocks;
+    std::map<std::string, std::string> current;                    // name -> current version
+    std::map<std::string, std::pair<std::string, std::string>> imports;  // version -> (type, path)
+    std::map<std::string, std::vector<int>> readersOf;             // version -> passes reading it
+    std::map<std::string, std::vector<int>> extraDependencies;     // instance -> passes it must follow
+
+    void run() {
+        // Imports come first: every later read of the name resolves to the file.
+        for (const auto& [name, path] : files_.imports) {
+            current[name] = name;
+            imports[name] = {"", path};
+        }
+        std::set<std::string> templateNames;
+        const auto claimName = [&](const PipelineNode& node) {
+            if (!templateNames.insert(node.instance).second)
+                fail(sourceOf(node), "pass instance '" + node.instance + "' appears twice in pipeline '" + pipeline_.name + "'");
+        };
+        for (const PipelineNode& node : pipeline_.nodes) claimName(node);
+        for (const RepeatBlock& block : pipeline_.blocks)
+            for (const PipelineNode& node : block.nodes) claimName(node);
+
+        for (std::size_t i = 0; i <= pipeline_.nodes.size(); ++i) {
+            for (std::size_t b = 0; b < pipeline_.blocks.size(); ++b)
+                if (pipeline_.blocks[b].position == i) unrollBlock(pipeline_.blocks[b], static_cast<int>(b));
+            if (i < pipeline_.nodes.size()) addInstance(pipeline_.nodes[i], pipeline_.nodes[i].instance, -1, -1, "");
+        }
+    }
+
+    std::string sourceOf(const PipelineNode& node) const {
+        return node.sourceLine > 0 ? origin_ + ":" + std::to_string(node.sourceLine) : origin_;
+    }
+
+private:
+    const PassRegistration* registrationOf(const PipelineNode& node) const {
+        const auto it = std::find_if(registry_.begin(), registry_.end(),
+                                     [&](const PassRegistration& r) { return r.spec.name == node.pass; });
+        if (it != registry_.end()) return &*it;
+        std::string known;
+        for (const auto& r : registry_) known += (known.empty() ? "" : ", ") + r.spec.name;
+        fail(sourceOf(node), "unknown pass '" + node.pass + "' (registered passes: " + known + ")");
+    }
+
+    // A fresh version name for a write of `name` with the given prefix.
+    std::string newVersion(const std::string& name, const std::string& prefix) {
+        std::string version = prefix + name;
+        for (int k = 2; taken_.count(version); ++k) version = prefix + name + "@" + std::to_string(k);
+        taken_.insert(version);
+        return version;
+    }
+
+    void addInstance(const PipelineNode& node, const std::string& instance, int block, int iteration,
+                     const std::string& prefix, const std::set<std::string>* producedLater = nullptr,
+                     const std::map<std::string, std::string>* skipFrom = nullptr) {
+        PlannedPass planned;
+        planned.registration = registrationOf(node);
+        const PassSpec& spec = planned.registration->spec;
+        planned.node = node;
+        planned.node.instance = instance;
+        planned.node.inputBindings.clear();
+        planned.node.outputBindings.clear();
+        planned.paramsKey = node.instance;
+        planned.source = sourceOf(node);
+        planned.block = block;
+        planned.iteration = iteration;
+        const int index = static_cast<int>(passes.size());
+        for (const auto& [slot, buffer] : node.inputBindings) {
+            (void)buffer;
+            const bool known = std::any_of(spec.inputs.begin(), spec.inputs.end(), [&](const SlotSpec& s) { return s.name == slot; }) ||
+                               isInout(spec, slot);
+            if (!known) fail(planned.source, "pass '" + node.instance + "' has no input slot '" + slot + "'");
+        }
+        for (const auto& [slot, buffer] : node.outputBindings) {
+            (void)buffer;
+            if (std::none_of(spec.outputs.begin(), spec.outputs.end(), [&](const SlotSpec& s) { return s.name == slot; }))
+                fail(planned.source, "pass '" + node.instance + "' has no output slot '" + slot + "'");
+        }
+        for (const SlotSpec* in : readSlots(spec)) {
+            const std::string name = slotBuffer(node.inputBindings, in->name);
+            const auto it = current.find(name);
+            std::string version;
+            if (it != current.end()) {
+                version = it->second;
+            } else if (producedLater && producedLater->count(name)) {
+                if (!in->optional)
+                    fail(planned.source, "pass '" + node.instance + "' in repeat block '" + pipeline_.blocks[static_cast<std::size_t>(block)].name +
+                                             "' reads '" + name + "' before the block produces it; declare carry = { " + name +
+                                             " = \"" + name + "\" } to read the previous iteration's");
+            } else {
+                version = name;  // produced later at top level (order-free), or by no one: checked below
+            }
+            if (!version.empty()) readersOf[version].push_back(index);
+            planned.node.inputBindings[in->name] = version;
+        }
+        for (const SlotSpec* out : writeSlots(spec)) {
+            const bool inout = isInout(spec, out->name);
+            const std::string name = inout ? slotBuffer(node.inputBindings, out->name) : slotBuffer(node.outputBindings, out->name);
+            std::string version;
+            if (inout) {
+                const std::string old = planned.node.inputBindings[out->name];
+                if (old.empty()) fail(planned.source, "in-out slot '" + out->name + "' of pass '" + node.instance + "' has no buffer '" + name + "' to update");
+                // In place: every reader of the old version declared so far runs first.
+                for (int reader : readersOf[old])
+                    if (reader != index) extraDependencies[instance].push_back(reader);
+                version = newVersion(name, prefix);
+            } else if (prefix.empty() && files_.imports.count(name)) {
+                // The file stands in for this producer's output: its own goes nowhere,
+                // and the pass is culled unless another output is needed.
+                version = newVersion(name + "~replaced-by-import", prefix);
+                imports[name].first = out->type;
+            } else if (prefix.empty()) {
+                version = name;  // a second plain producer is reported by the single-producer check
+                taken_.insert(version);
+            } else {
+                version = newVersion(name, prefix);
+            }
+            planned.node.outputBindings[out->name] = version;
+            if (inout || !prefix.empty() || !files_.imports.count(name)) current[name] = version;
+            if (skipFrom) {
+                const auto previous = skipFrom->find(name);
+                if (previous != skipFrom->end()) planned.skipAliases[out->name] = previous->second;
+            }
+        }
+        passes.push_back(std::move(planned));
+    }
+
+    void unrollBlock(const RepeatBlock& block, int blockIndex) {
+        const std::string where = block.sourceLine > 0 ? origin_ + ":" + std::to_string(block.sourceLine) : origin_;
+        if (block.nodes.empty()) fail(where, "repeat block '" + block.name + "' has no passes");
+        std::set<std::string> produced;
+        for (const PipelineNode& node : block.nodes) {
+            const PassSpec& spec = registrationOf(node)->spec;
+            for (const SlotSpec& out : spec.outputs) produced.insert(slotBuffer(node.outputBindings, out.name));
+            for (const SlotSpec& io : spec.inouts) produced.insert(slotBuffer(node.inputBindings, io.name));
+        }
+        for (const auto& [readName, producedName] : block.carry) {
+            if (!produced.count(producedName))
+                fail(where, "repeat block '" + block.name + "' carries '" + producedName + "', which none of its passes produces");
+        }
+        PlannedBlock planned;
+        planned.name = block.name;
+        planned.count = block.count;
+        planned.seconds = block.seconds;
+        if (!block.until.empty()) {
+            const auto dot = block.until.find('.');
+            if (dot == std::string::npos)
+                fail(where, "repeat block '" + block.name + "': until = \"" + block.until + "\" must be \"instance.signal\"");
+            planned.untilInstance = block.until.substr(0, dot);
+            planned.untilSignal = block.until.substr(dot + 1);
+            const auto node = std::find_if(block.nodes.begin(), block.nodes.end(),
+                                           [&](const PipelineNode& n) { return n.instance == planned.untilInstance; });
+            if (node == block.nodes.end())
+                fail(where, "repeat block '" + block.name + "': until names '" + planned.untilInstance + "', which is not a pass of the block");
+            const auto& signals = registrationOf(*node)->spec.signals;
+            if (std::find(signals.begin(), signals.end(), planned.untilSignal) == signals.end()) {
+                std::string known;
+                for (const auto& s : signals) known += (known.empty() ? "" : ", ") + s;
+                fail(where, "repeat block '" + block.name + "': until names signal '" + planned.untilSignal + "', which pass '" + node->pass + "' does not raise" +
+                                " (it raises: " + (known.empty() ? "none" : known) + ")");
+            }
+        }
+        std::map<std::string, std::string> endOfPrevious;  // produced name -> version after the previous iteration
+        for (int i = 0; i < block.count; ++i) {
+            const std::string prefix = block.name + "[" + std::to_string(i) + "].";
+            if (i > 0) {
+                for (const auto& [readName, producedName] : block.carry) current[readName] = endOfPrevious.at(producedName);
+            }
+            // Names the block produces are not visible inside an iteration until made
+            // in it (or carried): a read before that is an error, or absent if optional.
+            std::map<std::string, std::string> hidden;
+            for (const std::string& name : produced) {
+                if (block.carry.count(name) && i > 0) continue;
+                const auto it = current.find(name);
+                if (it != current.end() && !block.carry.count(name)) {
+                    hidden[name] = it->second;
+                    current.erase(it);
+                }
+            }
+            std::vector<int> members;
+            for (const PipelineNode& node : block.nodes) {
+                members.push_back(static_cast<int>(passes.size()));
+                addInstance(node, prefix + node.instance, blockIndex, i, prefix, &produced, i > 0 ? &endOfPrevious : nullptr);
+            }
+            for (const auto& [name, version] : hidden)
+                if (!current.count(name)) current[name] = version;
+            for (const std::string& name : produced) endOfPrevious[name] = current.at(name);
+            planned.iterationPasses.push_back(std::move(members));
+        }
+        blocks.push_back(std::move(planned));
+    }
+
+    const Pipeline& pipeline_;
+    const std::vector<PassRegistration>& registry_;
+    std::string origin_;
+    const BufferFiles& files_;
+    std::set<std::string> taken_;
+};
+
+}  // namespace
+
+ExecutionPlan ExecutionPlan::build(const Pipeline& pipeline, const JobParams& params, const std::string& origin) {
+    return build(pipeline, params, origin, installedRegistry().passes);
+}
+
 ExecutionPlan ExecutionPlan::build(const Pipeline& pipeline, const JobParams& params, const std::string& origin,
-                                   const std::vector<PassRegistration>& registry) {
+                                   const std::vector<PassRegistration>& registry, const BufferFiles& files) {
     ExecutionPlan plan;
     plan.pipeline_ = pipeline;
-    const auto nodeSource = [&](const PipelineNode& node) {
-        return node.sourceLine > 0 ? origin + ":" + std::to_string(node.sourceLine) : origin;
-    };
 
-    // Passes exist, instance names are unique, parameters are known and valid.
-    std::set<std::string> instances;
-    for (const PipelineNode& node : pipeline.nodes) {
-        PlannedPass planned;
-        planned.node = node;
-        const auto registered = std::find_if(registry.begin(), registry.end(),
-                                        [&](const PassRegistration& r) { return r.spec.name == node.pass; });
-        planned.registration = registered == registry.end() ? nullptr : &*registered;
-        if (!planned.registration) {
-            std::string known;
-            for (const auto& r : registry) known += (known.empty() ? "" : ", ") + r.spec.name;
-            fail(nodeSource(node), "unknown pass '" + node.pass + "' (registered passes: " + known + ")");
-        }
-        if (!instances.insert(node.instance).second) {
-            fail(nodeSource(node), "pass instance '" + node.instance + "' appears twice in pipeline '" +
-                                       pipeline.name + "'");
+    Unroller unroller(pipeline, registry, origin, files);
+    unroller.run();
+    plan.passes_ = std::move(unroller.passes);
+    plan.blocks_ = std::move(unroller.blocks);
+
+    // Parameters are known and valid; [passes.X] tables name a pass. A block's
+    // parameters apply to every iteration, so each is checked once.
+    std::set<std::string> paramsKeys;
+    std::map<std::string, PassParams> checkedParams;
+    for (PlannedPass& planned : plan.passes_) {
+        paramsKeys.insert(planned.paramsKey);
+        if (const auto done = checkedParams.find(planned.paramsKey); done != checkedParams.end()) {
+            planned.params = done->second;
+            continue;
         }
         const PassSpec& spec = planned.registration->spec;
         for (const ParamSpec& p : spec.params) planned.params.set(p.name, p.defaultValue);
-        if (const auto it = params.values.find(node.instance); it != params.values.end()) {
+        if (const auto it = params.values.find(planned.paramsKey); it != params.values.end()) {
             for (const auto& [key, setting] : it->second) {
                 const auto found = std::find_if(spec.params.begin(), spec.params.end(),
                                                 [&](const ParamSpec& p) { return p.name == key; });
                 if (found == spec.params.end()) {
                     std::string known;
                     for (const auto& p : spec.params) known += (known.empty() ? "" : ", ") + p.name;
-                    fail(setting.source, "unknown parameter '" + key + "' for pass '" + node.instance +
+                    fail(setting.source, "unknown parameter '" + key + "' for pass '" + planned.paramsKey +
                                              "' (" + spec.name + " takes: " + known + ")");
                 }
-                planned.params.set(key, convertSetting(*found, setting, node.instance));
+                planned.params.set(key, convertSetting(*found, setting, planned.paramsKey));
             }
         }
-        for (const auto& [slot, buffer] : node.inputBindings) {
-            (void)buffer;
-            if (std::none_of(spec.inputs.begin(), spec.inputs.end(), [&](const SlotSpec& s) { return s.name == slot; }))
-                fail(nodeSource(node), "pass '" + node.instance + "' has no input slot '" + slot + "'");
-        }
-        for (const auto& [slot, buffer] : node.outputBindings) {
-            (void)buffer;
-            if (std::none_of(spec.outputs.begin(), spec.outputs.end(), [&](const SlotSpec& s) { return s.name == slot; }))
-                fail(nodeSource(node), "pass '" + node.instance + "' has no output slot '" + slot + "'");
-        }
-        plan.passes_.push_back(std::move(planned));
+        checkedParams[planned.paramsKey] = planned.params;
     }
     for (const auto& [instance, table] : params.values) {
-        if (!instances.count(instance)) {
+        if (!paramsKeys.count(instance)) {
             const auto src = params.tableSource.find(instance);
             fail(src != params.tableSource.end() ? src->second : origin,
                  "[passes." + instance + "] names no pass of pipeline '" + pipeline.name + "'");
         }
     }
 
-    // Every buffer has exactly one producer; every input has a producer of the same type.
+    // Every version has exactly one producer; every bound input has a producer of the same type.
     std::map<std::string, std::string> bufferType;
     for (std::size_t i = 0; i < plan.passes_.size(); ++i) {
         const PlannedPass& p = plan.passes_[i];
-        for (const SlotSpec& out : p.registration->spec.outputs) {
-            const std::string buffer = slotBuffer(p.node.outputBindings, out.name);
+        for (const SlotSpec* out : writeSlots(p.registration->spec)) {
+            const std::string buffer = p.node.outputBindings.at(out->name);
             if (plan.producer_.count(buffer)) {
-                fail(nodeSource(p.node), "buffer '" + buffer + "' is produced by both '" +
-                                             plan.passes_[plan.producer_[buffer]].node.instance + "' and '" +
-                                             p.node.instance + "'");
+                fail(p.source, "buffer '" + buffer + "' is produced by both '" +
+                                   plan.passes_[static_cast<std::size_t>(plan.producer_[buffer])].node.instance + "' and '" +
+                                   p.node.instance + "'");
             }
             plan.producer_[buffer] = static_cast<int>(i);
-            bufferType[buffer] = out.type;
+            bufferType[buffer] = out->type;
         }
     }
     for (PlannedPass& p : plan.passes_) {
-        for (const SlotSpec& in : p.registration->spec.inputs) {
-            const std::string buffer = slotBuffer(p.node.inputBindings, in.name);
+        for (const SlotSpec* in : readSlots(p.registration->spec)) {
+            std::string& buffer = p.node.inputBindings[in->name];
+            if (buffer.empty()) continue;  // an optional input left absent
+            if (const auto imported = unroller.imports.find(buffer); imported != unroller.imports.end()) {
+                auto& [type, path] = imported->second;
+                if (!type.empty() && type != in->type) {
+                    fail(files.sources.count(buffer) ? files.sources.at(buffer) : origin,
+                         "imported buffer '" + buffer + "' is read as " + in->type + " by '" + p.node.instance +
+                             "' but is a " + type + " elsewhere in the pipeline");
+                }
+                type = in->type;
+                continue;
+            }
             const auto it = plan.producer_.find(buffer);
             if (it == plan.producer_.end()) {
-                fail(nodeSource(p.node), "input '" + in.name + "' (" + in.type + ") of pass '" + p.node.instance +
-                                             "' reads buffer '" + buffer + "', which no pass produces");
+                if (in->optional) {
+                    buffer.clear();
+                    continue;
+                }
+                fail(p.source, "input '" + in->name + "' (" + in->type + ") of pass '" + p.node.instance +
+                                   "' reads buffer '" + buffer + "', which no pass produces");
             }
-            if (bufferType[buffer] != in.type) {
-                fail(nodeSource(p.node), "input '" + in.name + "' of pass '" + p.node.instance + "' expects " +
-                                             in.type + " but buffer '" + buffer + "' is " + bufferType[buffer] +
-                                             " (from '" + plan.passes_[it->second].node.instance + "')");
+            if (bufferType[buffer] != in->type) {
+                fail(p.source, "input '" + in->name + "' of pass '" + p.node.instance + "' expects " + in->type +
+                                   " but buffer '" + buffer + "' is " + bufferType[buffer] + " (from '" +
+                                   plan.passes_[static_cast<std::size_t>(it->second)].node.instance + "')");
             }
             if (std::find(p.dependencies.begin(), p.dependencies.end(), it->second) == p.dependencies.end())
                 p.dependencies.push_back(it->second);
         }
+        for (int d : unroller.extraDependencies[p.node.instance])
+            if (std::find(p.dependencies.begin(), p.dependencies.end(), d) == p.dependencies.end()) p.dependencies.push_back(d);
     }
+    // A block that may end early decides after each iteration: the next one waits for all of it.
+    for (const PlannedBlock& block : plan.blocks_) {
+        if (!block.canExitEarly()) continue;
+        for (std::size_t it = 1; it < block.iterationPasses.size(); ++it)
+            for (int later : block.iterationPasses[it])
+                for (int earlier : block.iterationPasses[it - 1]) {
+                    auto& deps = plan.passes_[static_cast<std::size_t>(later)].dependencies;
+                    if (std::find(deps.begin(), deps.end(), earlier) == deps.end()) deps.push_back(earlier);
+                }
+    }
+    for (const auto& [name, version] : unroller.current) plan.finalVersion_[name] = version;
+    for (const auto& [version, typeAndPath] : unroller.imports) {
+        if (typeAndPath.first.empty())
+            fail(files.sources.count(version) ? files.sources.at(version) : origin,
+                 "imported buffer '" + version + "' is neither made nor read by any pass of pipeline '" + pipeline.name + "'");
+        plan.imports_[version] = typeAndPath;
+    }
+    const auto producedOrImported = [&](const std::string& version) {
+        return plan.producer_.count(version) || plan.imports_.count(version);
+    };
     for (const std::string& result : pipeline.results) {
-        if (!plan.producer_.count(result))
+        if (!producedOrImported(plan.finalVersion(result)))
             fail(origin, "pipeline '" + pipeline.name + "' promises result '" + result + "' but no pass produces it");
+    }
+    for (const auto& [name, path] : files.saves) {
+        const std::string version = plan.finalVersion(name);
+        if (!plan.producer_.count(version))
+            fail(files.sources.count(name) ? files.sources.at(name) : origin,
+                 "cannot save '" + name + "': no pass of pipeline '" + pipeline.name + "' produces it");
+        plan.saves_[version] = path;
     }
 
     // Topological order (Kahn); whatever remains sits on a cycle.
@@ -227,7 +491,15 @@ ExecutionPlan ExecutionPlan::build(const Pipeline& pipeline, const JobParams& pa
     // Cull passes that do not contribute to any result.
     std::vector<bool> needed(n, false);
     std::vector<int> stack;
-    for (const std::string& result : pipeline.results) stack.push_back(plan.producer_[result]);
+    for (const std::string& result : pipeline.results)
+        if (const auto it = plan.producer_.find(plan.finalVersion(result)); it != plan.producer_.end()) stack.push_back(it->second);
+    for (const auto& [version, path] : plan.saves_) stack.push_back(plan.producer_.at(version));
+    // A block's stopping condition is computed in every iteration, whether or
+    // not its outputs are read later.
+    for (const PlannedBlock& block : plan.blocks_)
+        for (const auto& members : block.iterationPasses)
+            for (int member : members)
+                if (plan.passes_[static_cast<std::size_t>(member)].paramsKey == block.untilInstance) stack.push_back(member);
     while (!stack.empty()) {
         const int i = stack.back();
         stack.pop_back();
@@ -238,6 +510,11 @@ ExecutionPlan ExecutionPlan::build(const Pipeline& pipeline, const JobParams& pa
     for (std::size_t i = 0; i < n; ++i) plan.passes_[i].culled = !needed[i];
     if (pipeline.streamBatches) plan.chooseStreams();
     return plan;
+}
+
+std::string ExecutionPlan::finalVersion(const std::string& name) const {
+    const auto it = finalVersion_.find(name);
+    return it == finalVersion_.end() ? name : it->second;
 }
 
 bool ExecutionPlan::streamed(const std::string& buffer) const {
@@ -290,8 +567,9 @@ void ExecutionPlan::chooseStreams() {
         for (const SlotSpec& out : producer.registration->spec.outputs) {
             if (!out.streamable) continue;
             const std::string buffer = slotBuffer(producer.node.outputBindings, out.name);
-            if (std::find(pipeline_.results.begin(), pipeline_.results.end(), buffer) != pipeline_.results.end())
-                continue;
+            const bool isResult = std::any_of(pipeline_.results.begin(), pipeline_.results.end(),
+                                              [&](const std::string& r) { return finalVersion(r) == buffer; });
+            if (isResult || saves_.count(buffer)) continue;
             std::vector<std::size_t> readers;
             bool allStreamable = true;
             for (std::size_t j = 0; j < passes_.size(); ++j) {
@@ -323,31 +601,84 @@ void ExecutionPlan::chooseStreams() {
     }
 }
 
-std::string ExecutionPlan::toDot() const {
+std::string ExecutionPlan::toDot(bool unroll) const {
+    // Folded, every iteration of a block is drawn as its first: one box per block
+    // pass inside a cluster labelled with the count; edges between iterations
+    // (carried buffers) become edges inside the cluster.
+    const auto shown = [&](const PlannedPass& p) {
+        if (unroll || p.block < 0) return p.node.instance;
+        return blocks_[static_cast<std::size_t>(p.block)].name + "." + p.paramsKey;
+    };
+    const auto bufferLabel = [&](const std::string& version) {
+        if (unroll) return version;
+        const auto dot = version.find("].");
+        return dot == std::string::npos ? version : version.substr(dot + 2);
+    };
     std::ostringstream dot;
     dot << "digraph \"" << pipeline_.name << "\" {\n  rankdir=LR;\n  node [shape=box, fontname=\"Helvetica\"];\n";
-    for (const PlannedPass& p : passes_) {
-        dot << "  \"" << p.node.instance << "\" [label=\"" << p.node.instance;
-        if (p.node.instance != p.node.pass) dot << "\\n(" << p.node.pass << ")";
+    std::set<std::string> drawn;
+    const auto drawNode = [&](const PlannedPass& p) {
+        const std::string id = shown(p);
+        if (!drawn.insert(id).second) return;
+        dot << "  \"" << id << "\" [label=\"" << (unroll || p.block < 0 ? p.node.instance : p.paramsKey);
+        if (p.paramsKey != p.node.pass) dot << "\\n(" << p.node.pass << ")";
         dot << "\"" << (p.culled ? ", style=dashed, color=gray" : "") << "];\n";
+    };
+    for (const PlannedPass& p : passes_)
+        if (p.block < 0 || unroll) drawNode(p);
+    for (std::size_t b = 0; b < blocks_.size() && !unroll; ++b) {
+        const PlannedBlock& block = blocks_[b];
+        dot << "  subgraph \"cluster_" << block.name << "\" {\n    label=\"repeat " << block.name << " x " << block.count;
+        if (!block.untilSignal.empty()) dot << ", until " << block.untilInstance << "." << block.untilSignal;
+        if (block.seconds > 0) dot << ", at most " << block.seconds << " s";
+        dot << "\";\n  ";
+        for (int i : block.iterationPasses.front()) drawNode(passes_[static_cast<std::size_t>(i)]);
+        dot << "  }\n";
     }
+    std::set<std::string> edges;
     for (const PlannedPass& p : passes_) {
-        for (const SlotSpec& in : p.registration->spec.inputs) {
-            const std::string buffer = slotBuffer(p.node.inputBindings, in.name);
-            const PlannedPass& from = passes_[static_cast<std::size_t>(producer_.at(buffer))];
+        for (const auto& [slot, buffer] : p.node.inputBindings) {
+            if (buffer.empty()) continue;
+            std::string from;
+            if (imports_.count(buffer)) {
+                from = "import:" + buffer;
+                if (drawn.insert(from).second)
+                    dot << "  \"" << from << "\" [shape=folder, label=\"" << buffer << "\\n" << imports_.at(buffer).second << "\"];\n";
+            } else {
+                from = shown(passes_[static_cast<std::size_t>(producer_.at(buffer))]);
+            }
             const bool isStreamed = streamed(buffer);
-            dot << "  \"" << from.node.instance << "\" -> \"" << p.node.instance << "\" [label=\"" << buffer
-                << " : " << in.type << (isStreamed ? " (batches)" : "") << "\"" << (isStreamed ? ", style=bold" : "")
-                << "];\n";
+            std::ostringstream edge;
+            edge << "  \"" << from << "\" -> \"" << shown(p) << "\" [label=\"" << bufferLabel(buffer) << " : "
+                 << (imports_.count(buffer) ? imports_.at(buffer).first : bufferTypeOf(buffer)) << (isStreamed ? " (batches)" : "") << "\""
+                 << (isStreamed ? ", style=bold" : "") << "];\n";
+            if (edges.insert(edge.str()).second) dot << edge.str();
         }
     }
     for (const std::string& result : pipeline_.results) {
+        const std::string version = finalVersion(result);
         dot << "  \"result:" << result << "\" [shape=note];\n";
-        dot << "  \"" << passes_[static_cast<std::size_t>(producer_.at(result))].node.instance << "\" -> \"result:"
-            << result << "\";\n";
+        if (producer_.count(version))
+            dot << "  \"" << shown(passes_[static_cast<std::size_t>(producer_.at(version))]) << "\" -> \"result:" << result << "\";\n";
+    }
+    for (const auto& [version, path] : saves_) {
+        dot << "  \"save:" << version << "\" [shape=folder, label=\"" << path << "\"];\n";
+        dot << "  \"" << shown(passes_[static_cast<std::size_t>(producer_.at(version))]) << "\" -> \"save:" << version << "\";\n";
     }
     dot << "}\n";
     return dot.str();
+}
+
+std::string ExecutionPlan::bufferTypeOf(const std::string& version) const {
+    const auto it = producer_.find(version);
+    if (it == producer_.end()) return imports_.count(version) ? imports_.at(version).first : "";
+    const PlannedPass& p = passes_[static_cast<std::size_t>(it->second)];
+    for (const auto& [slot, bound] : p.node.outputBindings) {
+        if (bound != version) continue;
+        for (const SlotSpec* out : writeSlots(p.registration->spec))
+            if (out->name == slot) return out->type;
+    }
+    return "";
 }
 
 RunResult execute(const ExecutionPlan& plan, const Scene& scene, const RayQuery& rays, const RunOptions& options) {
@@ -402,18 +733,27 @@ RunResult execute(const ExecutionPlan& plan, const Scene& scene, const RayQuery*
     const auto& passes = plan.passes();
     const std::size_t n = passes.size();
 
-    // Buffers and how many live passes still have to read each.
+    // Buffer versions and how many live passes still have to read each.
     std::map<std::string, BufferHandle> buffers;
     std::map<std::string, std::atomic<int>> readers;
-    std::set<std::string> results(plan.pipeline().results.begin(), plan.pipeline().results.end());
+    std::set<std::string> kept;  // results and saved versions: never freed by the run
+    for (const std::string& r : plan.pipeline().results) kept.insert(plan.finalVersion(r));
+    for (const auto& [version, path] : plan.saves()) kept.insert(version);
     for (const PlannedPass& p : passes) {
         if (p.culled) continue;
-        for (const SlotSpec& out : p.registration->spec.outputs)
-            buffers[slotBuffer(p.node.outputBindings, out.name)].type = out.type;
+        for (const SlotSpec* out : writeSlots(p.registration->spec)) buffers[p.node.outputBindings.at(out->name)].type = out->type;
+    }
+    for (const auto& [version, typeAndPath] : plan.imports()) {
+        const auto it = options.imported.find(version);
+        if (it == options.imported.end()) throw std::logic_error("imported buffer '" + version + "' was not loaded");
+        buffers[version] = it->second;
     }
     for (const PlannedPass& p : passes) {
         if (p.culled) continue;
-        for (const SlotSpec& in : p.registration->spec.inputs) ++readers[slotBuffer(p.node.inputBindings, in.name)];
+        for (const SlotSpec* in : readSlots(p.registration->spec)) {
+            const std::string& version = p.node.inputBindings.at(in->name);
+            if (!version.empty()) ++readers[version];
+        }
     }
     std::mutex bufferMutex;  // guards freeing against concurrent lookups
 
@@ -424,10 +764,61 @@ RunResult execute(const ExecutionPlan& plan, const Scene& scene, const RayQuery*
         if (!p.culled && p.streamHost >= 0) hosted[static_cast<std::size_t>(p.streamHost)].push_back(static_cast<std::size_t>(i));
     }
 
+    // Early exit of repeat blocks. Iteration j + 1 waits for all of iteration j
+    // (plan edges), so the first of its passes to start sees the final state.
+    struct BlockState {
+        std::atomic<int> stopAfter{std::numeric_limits<int>::max()};
+        std::atomic<std::int64_t> startNs{-1};
+        std::unique_ptr<std::once_flag[]> decided;
+        std::once_flag aliased;
+    };
+    std::vector<BlockState> blockStates(plan.blocks().size());
+    for (std::size_t b = 0; b < plan.blocks().size(); ++b)
+        blockStates[b].decided = std::make_unique<std::once_flag[]>(static_cast<std::size_t>(plan.blocks()[b].count));
+    const std::int64_t runStart = jobs::wallNanos();
+    // Whether pass i belongs to an iteration the block no longer runs. The first
+    // time that is so, every later iteration's outputs take the versions of the
+    // last iteration that ran, before any skipped reader can free them.
+    const auto skipped = [&](std::size_t i) {
+        const PlannedPass& p = passes[i];
+        if (p.block < 0) return false;
+        const PlannedBlock& block = plan.blocks()[static_cast<std::size_t>(p.block)];
+        BlockState& state = blockStates[static_cast<std::size_t>(p.block)];
+        if (p.iteration == 0) {
+            std::int64_t unset = -1;
+            state.startNs.compare_exchange_strong(unset, jobs::wallNanos());
+            return false;
+        }
+        if (!block.canExitEarly()) return false;
+        std::call_once(state.decided[static_cast<std::size_t>(p.iteration)], [&] {
+            if (block.seconds > 0.0 && p.iteration <= state.stopAfter.load() &&
+                1e-9 * static_cast<double>(jobs::wallNanos() - state.startNs.load()) >= block.seconds)
+                state.stopAfter.store(std::min(state.stopAfter.load(), p.iteration - 1));
+        });
+        if (p.iteration <= state.stopAfter.load()) return false;
+        std::call_once(state.aliased, [&] {
+            std::lock_guard lock(bufferMutex);
+            for (std::size_t it = static_cast<std::size_t>(p.iteration); it < block.iterationPasses.size(); ++it) {
+                for (int member : block.iterationPasses[it]) {
+                    const PlannedPass& m = passes[static_cast<std::size_t>(member)];
+                    if (m.culled) continue;
+                    for (const auto& [slot, from] : m.skipAliases) {
+                        BufferHandle& target = buffers.at(m.node.outputBindings.at(slot));
+                        const BufferHandle& source = buffers.at(from);
+                        target.data = source.data;
+                        target.bytes = source.bytes;
+                    }
+                }
+            }
+        });
+        return true;
+    };
+
     RunResult result;
     std::vector<PassStats> stats(n);
+    std::vector<bool> ran(n, false);
+    std::set<std::string> savedVersions;
     std::vector<PassRun> runs(n);
-    const std::int64_t runStart = jobs::wallNanos();
 
     const auto prepare = [&](std::size_t i) {
         const PlannedPass& pass = passes[i];
@@ -435,8 +826,10 @@ RunResult execute(const ExecutionPlan& plan, const Scene& scene, const RayQuery*
         {
             std::lock_guard lock(bufferMutex);
             for (const SlotSpec& in : pass.registration->spec.inputs) {
-                const std::string buffer = slotBuffer(pass.node.inputBindings, in.name);
-                if (plan.streamed(buffer)) {
+                const std::string& buffer = pass.node.inputBindings.at(in.name);
+                if (buffer.empty()) {
+                    run.inputs[in.name] = nullptr;
+                } else if (plan.streamed(buffer)) {
                     BufferHandle& standIn = run.streamedInputs[in.name];
                     standIn.type = in.type;
                     run.inputs[in.name] = &standIn;
@@ -444,11 +837,20 @@ RunResult execute(const ExecutionPlan& plan, const Scene& scene, const RayQuery*
                     run.inputs[in.name] = &buffers.at(buffer);
                 }
             }
-            for (const SlotSpec& out : pass.registration->spec.outputs)
-                run.outputs[out.name] = &buffers.at(slotBuffer(pass.node.outputBindings, out.name));
+            for (const SlotSpec* out : writeSlots(pass.registration->spec))
+                run.outputs[out->name] = &buffers.at(pass.node.outputBindings.at(out->name));
+            // In place: the new version starts as the old one's storage.
+            for (const SlotSpec& io : pass.registration->spec.inouts) {
+                const BufferHandle& old = buffers.at(pass.node.inputBindings.at(io.name));
+                BufferHandle& next = *run.outputs[io.name];
+                next.data = old.data;
+                next.bytes = old.bytes;
+            }
         }
         run.ctx = std::make_unique<PassContext>(scene, rays, options.film, options.seed, pass.params, run.inputs,
                                                 run.outputs, pass.node.instance);
+        run.ctx->setIteration(pass.iteration);
+        run.ctx->setDeclaredSignals(pass.registration->spec.signals);
         if (options.progress) run.ctx->setProgressSink(options.progress);
         run.work.label = pass.node.instance;
         run.instance = pass.registration->create();
@@ -459,8 +861,24 @@ RunResult execute(const ExecutionPlan& plan, const Scene& scene, const RayQuery*
         const PlannedPass& pass = passes[i];
         PassRun& run = runs[i];
         for (const SlotSpec& in : pass.registration->spec.inputs) {
-            if (in.streamable && !plan.streamed(slotBuffer(pass.node.inputBindings, in.name)))
+            const std::string& buffer = pass.node.inputBindings.at(in.name);
+            if (in.streamable && !buffer.empty() && !plan.streamed(buffer))
                 timed(run, pass.node.instance, [&] { run.instance->consumeBatch(*run.ctx, in.name); });
+        }
+    };
+    // Every input this pass was the last reader of is freed.
+    const auto releaseInputs = [&](std::size_t i) {
+        const PlannedPass& pass = passes[i];
+        std::lock_guard lock(bufferMutex);
+        for (const SlotSpec* in : readSlots(pass.registration->spec)) {
+            const std::string& buffer = pass.node.inputBindings.at(in->name);
+            if (buffer.empty()) continue;
+            if (--readers[buffer] == 0 && !kept.count(buffer)) buffers[buffer].data.reset();
+        }
+        // Outputs nobody reads (side outputs of a needed pass) go at once.
+        for (const SlotSpec* out : writeSlots(pass.registration->spec)) {
+            const std::string& buffer = pass.node.outputBindings.at(out->name);
+            if (readers[buffer] == 0 && !kept.count(buffer)) buffers[buffer].data.reset();
         }
     };
 
@@ -468,8 +886,13 @@ RunResult execute(const ExecutionPlan& plan, const Scene& scene, const RayQuery*
         const PlannedPass& pass = passes[i];
         PassRun& run = runs[i];
         PassStats& s = stats[i];
+        ran[i] = true;
         s.instance = pass.node.instance;
         s.pass = pass.node.pass;
+        if (pass.block >= 0) {
+            s.block = plan.blocks()[static_cast<std::size_t>(pass.block)].name;
+            s.blockPass = pass.paramsKey;
+        }
         s.startSeconds = 1e-9 * static_cast<double>(run.firstStart - runStart);
         s.wallSeconds = 1e-9 * static_cast<double>(run.wallNs - run.batchWallNs);
         s.cpuSeconds = 1e-9 * static_cast<double>(run.serialCpuNs + run.work.chunkCpuNs.load());
@@ -484,20 +907,28 @@ RunResult execute(const ExecutionPlan& plan, const Scene& scene, const RayQuery*
                 throw std::logic_error("pass '" + pass.node.instance + "' did not produce its output '" + slot + "'");
             s.outputBytes += handle->bytes ? handle->bytes() : 0;
         }
+        if (pass.block >= 0) {
+            const PlannedBlock& block = plan.blocks()[static_cast<std::size_t>(pass.block)];
+            if (!block.untilSignal.empty() && pass.paramsKey == block.untilInstance && run.ctx->signalled(block.untilSignal)) {
+                std::atomic<int>& stopAfter = blockStates[static_cast<std::size_t>(pass.block)].stopAfter;
+                int previous = stopAfter.load();
+                while (pass.iteration < previous && !stopAfter.compare_exchange_weak(previous, pass.iteration)) {
+                }
+            }
+        }
         run.ctx.reset();
         run.instance.reset();
-
-        // Free every input this pass was the last reader of.
-        std::lock_guard lock(bufferMutex);
-        for (const SlotSpec& in : pass.registration->spec.inputs) {
-            const std::string buffer = slotBuffer(pass.node.inputBindings, in.name);
-            if (--readers[buffer] == 0 && !results.count(buffer)) buffers[buffer].data.reset();
+        if (options.save) {
+            for (const auto& [slot, handle] : run.outputs) {
+                const auto saved = plan.saves().find(pass.node.outputBindings.at(slot));
+                if (saved != plan.saves().end()) {
+                    options.save(saved->first, saved->second, *handle);
+                    std::lock_guard lock(bufferMutex);
+                    savedVersions.insert(saved->first);
+                }
+            }
         }
-        // Outputs nobody reads (side outputs of a needed pass) go at once.
-        for (const SlotSpec& out : pass.registration->spec.outputs) {
-            const std::string buffer = slotBuffer(pass.node.outputBindings, out.name);
-            if (readers[buffer] == 0 && !results.count(buffer)) buffers[buffer].data.reset();
-        }
+        releaseInputs(i);
     };
 
     jobs::TaskGraph graph;
@@ -507,6 +938,11 @@ RunResult execute(const ExecutionPlan& plan, const Scene& scene, const RayQuery*
         if (p.culled || p.streamHost >= 0) continue;
         taskOf[i] = graph.addTask([&, i] {
             const PlannedPass& pass = passes[i];
+            if (skipped(i)) {
+                releaseInputs(i);
+                for (std::size_t reader : hosted[i]) releaseInputs(reader);
+                return;
+            }
             for (std::size_t reader : hosted[i]) prepare(reader);
             prepare(i);
             consumeStored(i);
@@ -515,21 +951,25 @@ RunResult execute(const ExecutionPlan& plan, const Scene& scene, const RayQuery*
                 run.ctx->setBatchSink(pass.streamedOutputs, [&, i](const std::string& slot, std::shared_ptr<void> batch,
                                                                    std::size_t bytes) {
                     PassRun& producer = runs[i];
-                    const std::string buffer = slotBuffer(passes[i].node.outputBindings, slot);
+                    const std::string& buffer = passes[i].node.outputBindings.at(slot);
                     const std::int64_t wall0 = jobs::wallNanos();
+                    bool wanted = false;
                     for (std::size_t j : hosted[i]) {
                         const PlannedPass& reader = passes[j];
                         for (const SlotSpec& in : reader.registration->spec.inputs) {
-                            if (slotBuffer(reader.node.inputBindings, in.name) != buffer) continue;
+                            if (reader.node.inputBindings.at(in.name) != buffer) continue;
+                            if (!runs[j].ctx->wantsMoreBatches(in.name)) continue;
                             BufferHandle& standIn = runs[j].streamedInputs.at(in.name);
                             standIn.data = batch;
                             timed(runs[j], reader.node.instance, [&] { runs[j].instance->consumeBatch(*runs[j].ctx, in.name); });
                             standIn.data.reset();
+                            wanted = wanted || runs[j].ctx->wantsMoreBatches(in.name);
                         }
                     }
                     producer.batchWallNs += jobs::wallNanos() - wall0;
                     producer.largestBatchBytes = std::max(producer.largestBatchBytes, bytes);
                     ++producer.batches;
+                    return wanted;
                 });
             }
             timed(run, pass.node.instance, [&] { run.instance->run(*run.ctx); });
@@ -552,10 +992,20 @@ RunResult execute(const ExecutionPlan& plan, const Scene& scene, const RayQuery*
         }
     }
     graph.run();
+    // Versions made by skipped iterations hold what the last iteration run made.
+    if (options.save) {
+        for (const auto& [version, path] : plan.saves())
+            if (!savedVersions.count(version) && buffers.at(version).data) options.save(version, path, buffers.at(version));
+    }
     result.wallSeconds = 1e-9 * static_cast<double>(jobs::wallNanos() - runStart);
     for (int i : plan.topologicalOrder())
-        if (!passes[static_cast<std::size_t>(i)].culled) result.stats.push_back(stats[static_cast<std::size_t>(i)]);
-    for (const std::string& r : results) result.results[r] = buffers.at(r);
+        if (ran[static_cast<std::size_t>(i)]) result.stats.push_back(stats[static_cast<std::size_t>(i)]);
+    for (std::size_t b = 0; b < plan.blocks().size(); ++b) {
+        const int stopAfter = blockStates[b].stopAfter.load();
+        result.iterations[plan.blocks()[b].name] =
+            stopAfter == std::numeric_limits<int>::max() ? plan.blocks()[b].count : stopAfter + 1;
+    }
+    for (const std::string& r : plan.pipeline().results) result.results[r] = buffers.at(plan.finalVersion(r));
     return result;
 }
 

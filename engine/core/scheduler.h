@@ -1,10 +1,19 @@
-// The pass scheduler: validates a pipeline against the pass registry and the
-// job's parameters before any work is done, culls passes whose outputs nobody
-// needs, runs the rest as one task graph (independent passes concurrently),
-// frees every buffer after its last reader and times every pass. A buffer
-// whose producer can emit it in batches and whose readers can all consume
-// batches is streamed: the readers run inside the producer's task and see
-// each batch as it is made, so the buffer is never held whole.
+// The pass scheduler: unrolls a pipeline's repeat blocks, validates it against
+// the pass registry and the job's parameters before any work is done, culls
+// passes whose outputs nobody needs, runs the rest as one task graph
+// (independent passes concurrently), frees every buffer after its last reader
+// and times every pass instance. A buffer whose producer can emit it in
+// batches and whose readers can all consume batches is streamed: the readers
+// run inside the producer's task and see each batch as it is made, so the
+// buffer is never held whole.
+//
+// Buffers are versioned (as FrameGraph's writes are): every write makes a new
+// version with exactly one producer. Outside repeat blocks a version is named
+// after its buffer ("image"), a later in-place write adds "@2", "@3"; inside
+// iteration i of block B a version is "B[i].name". A reader binds to the
+// version current at its place in the pipeline's declaration order. An in-out
+// slot's write shares the old version's storage, so the writer waits for every
+// reader of the old version declared before it.
 #pragma once
 
 #include "engine/core/pass.h"
@@ -27,8 +36,15 @@ struct JobParams {
 };
 
 struct PlannedPass {
-    PipelineNode node;
+    PipelineNode node;  // instance: the unrolled name; bindings: buffer versions for every slot ("" = absent)
     const PassRegistration* registration = nullptr;
+    std::string paramsKey;  // the instance name as written: [passes.<paramsKey>] sets its parameters
+    std::string source;     // "file:line" of its definition, for messages
+    int block = -1;         // index into ExecutionPlan::blocks(), -1 outside blocks
+    int iteration = -1;
+    // When its iteration is skipped (early exit), each output slot takes this
+    // version: the one its buffer had after the previous iteration.
+    std::map<std::string, std::string> skipAliases;
     PassParams params;
     std::vector<int> dependencies;  // indices of producer passes
     bool culled = false;
@@ -39,32 +55,65 @@ struct PlannedPass {
     int streamHost = -1;
 };
 
+// Buffers read from files instead of being produced, and buffers written to
+// files when their producer finishes; by buffer name (its final version).
+struct BufferFiles {
+    std::map<std::string, std::string> imports;  // name -> path
+    std::map<std::string, std::string> saves;    // name -> path
+    std::map<std::string, std::string> sources;  // name -> where it was asked for ("job.toml:7", "--save ...")
+};
+
+struct PlannedBlock {
+    std::string name;
+    int count = 1;
+    std::string untilInstance, untilSignal;  // empty: no condition
+    double seconds = 0.0;
+    std::vector<std::vector<int>> iterationPasses;  // pass indices of each iteration
+    bool canExitEarly() const { return !untilSignal.empty() || seconds > 0.0; }
+};
+
 class ExecutionPlan {
 public:
     // Throws InputError (naming `origin`, the job file, where no better line is known).
-    // `registry` defaults to the built-in table; tests pass their own passes.
+    // `registry` defaults to the installed one; tests pass their own passes.
+    static ExecutionPlan build(const Pipeline& pipeline, const JobParams& params, const std::string& origin);
     static ExecutionPlan build(const Pipeline& pipeline, const JobParams& params, const std::string& origin,
-                               const std::vector<PassRegistration>& registry = passRegistry());
+                               const std::vector<PassRegistration>& registry, const BufferFiles& files = {});
 
     const Pipeline& pipeline() const { return pipeline_; }
     const std::vector<PlannedPass>& passes() const { return passes_; }
+    const std::vector<PlannedBlock>& blocks() const { return blocks_; }
     std::vector<int> topologicalOrder() const { return order_; }
-    // Whether `buffer` is handed over batch by batch (never stored whole).
+    // Whether `buffer` (a version) is handed over batch by batch (never stored whole).
     bool streamed(const std::string& buffer) const;
-    std::string toDot() const;
+    // The version a buffer name has at the end of the pipeline (results, saves).
+    std::string finalVersion(const std::string& name) const;
+    // Imported versions -> (type, path); saved versions -> path.
+    const std::map<std::string, std::pair<std::string, std::string>>& imports() const { return imports_; }
+    const std::map<std::string, std::string>& saves() const { return saves_; }
+    // Graphviz DOT; repeat blocks drawn once with their count unless `unroll`.
+    std::string toDot(bool unroll = false) const;
+    // The type of a buffer version ("Film", ...), empty if unknown.
+    std::string bufferTypeOf(const std::string& version) const;
 
 private:
     void chooseStreams();
     bool fusedTasksAcyclic() const;
     Pipeline pipeline_;
     std::vector<PlannedPass> passes_;
+    std::vector<PlannedBlock> blocks_;
     std::vector<int> order_;
-    std::map<std::string, int> producer_;  // buffer -> pass index
+    std::map<std::string, int> producer_;  // buffer version -> pass index
+    std::map<std::string, std::string> finalVersion_;
+    std::map<std::string, std::pair<std::string, std::string>> imports_;
+    std::map<std::string, std::string> saves_;
 };
 
 struct PassStats {
     std::string instance;
     std::string pass;
+    std::string block;   // repeat block, empty outside blocks
+    std::string blockPass;  // the instance name inside its block (summed rows)
     double startSeconds = 0.0;  // since the run began
     double wallSeconds = 0.0;
     double cpuSeconds = 0.0;    // summed over all threads that worked for the pass
@@ -78,11 +127,15 @@ struct RunOptions {
     std::uint64_t seed = 1;
     FilmSettings film;
     std::function<void(const std::string&, double)> progress;  // instance, fraction
+    std::map<std::string, BufferHandle> imported;  // imported version -> buffer (loaded before the run)
+    // Called with each saved version as soon as its producer finishes.
+    std::function<void(const std::string& version, const std::string& path, const BufferHandle&)> save;
 };
 
 struct RunResult {
-    std::map<std::string, BufferHandle> results;  // the pipeline's result buffers
-    std::vector<PassStats> stats;                 // in topological order
+    std::map<std::string, BufferHandle> results;  // the pipeline's result buffers, by name
+    std::vector<PassStats> stats;                 // in topological order; skipped iterations left out
+    std::map<std::string, int> iterations;        // repeat block -> iterations run
     double wallSeconds = 0.0;
 };
 

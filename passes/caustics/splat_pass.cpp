@@ -273,7 +273,16 @@ PassRegistration splatPass() {
          "topological-bias test: skip eye vertices farther than this (scene units) from the photon's tangent "
          "plane, |n_p . (x - x_p)| (0 = off)"},
     };
-    return {spec, [] { return std::make_unique<PhotonSplatPass>(); }};
+    // Splatting needs footprints: caught before any photon is traced.
+    const auto preflight = [](const PreflightContext& pf) {
+        const PassParams* photon = pf.producerParams("caustic_photons");
+        if (photon && pf.producerPass("caustic_photons") == "photon" && !photon->getBool("differentials")) {
+            throw InputError(pf.source + ": pass '" + pf.instance +
+                             "': the caustic photons carry no photon differentials, which splatting needs; set "
+                             "differentials = true in the photon pass");
+        }
+    };
+    return {spec, [] { return std::make_unique<PhotonSplatPass>(); }, preflight};
 }
 
 }  // namespace fg

@@ -18,7 +18,7 @@
 // The vertex throughput is the specular chain's weight divided by the sample
 // count, so photon estimates times throughput summed over a pixel's vertices
 // are that pixel's box-filtered mean. Vertices are stored in (pixel, sample)
-// order. Random numbers are keyed by (seed, "eye", sample index).
+// order. Random numbers are keyed by (seed, instance, sample index).
 //
 // With direct_light = false the `direct` film stays black: the pipeline's
 // image is then the photon estimates alone (caustic-only images, as in the
@@ -114,7 +114,7 @@ public:
         const std::size_t pixelCount = film.pixelCount();
         const auto samplesPerPixel = static_cast<std::size_t>(spp);
         const std::size_t pixelsPerWave = std::max<std::size_t>(1, kWaveSamples / samplesPerPixel);
-        const std::uint64_t stream = jobs::streamKey("eye");
+        const std::uint64_t stream = ctx.streamKey();
         std::vector<Vec2> raster;
         std::vector<Rgb> radiance;
         std::vector<EyeRecord> records;
@@ -164,14 +164,23 @@ PassRegistration eyePass() {
         {"direct", "Film", "emission seen through S* chains and direct lighting at the eye vertices"},
     };
     spec.params = {
-        {"spp", ParamType::Int, std::int64_t{4}, 1, 1 << 16, {}, "camera samples per pixel (jittered)"},
+        {"spp", ParamType::Int, std::int64_t{4}, 1, 1 << 16, {}, "camera samples per pixel (jittered)", "sample_count"},
         {"max_specular_depth", ParamType::Int, std::int64_t{16}, 0, 4096, {},
          "specular bounces followed before a camera path is given up (0: only directly seen surfaces)"},
         {"direct_light", ParamType::Bool, true, 0, 0, {},
          "add emission and direct lighting at the eye vertices to the film (false: the photon estimates alone, "
          "e.g. caustic-only images)"},
     };
-    return {spec, [] { return std::make_unique<EyePass>(); }};
+    // Refused before any photon is traced: the surface pipelines have no media estimator.
+    const auto preflight = [](const PreflightContext& pf) {
+        if (!pf.scene.media.empty() || pf.scene.camera.medium >= 0) {
+            throw InputError(pf.scene.sourcePath, 0,
+                             "pass '" + pf.instance +
+                                 "': participating media are not supported by the surface photon pipelines; render "
+                                 "this scene with the bre (volumetric photon mapping) or pt pipeline");
+        }
+    };
+    return {spec, [] { return std::make_unique<EyePass>(); }, preflight};
 }
 
 }  // namespace fg

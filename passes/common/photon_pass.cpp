@@ -59,7 +59,7 @@
 //
 // Surfaces without a BSDF or with a `null` one are crossed without an event.
 //
-// Determinism: path i draws from the stream (seed, "photon", i); a batch is
+// Determinism: path i draws from the stream (seed, instance, i); a batch is
 // split into fixed chunks, each chunk collects its photons in path order, and
 // chunks are appended in order, so the maps do not depend on the thread count
 // (nor on batch_size). Scenes without media draw exactly the random numbers
@@ -181,11 +181,13 @@ std::vector<int> lightMedia(const Scene& scene, const RayQuery& rays) {
 
 class PhotonTracer {
 public:
-    PhotonTracer(const Scene& scene, const RayQuery& rays, const Settings& settings, std::uint64_t seed)
-        : scene_(scene), rays_(rays), settings_(settings), seed_(seed), lightMedium_(lightMedia(scene, rays)) {}
+    PhotonTracer(const Scene& scene, const RayQuery& rays, const Settings& settings, std::uint64_t seed,
+                 std::uint64_t stream)
+        : scene_(scene), rays_(rays), settings_(settings), seed_(seed), stream_(stream),
+          lightMedium_(lightMedia(scene, rays)) {}
 
     void trace(std::uint64_t pathIndex, ChunkResult& out) const {
-        jobs::Rng rng(seed_, jobs::streamKey("photon"), pathIndex);
+        jobs::Rng rng(seed_, stream_, pathIndex);
         const float uLight = rng.uniform();
         const Vec2 uPosition = rng.uniform2();
         const Vec2 uDirection = rng.uniform2();
@@ -348,6 +350,7 @@ private:
     const RayQuery& rays_;
     const Settings& settings_;
     std::uint64_t seed_;
+    std::uint64_t stream_;
     std::vector<int> lightMedium_;
 };
 
@@ -425,17 +428,28 @@ public:
         PhotonMap* globalMap = openMap(globalBatch, "global_photons");
         VolumePhotonMap* volumeMap = openMap(volumeBatch, "volume_photons");
         causticMap->hasDifferentials = settings.differentials;
+        // Demand-driven streams: once every reader of every streamed map has said
+        // it needs no more, tracing stops at this batch boundary. Stored maps then
+        // hold the photons of the paths traced, renormalised to that count; the
+        // batches already handed over keep the planned count as their divisor
+        // (emitted), which a reader that stops early rescales.
+        bool anyStreamed = false, allSatisfied = true;
         const auto handOverMap = [&]<class Map>(const char* slot, std::shared_ptr<Map>& batch, Map*& map) {
             if (!batch) return;
+            anyStreamed = true;
             if (!batch->photons.empty()) {
                 const auto next = std::make_shared<Map>();
                 next->emitted = batch->emitted;
                 if constexpr (std::is_same_v<Map, PhotonMap>) next->hasDifferentials = batch->hasDifferentials;
-                ctx.emitBatch<Map>(slot, std::exchange(batch, next));
+                if (ctx.emitBatch<Map>(slot, std::exchange(batch, next))) allSatisfied = false;
+            } else {
+                allSatisfied = false;  // nothing was offered, so nothing was declined
             }
             map = batch.get();
         };
         const auto handOver = [&] {
+            anyStreamed = false;
+            allSatisfied = true;
             handOverMap("caustic_photons", causticBatch, causticMap);
             handOverMap("global_photons", globalBatch, globalMap);
             handOverMap("volume_photons", volumeBatch, volumeMap);
@@ -445,7 +459,7 @@ public:
             return;
         }
 
-        const PhotonTracer tracer(scene, ctx.rays(), settings, seed);
+        const PhotonTracer tracer(scene, ctx.rays(), settings, seed, ctx.streamKey());
         std::int64_t storedCaustic = 0, storedGlobal = 0, storedDirect = 0, storedVolume = 0, singleScattering = 0;
         std::int64_t segments = 0;
         std::uint64_t collapsed = 0;
@@ -504,6 +518,10 @@ public:
             ctx.addItems(static_cast<std::int64_t>(count));
             batchStart += count;
             if (!targetMode) handOver();
+            if (!targetMode && anyStreamed && allSatisfied) {
+                ctx.addCounter("stopped_by_readers", 1);
+                break;
+            }
             ctx.reportProgress(targetMode ? static_cast<double>(storedVolume) /
                                                 static_cast<double>(settings.volumeTarget)
                                           : static_cast<double>(batchStart) / static_cast<double>(settings.photons));
@@ -571,7 +589,14 @@ PassRegistration photonPass() {
          "seed of the photon paths' random streams (0 = the job's seed); another seed traces an independent "
          "photon set at the same eye vertices"},
     };
-    return {spec, [] { return std::make_unique<PhotonPass>(); }};
+    const auto preflight = [](const PreflightContext& pf) {
+        const std::string& store = pf.params.getString("store");
+        if (pf.params.getInt("volume_photons") > 0 && store != "volume" && store != "all") {
+            throw InputError(pf.source + ": pass '" + pf.instance + "': volume_photons = " +
+                             std::to_string(pf.params.getInt("volume_photons")) + " needs store = \"volume\" or \"all\"");
+        }
+    };
+    return {spec, [] { return std::make_unique<PhotonPass>(); }, preflight};
 }
 
 }  // namespace fg

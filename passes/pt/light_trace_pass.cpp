@@ -221,7 +221,14 @@ PassRegistration lightTracePass() {
         {"global_photons", "PhotonMap", "other surface photons to connect (read in batches)", true},
     };
     spec.outputs = {{"image", "Film", "the photons' light as the camera sees it directly"}};
-    return {spec, [] { return std::make_unique<LightTracePass>(); }};
+    const auto preflight = [](const PreflightContext& pf) {
+        if (!pf.scene.media.empty() || pf.scene.camera.medium >= 0) {
+            throw InputError("pass '" + pf.instance + "': " + pf.scene.sourcePath +
+                             " has participating media, which light tracing does not support (it would need their "
+                             "transmittance); render it with pt");
+        }
+    };
+    return {spec, [] { return std::make_unique<LightTracePass>(); }, preflight};
 }
 
 }  // namespace fg

@@ -10,11 +10,13 @@
 //    by stage (intersect stream -> shade -> shadow stream -> compact), as in
 //    pbrt-v4's wavefront integrator;
 //  - tile: each pixel's samples are traced to completion one after another.
-// Both consume the same random numbers per path, keyed by (seed, "pt", sample
+// Both consume the same random numbers per path, keyed by (seed, instance, sample
 // index), so they produce the same image up to floating-point order in the
 // film (identical here: the film gathers in a fixed order).
 #include "passes/common/path_vertex.h"
 #include "passes/passes.h"
+
+#include "engine/core/error.h"
 
 #include "engine/image/film.h"
 #include "engine/accel/ray_query.h"
@@ -72,7 +74,8 @@ private:
 
 // Traces the wave of samples [firstSample, firstSample + count) in SoA stages.
 // Returns the number of path segments traced (closest-hit queries).
-std::int64_t traceWave(const PathTracerScene& pts, const Camera& camera, std::uint64_t seed, const Settings& settings,
+std::int64_t traceWave(const PathTracerScene& pts, const Camera& camera, std::uint64_t seed, std::uint64_t stream,
+                       const Settings& settings,
                        std::uint64_t firstSample, std::size_t count, PathBuffer& paths) {
     std::int64_t segments = 0;
     paths.resize(count);
@@ -95,7 +98,7 @@ std::int64_t traceWave(const PathTracerScene& pts, const Camera& camera, std::ui
         for (std::size_t i = r.begin; i != r.end; ++i) {
             const std::uint64_t sample = firstSample + i;
             const auto pixel = static_cast<std::uint32_t>(sample / static_cast<std::uint64_t>(settings.spp));
-            rngs[i] = jobs::Rng(seed, jobs::streamKey("pt"), sample);
+            rngs[i] = jobs::Rng(seed, stream, sample);
             const Vec2 jitter = rngs[i].uniform2();
             raster[i] = Vec2(static_cast<float>(pixel % static_cast<std::uint32_t>(camera.width)),
                              static_cast<float>(pixel / static_cast<std::uint32_t>(camera.width))) + jitter;
@@ -146,7 +149,8 @@ std::int64_t traceWave(const PathTracerScene& pts, const Camera& camera, std::ui
     return segments;
 }
 
-std::int64_t traceTile(const PathTracerScene& pts, const Camera& camera, std::uint64_t seed, const Settings& settings,
+std::int64_t traceTile(const PathTracerScene& pts, const Camera& camera, std::uint64_t seed, std::uint64_t stream,
+                       const Settings& settings,
                        std::uint64_t firstSample, std::size_t count, PathBuffer& paths) {
     std::atomic<std::int64_t> segments{0};
     paths.resize(count);
@@ -164,7 +168,7 @@ std::int64_t traceTile(const PathTracerScene& pts, const Camera& camera, std::ui
                 const std::size_t i = localPixel * spp + s;
                 const std::uint64_t sample = firstSample + i;
                 const auto pixel = static_cast<std::uint32_t>(sample / spp);
-                jobs::Rng rng(seed, jobs::streamKey("pt"), sample);
+                jobs::Rng rng(seed, stream, sample);
                 const Vec2 jitter = rng.uniform2();
                 raster[i] = Vec2(static_cast<float>(pixel % static_cast<std::uint32_t>(camera.width)),
                                  static_cast<float>(pixel / static_cast<std::uint32_t>(camera.width))) + jitter;
@@ -207,7 +211,18 @@ public:
         camera.height = ctx.filmSettings().height;
         const PathTracerScene pts(scene, ctx.rays());
 
-        Film& film = ctx.createOutput<Film>("image", ctx.filmSettings());
+        // Progressive rendering: the samples add to an earlier film's sums, so the
+        // output is the average over all samples of both.
+        if (ctx.hasInput("accumulate")) {
+            const FilmSettings& earlier = ctx.input<Film>("accumulate").settings();
+            if (earlier.width != ctx.filmSettings().width || earlier.height != ctx.filmSettings().height)
+                throw InputError("pass '" + ctx.instanceName() + "': the film to accumulate onto is " +
+                                 std::to_string(earlier.width) + " x " + std::to_string(earlier.height) +
+                                 ", the job's film " + std::to_string(ctx.filmSettings().width) + " x " +
+                                 std::to_string(ctx.filmSettings().height));
+        }
+        Film& film = ctx.hasInput("accumulate") ? ctx.createOutput<Film>("image", ctx.input<Film>("accumulate"))
+                                                : ctx.createOutput<Film>("image", ctx.filmSettings());
         film.aov("time_ns");  // create both channels before holding references into them
         film.aov("samples");
         std::vector<float>& timeAov = film.aov("time_ns");
@@ -222,8 +237,8 @@ public:
             const std::size_t pixels = std::min(pixelsPerWave, pixelCount - firstPixel);
             const std::uint64_t firstSample = static_cast<std::uint64_t>(firstPixel) * spp;
             const std::int64_t segments =
-                settings.wavefront ? traceWave(pts, camera, ctx.seed(), settings, firstSample, pixels * spp, paths)
-                                   : traceTile(pts, camera, ctx.seed(), settings, firstSample, pixels * spp, paths);
+                settings.wavefront ? traceWave(pts, camera, ctx.seed(), ctx.streamKey(), settings, firstSample, pixels * spp, paths)
+                                   : traceTile(pts, camera, ctx.seed(), ctx.streamKey(), settings, firstSample, pixels * spp, paths);
             ctx.addCounter("path_segments", segments);
             // A non-finite sample would poison every pixel its filter reaches.
             for (Rgb& L : paths.column<PathRadiance>())
@@ -249,11 +264,16 @@ PassRegistration pathTracerPass() {
     PassSpec spec;
     spec.name = "pt";
     spec.doc = "Reference unidirectional path tracer with NEE, MIS, Russian roulette and homogeneous media";
+    SlotSpec accumulate{"accumulate", "Film",
+                        "optional: a film of earlier samples (same settings) the new samples are added to"};
+    accumulate.optional = true;
+    spec.inputs = {accumulate};
     spec.outputs = {{"image", "Film", "radiance estimate per pixel, with time_ns and samples AOVs"}};
     spec.params = {
-        {"spp", ParamType::Int, std::int64_t{16}, 1, 1 << 20, {}, "samples per pixel"},
+        {"spp", ParamType::Int, std::int64_t{16}, 1, 1 << 20, {}, "samples per pixel", "sample_count"},
         {"max_depth", ParamType::Int, std::int64_t{16}, 1, 4096, {},
-         "maximum number of scattering events (surface or medium) per path; 1 = direct/single scattering"},
+         "maximum number of scattering events (surface or medium) per path; 1 = direct/single scattering",
+         "max_depth"},
         {"rr_depth", ParamType::Int, std::int64_t{5}, 1, 4096, {},
          "scattering events before Russian roulette may end a path"},
         {"schedule", ParamType::String, std::string("wavefront"), 0, 0, {"wavefront", "tile"},

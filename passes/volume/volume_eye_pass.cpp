@@ -26,7 +26,7 @@
 //
 // Sample weights include 1/spp; vertices and segments are stored in (pixel,
 // sample) order, segments of one sample in path order. Random numbers are
-// keyed by (seed, "volume_eye", sample index).
+// keyed by (seed, instance, sample index).
 #include "passes/common/eye_vertex_records.h"
 #include "passes/passes.h"
 #include "passes/common/path_vertex.h"
@@ -154,7 +154,7 @@ public:
         const auto samplesPerPixel = static_cast<std::size_t>(spp);
         const std::size_t pixelsPerWave = std::max<std::size_t>(1, kWaveSamples / samplesPerPixel);
         const std::size_t pixelGrain = std::max<std::size_t>(1, 256 / samplesPerPixel);
-        const std::uint64_t stream = jobs::streamKey("volume_eye");
+        const std::uint64_t stream = ctx.streamKey();
         std::vector<Vec2> raster;
         std::vector<Rgb> radiance;
         std::vector<EyeRecord> records;
@@ -223,7 +223,7 @@ PassRegistration volumeEyePass() {
          "camera-path segments inside scattering media, with the path weight at their start"},
     };
     spec.params = {
-        {"spp", ParamType::Int, std::int64_t{4}, 1, 1 << 16, {}, "camera samples per pixel (jittered)"},
+        {"spp", ParamType::Int, std::int64_t{4}, 1, 1 << 16, {}, "camera samples per pixel (jittered)", "sample_count"},
         {"max_specular_depth", ParamType::Int, std::int64_t{16}, 0, 4096, {},
          "specular bounces followed before a camera path is given up (0: only directly seen surfaces)"},
     };

@@ -3,6 +3,7 @@
 // what it left on disk. Input errors must cost exactly one stderr line and
 // exit code 2 and leave no image behind; renders must be reproducible across
 // thread counts and carry their provenance in the EXR metadata.
+#include "passes/passes.h"
 #include "engine/image/image_io.h"
 #include "engine/core/pass.h"
 
@@ -546,6 +547,82 @@ TEST(Cli, MissingJobArgumentIsAnInputError) {
     const CommandResult r = runFluxgraph(dir, {"render"});
     EXPECT_EQ(r.exitCode, 2) << r.err;
     EXPECT_FALSE(r.err.empty());
+}
+
+// ---------------------------------------------------------------- iteration, saved and imported buffers
+
+// data/jobs/progressive-pt.toml end to end, small: the repeat block ends early
+// on film_noise's condition, its count goes into the metadata, the carried
+// film and statistics are saved, and a second run that imports them resumes
+// where the first stopped (it converges at once, in one more iteration).
+TEST(Cli, ProgressiveJobStopsEarlySavesAndResumes) {
+    const fs::path dir = scratchDirectory();
+    const std::string job = sourcePath("data/jobs/progressive-pt.toml");
+    const std::vector<std::string> small = {"--set", "film.width=24", "--set", "film.height=24",
+                                            "--set", "passes.pt.spp=4", "--set", "passes.noise.threshold=0.3"};
+    std::vector<std::string> first = {"render", job, "-q", "--out", "first", "--save", "image=first/image.fgbuf",
+                                      "--save", "noise=first/noise.fgbuf"};
+    first.insert(first.end(), small.begin(), small.end());
+    const CommandResult r = runFluxgraph(dir, first);
+    ASSERT_EQ(r.exitCode, 0) << r.err;
+    EXPECT_EQ(listDirectory(dir / "first"),
+              (std::vector<std::string>{"image.fgbuf", "noise.fgbuf", "progressive-pt.exr", "progressive-pt.png"}));
+    Metadata meta;
+    readExr((dir / "first" / "progressive-pt.exr").string(), &meta);
+    const std::string iterations = asMap(meta)["iterations"];
+    ASSERT_EQ(iterations.rfind("progressive=", 0), 0u) << iterations;
+    const int count = std::stoi(iterations.substr(12));
+    EXPECT_GE(count, 4);
+    EXPECT_LT(count, 64);
+
+    std::vector<std::string> resumed = {"render", job, "-q", "--out", "resumed", "--import", "image=first/image.fgbuf",
+                                        "--import", "noise=first/noise.fgbuf"};
+    resumed.insert(resumed.end(), small.begin(), small.end());
+    const CommandResult again = runFluxgraph(dir, resumed);
+    ASSERT_EQ(again.exitCode, 0) << again.err;
+    readExr((dir / "resumed" / "progressive-pt.exr").string(), &meta);
+    EXPECT_EQ(asMap(meta)["iterations"], "progressive=1");
+}
+
+TEST(Cli, ImportedBuffersOfTheWrongKindAreRefusedWithOneLine) {
+    const fs::path dir = scratchDirectory();
+    const std::string job = sourcePath("data/jobs/progressive-pt.toml");
+    ASSERT_EQ(runFluxgraph(dir, {"render", job, "-q", "--out", "out", "--save", "noise=noise.fgbuf", "--set",
+                                 "film.width=8", "--set", "film.height=8", "--set", "passes.pt.spp=1"})
+                  .exitCode,
+              0);
+    writeText(dir / "garbage.fgbuf", "not a buffer at all");
+    const std::string noise = readText(dir / "noise.fgbuf");
+    writeText(dir / "truncated.fgbuf", noise.substr(0, noise.size() / 2));
+    for (const char* import : {"image=noise.fgbuf", "image=garbage.fgbuf", "image=truncated.fgbuf", "image=missing.fgbuf"}) {
+        const CommandResult r = runFluxgraph(dir, {"render", quickstartJob(), "-q", "--out", "refused", "--import", import});
+        expectInputError(r);
+        EXPECT_NE(r.err.find(".fgbuf"), std::string::npos) << r.err;
+        EXPECT_FALSE(fs::exists(dir / "refused" / "quickstart.exr"));
+    }
+    EXPECT_NE(runFluxgraph(dir, {"validate", quickstartJob(), "--import", "image=noise.fgbuf"}).err.find("FilmNoise"),
+              std::string::npos);
+}
+
+TEST(Cli, GraphDrawsARepeatBlockOnceUnlessUnrolled) {
+    const fs::path dir = scratchDirectory();
+    const std::string job = sourcePath("data/jobs/progressive-pt.toml");
+    const CommandResult folded = runFluxgraph(dir, {"graph", job});
+    ASSERT_EQ(folded.exitCode, 0) << folded.err;
+    EXPECT_NE(folded.out.find("repeat progressive x 64, until noise.converged"), std::string::npos) << folded.out;
+    EXPECT_EQ(folded.out.find("progressive[1]"), std::string::npos);
+    const CommandResult unrolled = runFluxgraph(dir, {"graph", job, "--unroll"});
+    ASSERT_EQ(unrolled.exitCode, 0) << unrolled.err;
+    EXPECT_NE(unrolled.out.find("\"progressive[63].pt\""), std::string::npos);
+    EXPECT_NE(unrolled.out.find("\"progressive[62].pt\" -> \"progressive[63].pt\""), std::string::npos);
+}
+
+TEST(Cli, PipelinesListTheirFiles) {
+    const fs::path dir = scratchDirectory();
+    const CommandResult r = runFluxgraph(dir, {"pipelines"});
+    ASSERT_EQ(r.exitCode, 0) << r.err;
+    for (const char* name : {"pt", "spm", "pds", "bre", "lt"})
+        EXPECT_NE(r.out.find(std::string("file: passes/pipelines/") + name + ".toml"), std::string::npos) << r.out;
 }
 
 }  // namespace

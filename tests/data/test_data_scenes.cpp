@@ -161,7 +161,7 @@ TEST_P(DataJob, Validates) {
         FAIL() << e.what();
     }
     EXPECT_TRUE(fs::is_regular_file(job.scenePath)) << job.scenePath;
-    EXPECT_FALSE(job.pipeline.nodes.empty());
+    EXPECT_FALSE(job.pipeline.nodes.empty() && job.pipeline.blocks.empty());
 }
 
 // Every job renders end to end (tiny film, few samples): nothing in data/ is only valid on paper.

@@ -1,5 +1,6 @@
 #include "tests/support/render_helpers.h"
 
+#include "passes/passes.h"
 #include "engine/accel/ray_query.h"
 #include "jobs/parallel.h"
 

@@ -7,6 +7,7 @@
 #include "engine/scene/scene.h"
 #include "engine/scene/scene_loader.h"
 #include "engine/core/scheduler.h"
+#include "passes/passes.h"
 #include "jobs/parallel.h"
 #include "jobs/random.h"
 
@@ -82,7 +83,7 @@ void BM_PathTracer(benchmark::State& state) {
     JobParams params;
     params.values["pt"]["spp"] = {std::int64_t{16}, "bench"};
     params.values["pt"]["schedule"] = {schedule, "bench"};
-    const ExecutionPlan plan = ExecutionPlan::build(*findPipeline("pt"), params, "bench");
+    const ExecutionPlan plan = ExecutionPlan::build(*findPipeline("pt"), params, "bench", passRegistry());
     RunOptions options;
     options.film.width = options.film.height = 128;
     double segments = 0.0, samples = 0.0, wall = 0.0, cpu = 0.0;

@@ -214,7 +214,7 @@ TEST(PhotonGather, SpmPipelineAddsPhotonEstimatesToDirectLight) {
     const std::map<std::string, ParamValue> params = {{"eye.spp", std::int64_t{2}},
                                                       {"gather.k_caustic", std::int64_t{50}},
                                                       {"gather.k_global", std::int64_t{50}}};
-    const Pipeline spm = spmPipeline();
+    const Pipeline spm = *findPipeline("spm");
     const std::vector<Rgb> image =
         bufferAs<Film>(test::runPipeline(scene, spm, registry, params, settings, "image")).resolve();
     const std::vector<Rgb> direct =

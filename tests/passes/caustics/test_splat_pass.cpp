@@ -302,7 +302,7 @@ TEST(PhotonSplat, PdsPipelineSplatsCausticsAndGathersGlobalLight) {
     const FilmSettings settings = film(16, 16);
     const std::map<std::string, ParamValue> params = {{"eye.spp", std::int64_t{2}},
                                                       {"gather.k_global", std::int64_t{50}}};
-    const Pipeline pds = pdsPipeline();
+    const Pipeline pds = *findPipeline("pds");
     const std::vector<Rgb> image =
         bufferAs<Film>(test::runPipeline(scene, pds, registry, params, settings, "image")).resolve();
     const std::vector<Rgb> withCaustics =
@@ -338,7 +338,7 @@ TEST(PhotonSplat, PdsStreamsCausticPhotonsBatchByBatch) {
     RunOptions options;
     options.film = film(32, 32);
     const auto render = [&](bool stream, int threads, std::vector<PassStats>* stats = nullptr) {
-        Pipeline pipeline = pdsPipeline();
+        Pipeline pipeline = *findPipeline("pds");
         pipeline.streamBatches = stream;
         const ExecutionPlan plan = ExecutionPlan::build(pipeline, params, "test");
         EXPECT_EQ(plan.streamed("caustic_photons"), stream);
