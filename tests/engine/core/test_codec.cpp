@@ -372,7 +372,8 @@ TEST(CodecRoundTrip, FilmWithoutDirectOrAovs) {
     settings.width = 3;
     settings.height = 2;
     auto film = std::make_shared<Film>(settings);
-    const std::vector<Vec2> raster = {{0.5f, 0.5f}, {1.5f, 0.5f}, {2.5f, 0.5f}, {0.5f, 1.5f}, {1.5f, 1.5f}, {2.5f, 1.5f}};
+    const std::vector<Vec2> raster = {{0.5f, 0.5f}, {1.5f, 0.5f}, {2.5f, 0.5f},
+                                      {0.5f, 1.5f}, {1.5f, 1.5f}, {2.5f, 1.5f}};
     const std::vector<Rgb> radiance(6, Rgb(1.0f, 2.0f, 3.0f));
     film->addRound(SampleRound{0, 6, 1, raster, radiance});
     expectRoundTrip(film, scratchDirectory());
@@ -445,7 +446,8 @@ TEST(CodecRefuses, WrongTypeNamingFileAndBothTypes) {
     } catch (const InputError& error) {
         EXPECT_EQ(std::string(error.what()), path + ": holds a PhotonMap buffer, but 'image' is a Film");
     }
-    EXPECT_EQ(expectRefused(path, "EyeVertices"), path + ": holds a PhotonMap buffer, but an EyeVertices buffer is expected");
+    EXPECT_EQ(expectRefused(path, "EyeVertices"),
+              path + ": holds a PhotonMap buffer, but an EyeVertices buffer is expected");
     // Any type is accepted when none is expected.
     EXPECT_EQ(loadBuffer(path, "").type, "PhotonMap");
 }
@@ -568,7 +570,8 @@ TEST(CodecRefuses, AbsurdLengthsInAValidLookingHeader) {
             "column whose byte count overflows 32 bits");
     refuses(HeaderBuilder().string("PhotonMap").u32(1).string("photons.position").u32(0).u64(5),
             "column of 0-byte elements");
-    refuses(HeaderBuilder().string("PhotonMap").u32(2).string("a").u32(8).u64(4).string("b").u32(8).u64(~std::uint64_t(0) / 8),
+    refuses(HeaderBuilder().string("PhotonMap").u32(2).string("a").u32(8).u64(4).string("b").u32(8).u64(
+                ~std::uint64_t(0) / 8),
             "columns whose sizes overflow 64 bits together");
     refuses(HeaderBuilder().string("PhotonMap").u32(0).u64(1).u32(0xffffff00u), "job text of 4 GiB");
 }
@@ -656,7 +659,8 @@ TEST(CodecRefuses, CorruptPhotonBvh) {
     EXPECT_NE(refusedWith(linkAt, 0u).find("children"), std::string::npos);  // a cycle back to the root
     EXPECT_NE(refusedWith(countAt, 65u).find("leaf"), std::string::npos);
     // The depth, the first payload scalar, right after the empty job text.
-    const std::size_t depthAt = bytes.size() - sphereBytes - nodes * (2 * sizeof(Vec3) + 2 * sizeof(std::uint32_t)) - 4;
+    const std::size_t depthAt =
+        bytes.size() - sphereBytes - nodes * (2 * sizeof(Vec3) + 2 * sizeof(std::uint32_t)) - 4;
     EXPECT_NE(refusedWith(depthAt, bvh->depth() + 1).find("depth"), std::string::npos);
 }
 
