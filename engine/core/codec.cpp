@@ -262,9 +262,12 @@ std::vector<std::string> codecTypes() {
 
 void saveBuffer(const BufferHandle& buffer, const std::string& path, const std::string& jobText) {
     const BufferCodec* codec = findCodec(buffer.type);
-    if (!codec) throw InputError(path, 0, "cannot save " + article(buffer.type) + buffer.type + " buffer: no codec for that type");
+    if (!codec)
+        throw InputError(path, 0,
+                         "cannot save " + article(buffer.type) + buffer.type + " buffer: no codec for that type");
     if (!buffer.data)
-        throw InputError(path, 0, "the " + buffer.type + " buffer holds no data (a streamed buffer is never stored whole)");
+        throw InputError(path, 0,
+                         "the " + buffer.type + " buffer holds no data (a streamed buffer is never stored whole)");
     if (jobText.size() > std::numeric_limits<std::uint32_t>::max())
         throw InputError(path, 0, "job text longer than 4 GiB");
 
