@@ -18,6 +18,8 @@ PassRegistration photonRadiusPass();
 PassRegistration photonBvhPass();
 PassRegistration beamQueryPass();
 PassRegistration lightTracePass();
+PassRegistration compositePass();
+PassRegistration compositeSurfacePass();
 
 // The photon-mapping pipelines as data.
 Pipeline spmPipeline();

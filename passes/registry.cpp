@@ -8,13 +8,15 @@ const std::vector<PassRegistration>& passRegistry() {
         pathTracerPass(), photonPass(),  eyePass(),          eyeIndexPass(),
         photonIndexPass(), gatherPass(), gatherGlobalPass(), splatPass(),
         volumeEyePass(),   photonRadiusPass(), photonBvhPass(), beamQueryPass(), lightTracePass(),
+        compositePass(),   compositeSurfacePass(),
     };
     return registry;
 }
 
 // Standard photon mapping: eye vertices and photon maps are made independently,
-// each map gets its own index, and one gather adds both maps' estimates to the
-// direct film.
+// each map gets its own index, one gather writes each map's estimates as its
+// own layer (`caustic`, `global`), and the composite adds them to the direct
+// light.
 Pipeline spmPipeline() {
     return {"spm",
             "standard photon mapping: eye vertices + caustic and global photon maps, k-nearest gathering",
@@ -24,13 +26,15 @@ Pipeline spmPipeline() {
                 {"caustic_index", "photon_index", {{"photons", "caustic_photons"}}, {{"index", "caustic_index"}}, 0},
                 {"global_index", "photon_index", {{"photons", "global_photons"}}, {{"index", "global_index"}}, 0},
                 {"gather", "gather", {}, {}, 0},
+                {"composite", "composite_surface", {}, {}, 0},
             },
             {"image"}};
 }
 
 // Photon differential splatting: caustic photons are splatted onto the indexed
 // eye vertices; the rest of the indirect light comes from gathering the global
-// map, added on top of the splatted film. The caustic map is streamed: the
+// map; each writes its own layer and the composite adds both to the direct
+// light. The caustic map is streamed: the
 // splat runs inside the photon pass's task and takes each batch as it is
 // traced (so the photon pass starts once the eye index is built), and no map
 // of all caustic photons exists (Frisvad et al. 2014, §2).
@@ -42,8 +46,9 @@ Pipeline pdsPipeline() {
                 {"photon", "photon", {}, {}, 0},
                 {"eye_index", "eye_index", {}, {}, 0},
                 {"global_index", "photon_index", {{"photons", "global_photons"}}, {{"index", "global_index"}}, 0},
-                {"splat", "splat", {}, {{"image", "direct_caustics"}}, 0},
-                {"gather", "gather_global", {{"base", "direct_caustics"}}, {}, 0},
+                {"splat", "splat", {}, {}, 0},
+                {"gather", "gather_global", {}, {}, 0},
+                {"composite", "composite_surface", {{"caustic", "caustics"}}, {}, 0},
             },
             {"image"}};
 }
@@ -53,7 +58,8 @@ Pipeline pdsPipeline() {
 // and the surface vertices behind them, in parallel with photon tracing; the
 // surface part is standard photon mapping (direct light + caustic and global
 // photon gathering), the media part the beam query over the volume photons'
-// kernel spheres (pilot radii, then a BVH), added on top.
+// kernel spheres (pilot radii, then a BVH). Each writes its own layer and the
+// composite sums them, so the beam query runs alongside the surface gather.
 Pipeline brePipeline() {
     return {"bre",
             "volumetric photon mapping: beam radiance estimate over volume photons (pilot radii + sphere BVH) for "
@@ -63,12 +69,12 @@ Pipeline brePipeline() {
                 {"photon", "photon", {}, {}, 0},
                 {"caustic_index", "photon_index", {{"photons", "caustic_photons"}}, {{"index", "caustic_index"}}, 0},
                 {"global_index", "photon_index", {{"photons", "global_photons"}}, {{"index", "global_index"}}, 0},
-                {"gather", "gather", {}, {{"image", "surface_image"}}, 0},
+                {"gather", "gather", {}, {}, 0},
                 {"photon_radius", "photon_radius", {{"photons", "volume_photons"}}, {{"radii", "photon_radii"}}, 0},
                 {"photon_bvh", "photon_bvh", {{"photons", "volume_photons"}, {"radii", "photon_radii"}},
                  {{"bvh", "photon_bvh"}}, 0},
-                {"beam_query", "beam_query", {{"photons", "volume_photons"}, {"bvh", "photon_bvh"},
-                                              {"base", "surface_image"}}, {}, 0},
+                {"beam_query", "beam_query", {{"photons", "volume_photons"}, {"bvh", "photon_bvh"}}, {}, 0},
+                {"composite", "composite", {}, {}, 0},
             },
             {"image"}};
 }
