@@ -20,6 +20,7 @@ PassRegistration photonBvhPass();
 PassRegistration beamQueryPass();
 PassRegistration lightTracePass();
 PassRegistration filmNoisePass();
+PassRegistration compositePass();
 
 // The passes and the pipelines of passes/pipelines/*.toml.
 const Registry& builtinRegistry();

@@ -15,14 +15,15 @@
 //
 // Two registrations share the code:
 //  - `gather` (the spm pipeline): caustic and global maps, each with its own k;
-//  - `gather_global` (the pds pipeline): the global map only, added to a film
-//    that already holds the splatted caustics — the paper's comparison setting,
-//    photon differential splatting for caustics and a photon map for the rest.
+//  - `gather_global` (the pds pipeline): the global map only, while the
+//    caustics come from splatting — the paper's comparison setting, photon
+//    differential splatting for caustics and a photon map for the rest.
 //
-// Output: a copy of the input film plus, per pixel, the sum over the pixel's
-// vertices of throughput x estimate. Estimates are computed in parallel per
-// vertex and summed into pixels in vertex order, so the image does not depend
-// on the thread count.
+// Output: one radiance layer per map (`caustic`, `global`), each a film from
+// black holding, per pixel, the sum over the pixel's vertices of throughput x
+// that map's estimate; the composite pass adds them to the direct light.
+// Estimates are computed in parallel per vertex and summed into pixels in
+// vertex order, so the layers do not depend on the thread count.
 #include "passes/passes.h"
 #include "passes/caustics/photon_estimate.h"
 
@@ -34,6 +35,7 @@
 
 #include <atomic>
 #include <limits>
+#include <string>
 
 namespace fg {
 
@@ -43,6 +45,7 @@ struct GatherSource {
     const PhotonMap& map;
     const PointIndex& index;
     std::size_t k;
+    std::string layer;  // output slot of this map's radiance
 };
 
 // Radiance towards the eye at vertex v from one photon map; `ids`/`dist2` hold at least k entries.
@@ -72,13 +75,11 @@ Rgb gatherRadiance(const EyeVertexBuffer::View& eye, std::size_t v, const Vertex
 
 class PhotonGatherPass final : public Pass {
 public:
-    PhotonGatherPass(bool withCaustics, std::string baseSlot)
-        : withCaustics_(withCaustics), baseSlot_(std::move(baseSlot)) {}
+    explicit PhotonGatherPass(bool withCaustics) : withCaustics_(withCaustics) {}
 
     void run(PassContext& ctx) override {
         const Scene& scene = ctx.scene();
         const EyeVertices& eyeVertices = ctx.input<EyeVertices>("eye_vertices");
-        const Film& base = ctx.input<Film>(baseSlot_);
         const double maxRadiusParam = ctx.params().getFloat("max_radius");
         const float maxRadius = maxRadiusParam > 0.0 ? static_cast<float>(maxRadiusParam)
                                                      : std::numeric_limits<float>::infinity();
@@ -86,17 +87,20 @@ public:
         std::vector<GatherSource> sources;
         if (withCaustics_) {
             sources.push_back({ctx.input<PhotonMap>("caustic_photons"), ctx.input<PointIndex>("caustic_index"),
-                               static_cast<std::size_t>(ctx.params().getInt("k_caustic"))});
+                               static_cast<std::size_t>(ctx.params().getInt("k_caustic")), "caustic"});
         }
         sources.push_back({ctx.input<PhotonMap>("global_photons"), ctx.input<PointIndex>("global_index"),
-                           static_cast<std::size_t>(ctx.params().getInt("k_global"))});
+                           static_cast<std::size_t>(ctx.params().getInt("k_global")), "global"});
         std::size_t maxK = 0;
         for (const GatherSource& s : sources) maxK = std::max(maxK, s.k);
 
-        Film& image = ctx.createOutput<Film>("image", base);
         const EyeVertexBuffer::View eye = eyeVertices.vertices.view();
+        const auto throughput = eye.column<EyeThroughput>();
+        const auto pixelOf = eye.column<EyePixel>();
         const std::size_t vertexCount = eye.size();
-        std::vector<Rgb> contribution(vertexCount, Rgb(0.0f));
+        const std::size_t sourceCount = sources.size();
+        // contribution[v * sourceCount + s]: vertex v's radiance from map s.
+        std::vector<Rgb> contribution(vertexCount * sourceCount, Rgb(0.0f));
         std::atomic<std::int64_t> photonsUsed{0};
         jobs::parallelForChunks(vertexCount, 256, [&](jobs::IndexRange range) {
             std::vector<std::uint32_t> ids(maxK);
@@ -104,28 +108,30 @@ public:
             std::int64_t used = 0;
             for (std::size_t v = range.begin; v != range.end; ++v) {
                 const VertexBrdf brdf(scene, eye, v);
-                Rgb L(0.0f);
-                for (const GatherSource& s : sources) L += gatherRadiance(eye, v, brdf, s, maxRadius, ids, dist2, used);
-                const Rgb value = L * eye.column<EyeThroughput>()[v];
-                contribution[v] = isFinite(value) ? value : Rgb(0.0f);
+                for (std::size_t s = 0; s < sourceCount; ++s) {
+                    const Rgb L = gatherRadiance(eye, v, brdf, sources[s], maxRadius, ids, dist2, used);
+                    const Rgb value = L * throughput[v];
+                    contribution[v * sourceCount + s] = isFinite(value) ? value : Rgb(0.0f);
+                }
             }
             photonsUsed += used;
         });
 
-        std::vector<Rgb> perPixel(image.pixelCount(), Rgb(0.0f));
-        const auto pixelOf = eye.column<EyePixel>();
-        for (std::size_t v = 0; v < vertexCount; ++v) {
-            if (pixelOf[v] >= perPixel.size()) throw std::logic_error("gather: eye vertex outside the film");
-            perPixel[pixelOf[v]] += contribution[v];
+        for (std::size_t s = 0; s < sourceCount; ++s) {
+            Film& layer = ctx.createOutput<Film>(sources[s].layer, ctx.filmSettings());
+            std::vector<Rgb> perPixel(layer.pixelCount(), Rgb(0.0f));
+            for (std::size_t v = 0; v < vertexCount; ++v) {
+                if (pixelOf[v] >= perPixel.size()) throw std::logic_error("gather: eye vertex outside the film");
+                perPixel[pixelOf[v]] += contribution[v * sourceCount + s];
+            }
+            layer.addToPixels(perPixel, 1.0f);
         }
-        image.addToPixels(perPixel, 1.0f);
         ctx.addItems(static_cast<std::int64_t>(vertexCount));
         ctx.addCounter("photon_contributions", photonsUsed.load());
     }
 
 private:
     bool withCaustics_;
-    std::string baseSlot_;
 };
 
 ParamSpec maxRadiusParam() {
@@ -144,39 +150,40 @@ PassRegistration gatherPass() {
     PassSpec spec;
     spec.name = "gather";
     spec.doc = "Standard photon mapping at the eye vertices: k nearest caustic and global photons, Silverman kernel, "
-               "bandwidth = k-th neighbour distance, added to the direct film";
+               "bandwidth = k-th neighbour distance, one radiance layer per map";
     spec.inputs = {
         {"eye_vertices", "EyeVertices", "where radiance is estimated, with pixel and throughput"},
-        {"direct", "Film", "the film the estimates are added to (emission and direct light)"},
         {"caustic_photons", "PhotonMap", "caustic photons (L S+ D)"},
         {"global_photons", "PhotonMap", "global photons (at least one diffuse bounce)"},
         {"caustic_index", "PointIndex", "search structure over caustic_photons"},
         {"global_index", "PointIndex", "search structure over global_photons"},
     };
-    spec.outputs = {{"image", "Film", "direct + caustic + global photon estimates"}};
+    spec.outputs = {
+        {"caustic", "Film", "caustic photon estimates alone (a film from black)"},
+        {"global", "Film", "global photon estimates alone (a film from black)"},
+    };
     spec.params = {
         {"k_caustic", ParamType::Int, std::int64_t{50}, 1, 1 << 16, {},
          "nearest caustic photons per estimate; the k-th one's distance is the bandwidth h"},
         kGlobalParam(),
         maxRadiusParam(),
     };
-    return {spec, [] { return std::make_unique<PhotonGatherPass>(true, "direct"); }};
+    return {spec, [] { return std::make_unique<PhotonGatherPass>(true); }};
 }
 
 PassRegistration gatherGlobalPass() {
     PassSpec spec;
     spec.name = "gather_global";
-    spec.doc = "Standard photon mapping of the global map only (indirect light without caustics), added to a film "
-               "that already holds direct light and caustics";
+    spec.doc = "Standard photon mapping of the global map only (indirect light without caustics), as its own "
+               "radiance layer";
     spec.inputs = {
         {"eye_vertices", "EyeVertices", "where radiance is estimated, with pixel and throughput"},
-        {"base", "Film", "the film the estimates are added to (e.g. direct light plus splatted caustics)"},
         {"global_photons", "PhotonMap", "global photons (at least one diffuse bounce)"},
         {"global_index", "PointIndex", "search structure over global_photons"},
     };
-    spec.outputs = {{"image", "Film", "base + global photon estimates"}};
+    spec.outputs = {{"global", "Film", "global photon estimates alone (a film from black)"}};
     spec.params = {kGlobalParam(), maxRadiusParam()};
-    return {spec, [] { return std::make_unique<PhotonGatherPass>(false, "base"); }};
+    return {spec, [] { return std::make_unique<PhotonGatherPass>(false); }};
 }
 
 }  // namespace fg

@@ -39,7 +39,9 @@
 // fixed number of blocks, block b splatting into per-pixel accumulator b, and
 // the accumulators are merged in block order at the end. The block count
 // depends on the pixel count only, so the image is the same for any thread
-// count (and for a stored map, given whole, as one batch).
+// count (and for a stored map, given whole, as one batch). The sum is the
+// `caustics` radiance layer, a film from black; the composite pass adds it to
+// the direct light and the gathered global light.
 #include "passes/passes.h"
 #include "passes/caustics/photon_estimate.h"
 
@@ -129,7 +131,8 @@ public:
         const PointIndex& eyeIndex = ctx.input<PointIndex>("eye_index");
         if (eyeIndex.size() != eye.size())
             throw std::logic_error("splat: the eye index was not built from these eye vertices");
-        const std::size_t pixelCount = ctx.input<Film>("direct").pixelCount();
+        const FilmSettings& film = ctx.filmSettings();
+        const std::size_t pixelCount = static_cast<std::size_t>(film.width) * static_cast<std::size_t>(film.height);
         if (blocks_.empty()) {
             for (std::uint32_t pixel : eye.column<EyePixel>())
                 if (pixel >= pixelCount) throw std::logic_error("splat: eye vertex outside the film");
@@ -197,7 +200,7 @@ public:
     }
 
     void run(PassContext& ctx) override {
-        Film& image = ctx.createOutput<Film>("image", ctx.input<Film>("direct"));
+        Film& image = ctx.createOutput<Film>("caustics", ctx.filmSettings());
         SplatAccumulator total;
         total.pixels.assign(image.pixelCount(), Rgb(0.0f));
         for (const SplatAccumulator& part : blocks_) {
@@ -259,15 +262,14 @@ PassRegistration splatPass() {
     PassSpec spec;
     spec.name = "splat";
     spec.doc = "Photon differential splatting of caustic photons onto the eye vertices their elliptic footprints "
-               "cover (Frisvad et al. 2014), added to the direct film";
+               "cover (Frisvad et al. 2014), as their own radiance layer";
     spec.inputs = {
         {"eye_vertices", "EyeVertices", "the vertices photons are splatted to, with pixel and throughput"},
         {"eye_index", "PointIndex", "search structure over eye_vertices"},
         {"caustic_photons", "PhotonMap", "caustic photons with positional differentials D_u x, D_v x (read in batches)",
          true},
-        {"direct", "Film", "the film the splats are added to"},
     };
-    spec.outputs = {{"image", "Film", "direct + splatted caustics"}};
+    spec.outputs = {{"caustics", "Film", "splatted caustics alone (a film from black)"}};
     spec.params = {
         {"max_normal_distance", ParamType::Float, 0.0, 0.0, 1e30, {},
          "topological-bias test: skip eye vertices farther than this (scene units) from the photon's tangent "

@@ -21,8 +21,10 @@
 // closest point t_i lies inside [tNear, tFar]: a photon near the boundary
 // between two consecutive segments of one ray is counted exactly once.
 //
-// Output: the base film (the surface part of the image) plus, per pixel, the
-// sum of its segments' estimates, and AOVs of the query's cost per pixel —
+// Output: the `volume` radiance layer, a film from black holding per pixel the
+// sum of its segments' estimates (the composite pass adds it to the surface
+// layers, so the query need not wait for the surface gather), and AOVs of the
+// query's cost per pixel —
 // query_cost (BVH nodes + photons tested), query_nodes, query_photons and
 // query_time_ns (wall time of the pixel's queries) — the time-per-pixel image of
 // Jakob et al. 2011, Fig. 1. Segments are estimated in parallel and summed into
@@ -62,7 +64,6 @@ public:
         const EyeSegments& eyeSegments = ctx.input<EyeSegments>("eye_segments");
         const VolumePhotonMap& photons = ctx.input<VolumePhotonMap>("photons");
         const PhotonBvh& bvh = ctx.input<PhotonBvh>("bvh");
-        const Film& base = ctx.input<Film>("base");
         const bool silverman = ctx.params().getString("kernel") == "silverman";
         if (bvh.size() != photons.photons.size()) {
             throw std::logic_error("beam_query: the BVH holds " + std::to_string(bvh.size()) + " spheres but the map " +
@@ -136,7 +137,7 @@ public:
             }
         });
 
-        Film& image = ctx.createOutput<Film>("image", base);
+        Film& image = ctx.createOutput<Film>("volume", ctx.filmSettings());
         image.aov("query_cost");  // create all channels before holding references into them
         image.aov("query_nodes");
         image.aov("query_photons");
@@ -177,16 +178,15 @@ PassRegistration beamQueryPass() {
     PassSpec spec;
     spec.name = "beam_query";
     spec.doc = "Beam radiance estimate (Jakob et al. 2011 Eq. 3): all photon spheres along each camera segment "
-               "(BVH traversal), 2D kernel x transmittance x phase x power, added to the base film, with per-pixel "
-               "query-cost AOVs";
+               "(BVH traversal), 2D kernel x transmittance x phase x power, as the volume radiance layer, with "
+               "per-pixel query-cost AOVs";
     spec.inputs = {
         {"eye_segments", "EyeSegments", "camera-ray segments inside media (volume_eye)"},
         {"photons", "VolumePhotonMap", "the volume photons the BVH was built over"},
         {"bvh", "PhotonBvh", "hierarchy over the photons' kernel spheres (photon_bvh)"},
-        {"base", "Film", "the film the media radiance is added to (the surface part of the image)"},
     };
-    spec.outputs = {{"image", "Film", "base + media radiance; AOVs query_cost, query_nodes, query_photons, "
-                                      "query_time_ns"}};
+    spec.outputs = {{"volume", "Film", "media radiance alone (a film from black); AOVs query_cost, query_nodes, "
+                                       "query_photons, query_time_ns"}};
     spec.params = {
         {"kernel", ParamType::String, std::string("silverman"), 0, 0, {"silverman", "uniform"},
          "normalised 2D kernel K_i: silverman = 3/pi (1 - d^2/r^2)^2 / r^2, uniform = 1 / (pi r^2)"},

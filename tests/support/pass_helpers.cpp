@@ -16,6 +16,10 @@ std::map<std::string, BufferHandle> runPass(const PassRegistration& pass, const 
     std::map<std::string, BufferHandle*> in;
     for (const SlotSpec& slot : pass.spec.inputs) {
         const auto it = inputs.find(slot.name);
+        if (it == inputs.end() && slot.optional) {
+            in[slot.name] = nullptr;  // absent, as the scheduler leaves an optional input nobody produces
+            continue;
+        }
         if (it == inputs.end()) throw std::invalid_argument("runPass: no buffer for input '" + slot.name + "'");
         in[slot.name] = &it->second;
     }
@@ -29,7 +33,7 @@ std::map<std::string, BufferHandle> runPass(const PassRegistration& pass, const 
     // As the scheduler does with stored inputs: a streamable input arrives as one batch.
     const std::unique_ptr<Pass> instance = pass.create();
     for (const SlotSpec& slot : pass.spec.inputs)
-        if (slot.streamable) instance->consumeBatch(ctx, slot.name);
+        if (slot.streamable && in[slot.name]) instance->consumeBatch(ctx, slot.name);
     instance->run(ctx);
     return outputs;
 }
