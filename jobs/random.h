@@ -1,7 +1,9 @@
 // Deterministic random streams. Every stream is keyed by (seed, pass, item):
-// the item is the index of the work item (pixel sample, photon, ...) inside the
-// pass, so the numbers an item sees never depend on which thread runs it or in
-// which order chunks are scheduled. The generator is PCG32 (O'Neill 2014) whose
+// the pass part is the hash of the pass instance's name, which for an instance
+// of a repeat block includes its iteration ("train[7].photon"); the item is the
+// index of the work item (pixel sample, photon, ...) inside the pass, so the
+// numbers an item sees never depend on which thread runs it or in which order
+// chunks are scheduled. The generator is PCG32 (O'Neill 2014) whose
 // state and stream selector are derived from the key by SplitMix64 finalisers.
 #pragma once
 
@@ -19,7 +21,7 @@ inline constexpr std::uint64_t splitmix64(std::uint64_t x) {
     return x ^ (x >> 31);
 }
 
-// Stable 64-bit key of a pass name (FNV-1a), used as the `pass` part of a stream key.
+// Stable 64-bit key of a pass instance name (FNV-1a), the `pass` part of a stream key.
 inline constexpr std::uint64_t streamKey(std::string_view name) {
     std::uint64_t h = 0xCBF29CE484222325ull;
     for (char c : name) {

@@ -4,7 +4,7 @@
 //   scene_defines = { spp = "64" }  # optional: parameters of a Mitsuba scene (its $name /
 //                                   # <default>); strings, numbers or booleans; --define wins
 //   pipeline = "pt"                 # a built-in pipeline, or a [pipeline] table (below)
-//   seed     = 1                    # random streams are keyed by (seed, pass, item)
+//   seed     = 1                    # random streams are keyed by (seed, pass instance, item)
 //   threads  = 0                    # 0 = all hardware threads
 //
 //   [film]                          # optional; width/height default to the scene camera's

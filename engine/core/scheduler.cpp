@@ -198,10 +198,16 @@ private:
             if (it != current.end()) {
                 version = it->second;
             } else if (producedLater && producedLater->count(name)) {
+                const RepeatBlock& repeat = pipeline_.blocks[static_cast<std::size_t>(block)];
+                if (!in->optional && repeat.carry.count(name)) {
+                    fail(planned.source, "pass '" + node.instance + "' in repeat block '" + repeat.name + "' reads '" + name +
+                                             "', which iteration 0 has nothing to carry in for: make or import it before "
+                                             "the block, or read it through an optional input");
+                }
                 if (!in->optional)
-                    fail(planned.source, "pass '" + node.instance + "' in repeat block '" + pipeline_.blocks[static_cast<std::size_t>(block)].name +
-                                             "' reads '" + name + "' before the block produces it; declare carry = { " + name +
-                                             " = \"" + name + "\" } to read the previous iteration's");
+                    fail(planned.source, "pass '" + node.instance + "' in repeat block '" + repeat.name + "' reads '" + name +
+                                             "' before the block produces it; declare carry = { " + name + " = \"" + name +
+                                             "\" } to read the previous iteration's");
             } else {
                 version = name;  // produced later at top level (order-free), or by no one: checked below
             }
@@ -505,7 +511,11 @@ ExecutionPlan ExecutionPlan::build(const Pipeline& pipeline, const JobParams& pa
         stack.pop_back();
         if (needed[static_cast<std::size_t>(i)]) continue;
         needed[static_cast<std::size_t>(i)] = true;
-        for (int d : plan.passes_[static_cast<std::size_t>(i)].dependencies) stack.push_back(d);
+        const PlannedPass& p = plan.passes_[static_cast<std::size_t>(i)];
+        for (int d : p.dependencies) stack.push_back(d);
+        // Were its iteration skipped, its outputs would take the previous iteration's.
+        if (p.block >= 0 && plan.blocks_[static_cast<std::size_t>(p.block)].canExitEarly())
+            for (const auto& [slot, source] : p.skipAliases) stack.push_back(plan.producer_.at(source));
     }
     for (std::size_t i = 0; i < n; ++i) plan.passes_[i].culled = !needed[i];
     if (pipeline.streamBatches) plan.chooseStreams();
@@ -754,6 +764,10 @@ RunResult execute(const ExecutionPlan& plan, const Scene& scene, const RayQuery*
             const std::string& version = p.node.inputBindings.at(in->name);
             if (!version.empty()) ++readers[version];
         }
+        // The version an output would take if the iteration were skipped is held
+        // until the pass has run or been skipped.
+        if (p.block >= 0 && plan.blocks()[static_cast<std::size_t>(p.block)].canExitEarly())
+            for (const auto& [slot, source] : p.skipAliases) ++readers[source];
     }
     std::mutex bufferMutex;  // guards freeing against concurrent lookups
 
@@ -875,6 +889,9 @@ RunResult execute(const ExecutionPlan& plan, const Scene& scene, const RayQuery*
             if (buffer.empty()) continue;
             if (--readers[buffer] == 0 && !kept.count(buffer)) buffers[buffer].data.reset();
         }
+        if (pass.block >= 0 && plan.blocks()[static_cast<std::size_t>(pass.block)].canExitEarly())
+            for (const auto& [slot, source] : pass.skipAliases)
+                if (--readers[source] == 0 && !kept.count(source)) buffers[source].data.reset();
         // Outputs nobody reads (side outputs of a needed pass) go at once.
         for (const SlotSpec* out : writeSlots(pass.registration->spec)) {
             const std::string& buffer = pass.node.outputBindings.at(out->name);

@@ -3,6 +3,7 @@
 // random-stream keys per instance and iteration, and scene hints that reach
 // only the passes that declare them.
 #include "engine/accel/ray_query.h"
+#include "engine/buffers/photon_buffers.h"
 #include "engine/core/codec.h"
 #include "engine/core/error.h"
 #include "engine/core/job.h"
@@ -318,6 +319,94 @@ TEST(DemandDrivenStream, StopsAtABatchBoundaryWithTheSameBatchesForAnyThreadCoun
         EXPECT_EQ(seen->values.size(), 19u);
         EXPECT_EQ(static_cast<const Counter*>(run.results.at("total").data.get())->value, 105);
     }
+}
+
+// A block output read only after the block (not carried) comes from the last
+// iteration that ran, even though the later iterations' copies of its producer
+// would otherwise be culled.
+TEST(RepeatBlock, AnOutputReadAfterAnEarlyExitIsTheLastRunIterations) {
+    SlotSpec previous{"previous", "Counter", ""};
+    previous.optional = true;
+    PassSpec step{"step", "", {previous}, {{"tally", "Counter", ""}}, {}, {}, {"done"}};
+    PassSpec mark{"mark", "", {}, {{"side", "Counter", ""}}, {}, {}, {}};
+    PassSpec read{"read", "", {{"side", "Counter", ""}}, {{"final", "Counter", ""}}, {}, {}, {}};
+    std::vector<PassRegistration> registry = {
+        lambdaPass(step,
+                   [](PassContext& ctx) {
+                       const std::int64_t value = (ctx.hasInput("previous") ? ctx.input<Counter>("previous").value : 0) + 1;
+                       ctx.createOutput<Counter>("tally").value = value;
+                       if (value >= 3) ctx.signal("done");
+                   }),
+        lambdaPass(mark, [](PassContext& ctx) { ctx.createOutput<Counter>("side").value = 100 + ctx.iteration(); }),
+        lambdaPass(read, [](PassContext& ctx) { ctx.createOutput<Counter>("final").value = ctx.input<Counter>("side").value; }),
+    };
+    Pipeline pipeline;
+    pipeline.name = "early";
+    RepeatBlock block;
+    block.name = "loop";
+    block.count = 10;
+    block.carry = {{"tally", "tally"}};
+    block.until = "step.done";
+    block.nodes = {node("step", "step", {{"previous", "tally"}}), node("mark", "mark")};
+    pipeline.blocks = {block};
+    pipeline.nodes = {node("read", "read")};
+    pipeline.results = {"final", "tally"};
+    for (int threads : {1, 2}) {
+        const RunResult run = runOnBareScene(pipeline, registry, threads);
+        EXPECT_EQ(run.iterations.at("loop"), 3);
+        EXPECT_EQ(static_cast<const Counter*>(run.results.at("tally").data.get())->value, 3);
+        EXPECT_EQ(static_cast<const Counter*>(run.results.at("final").data.get())->value, 102);
+    }
+}
+
+TEST(DemandDrivenStream, ThePhotonPassStopsTracingWhenItsReadersHaveEnough) {
+    const Scene scene = loadScene(sourcePath("data/water-wave/water-wave.xml"), {});
+    const RayQuery rays(scene);
+    struct Taken {
+        std::vector<std::size_t> batchSizes;
+    };
+    std::vector<std::int64_t> pathsTraced;
+    std::vector<std::vector<std::size_t>> batches;
+    for (int threads : {1, 2}) {
+        auto taken = std::make_shared<Taken>();
+        std::vector<PassRegistration> registry = passRegistry();
+        SlotSpec caustics{"caustic_photons", "PhotonMap", "", true};
+        registry.push_back(lambdaPass(
+            {"take_caustics", "", {caustics}, {{"count", "Counter", ""}}, {}, {}, {}},
+            [taken](PassContext& ctx) {
+                std::int64_t total = 0;
+                for (std::size_t n : taken->batchSizes) total += static_cast<std::int64_t>(n);
+                ctx.createOutput<Counter>("count").value = total;
+            },
+            [taken](PassContext& ctx, const std::string& slot) {
+                taken->batchSizes.push_back(ctx.input<PhotonMap>(slot).photons.size());
+                std::size_t total = 0;
+                for (std::size_t n : taken->batchSizes) total += n;
+                if (total >= 3000) ctx.wantNoMoreBatches(slot);
+            }));
+        Pipeline pipeline;
+        pipeline.name = "demand";
+        pipeline.nodes = {node("photon", "photon"), node("take", "take_caustics")};
+        pipeline.results = {"count"};
+        JobParams params;
+        params.values["photon"]["photons"] = {std::int64_t{4000000}, "test"};
+        params.values["photon"]["batch_size"] = {std::int64_t{4096}, "test"};
+        const ExecutionPlan plan = ExecutionPlan::build(pipeline, params, "test", registry);
+        ASSERT_TRUE(plan.streamed("caustic_photons"));
+        const jobs::ThreadLimit limit(threads);
+        const RunResult run = execute(plan, scene, &rays, RunOptions{});
+        for (const PassStats& s : run.stats)
+            if (s.pass == "photon") {
+                pathsTraced.push_back(s.items);
+                EXPECT_EQ(s.counters.at("stopped_by_readers"), 1);
+            }
+        batches.push_back(taken->batchSizes);
+    }
+    ASSERT_EQ(pathsTraced.size(), 2u);
+    EXPECT_EQ(pathsTraced[0], pathsTraced[1]);
+    EXPECT_EQ(batches[0], batches[1]);
+    EXPECT_EQ(pathsTraced[0] % 4096, 0) << "stopped at a batch boundary";
+    EXPECT_LT(pathsTraced[0], 4000000);
 }
 
 TEST(RandomStreams, KeysArePerInstanceAndKeepTheirOldValueForAPassNamedInstance) {
