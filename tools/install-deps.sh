@@ -5,7 +5,7 @@ packages=(
   build-essential cmake pkg-config
   libembree-dev libtbb-dev libopenimageio-dev libopenexr-dev libglm-dev
   libtomlplusplus-dev libtinyobjloader-dev libpugixml-dev libassimp-dev libcli11-dev
-  libgtest-dev libbenchmark-dev python3 python3-numpy python3-skimage
+  libgtest-dev libbenchmark-dev python3 python3-numpy python3-skimage python3-matplotlib
 )
 missing=()
 for p in "${packages[@]}"; do
