@@ -2,6 +2,7 @@
 // Input errors print one line "file:line: message" and exit with code 2,
 // leaving no output file behind; internal errors exit with code 1.
 #include "engine/cli/compare.h"
+#include "engine/cli/replay.h"
 #include "engine/core/error.h"
 #include "engine/core/job.h"
 #include "engine/core/pass.h"
@@ -121,6 +122,8 @@ int main(int argc, char** argv) {
     app.add_subcommand("pipelines", "list the built-in pipelines");
     fg::cli::CompareOptions compareOptions;
     CLI::App* compare = fg::cli::addCompareSubcommand(app, compareOptions);
+    fg::cli::ReplayCommandOptions replayOptions;
+    CLI::App* replay = fg::cli::addReplaySubcommand(app, replayOptions);
 
     try {
         app.parse(argc, argv);
@@ -143,6 +146,7 @@ int main(int argc, char** argv) {
             return 0;
         }
         if (compare->parsed()) return fg::cli::runCompare(compareOptions);
+        if (replay->parsed()) return fg::cli::runReplay(replayOptions);
         if (threads >= 0) overrides.threads = threads;
         if (seed >= 0) overrides.seed = static_cast<std::uint64_t>(seed);
         if (render->parsed() && render->count("--seed") && seed < 0) throw fg::InputError("--seed: must be non-negative");
