@@ -17,6 +17,7 @@
 #include <fstream>
 #include <iomanip>
 #include <optional>
+#include <string_view>
 #include <sstream>
 #include <unistd.h>
 
@@ -95,6 +96,21 @@ std::string encodeBuffer(const BufferHandle& buffer) {
     out << writer.itemCount() << '\n';
     writer.writePayload(out);
     return out.str();
+}
+
+std::string comparableEncoding(const BufferHandle& buffer) {
+    if (buffer.type != BufferTypeName<Film>::value || !buffer.data) return encodeBuffer(buffer);
+    const Film& film = *static_cast<const Film*>(buffer.data.get());
+    const auto measured = [](const std::string& name) {
+        constexpr std::string_view kSuffix = "time_ns";
+        return name.size() >= kSuffix.size() && name.compare(name.size() - kSuffix.size(), kSuffix.size(), kSuffix) == 0;
+    };
+    if (std::none_of(film.aovs().begin(), film.aovs().end(), [&](const auto& aov) { return measured(aov.first); }))
+        return encodeBuffer(buffer);
+    Film copy = film;
+    for (const auto& [name, values] : film.aovs())
+        if (measured(name)) std::fill(copy.aov(name).begin(), copy.aov(name).end(), 0.0f);
+    return encodeBuffer(makeBufferHandle(std::move(copy)));
 }
 
 ReplayResult replayPass(const Job& job, const ReplayOptions& options, const Registry& registry) {
@@ -233,7 +249,7 @@ ReplayResult replayPass(const Job& job, const ReplayOptions& options, const Regi
         for (auto& [slot, handle] : outputHandles) {
             if (!handle.data)
                 throw std::logic_error("pass '" + target.node.instance + "' did not produce its output '" + slot + "'");
-            std::string encoded = encodeBuffer(handle);
+            std::string encoded = comparableEncoding(handle);
             if (repetition == 1) {
                 firstEncoding[slot] = std::move(encoded);
                 result.outputs[slot] = handle;

@@ -82,5 +82,10 @@ std::string formatReplayReport(const ReplayResult& result);
 // A buffer as its codec encodes it (type, columns, item count and payload;
 // no job text): equal strings mean byte-identical buffer files.
 std::string encodeBuffer(const BufferHandle& buffer);
+// As encodeBuffer, but with every Film AOV whose name ends in "time_ns"
+// zeroed: those channels record how long pixels took (pt's time_ns,
+// beam_query's query_time_ns), which no two runs repeat. The replay compares
+// outputs in this form.
+std::string comparableEncoding(const BufferHandle& buffer);
 
 }  // namespace fg
