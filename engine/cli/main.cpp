@@ -3,6 +3,7 @@
 // leaving no output file behind; internal errors exit with code 1.
 #include "engine/cli/compare.h"
 #include "engine/cli/scale.h"
+#include "engine/cli/replay.h"
 #include "engine/core/error.h"
 #include "engine/core/job.h"
 #include "engine/core/pass.h"
@@ -124,6 +125,8 @@ int main(int argc, char** argv) {
     CLI::App* compare = fg::cli::addCompareSubcommand(app, compareOptions);
     fg::cli::ScaleOptions scaleOptions;
     CLI::App* scale = fg::cli::addScaleSubcommand(app, scaleOptions);
+    fg::cli::ReplayCommandOptions replayOptions;
+    CLI::App* replay = fg::cli::addReplaySubcommand(app, replayOptions);
 
     try {
         app.parse(argc, argv);
@@ -147,6 +150,7 @@ int main(int argc, char** argv) {
         }
         if (compare->parsed()) return fg::cli::runCompare(compareOptions);
         if (scale->parsed()) return fg::cli::runScale(scaleOptions);
+        if (replay->parsed()) return fg::cli::runReplay(replayOptions);
         if (threads >= 0) overrides.threads = threads;
         if (seed >= 0) overrides.seed = static_cast<std::uint64_t>(seed);
         if (render->parsed() && render->count("--seed") && seed < 0) throw fg::InputError("--seed: must be non-negative");

@@ -50,17 +50,6 @@ void ensureWritableDirectory(const std::string& dir) {
     if (!canCreateFileIn(dir)) throw InputError(dir + ": output directory is not writable");
 }
 
-// Traces, statistics and saved buffers are written during or after the
-// render; their destinations are checked before it.
-void ensureWritableFilePath(const std::string& path, const std::string& what) {
-    const fs::path parent = fs::path(path).has_parent_path() ? fs::path(path).parent_path() : fs::path(".");
-    std::error_code ec;
-    if (fs::is_directory(path, ec)) throw InputError(path + ": cannot write " + what + ": is a directory");
-    if (!fs::is_directory(parent, ec))
-        throw InputError(path + ": cannot write " + what + ": no directory " + parent.string());
-    if (!canCreateFileIn(parent)) throw InputError(path + ": cannot write " + what + ": directory is not writable");
-}
-
 std::string jsonEscape(const std::string& s) {
     std::string out;
     for (char c : s) {
@@ -125,6 +114,19 @@ std::string pipelineDescription(const ExecutionPlan& plan) {
         text += " " + p.node.instance + (p.culled ? "(culled)" : "");
     }
     return text;
+}
+
+}  // namespace
+
+// Traces, statistics and saved buffers are written during or after the
+// render; their destinations are checked before it.
+void ensureWritableFilePath(const std::string& path, const std::string& what) {
+    const fs::path parent = fs::path(path).has_parent_path() ? fs::path(path).parent_path() : fs::path(".");
+    std::error_code ec;
+    if (fs::is_directory(path, ec)) throw InputError(path + ": cannot write " + what + ": is a directory");
+    if (!fs::is_directory(parent, ec))
+        throw InputError(path + ": cannot write " + what + ": no directory " + parent.string());
+    if (!canCreateFileIn(parent)) throw InputError(path + ": cannot write " + what + ": directory is not writable");
 }
 
 // Scene files may carry rendering hints (Mitsuba's sample_count, max_depth,
@@ -196,7 +198,14 @@ std::map<std::string, BufferHandle> loadImports(const ExecutionPlan& plan) {
     return loaded;
 }
 
-}  // namespace
+FilmSettings jobFilm(const Job& job, const Scene& scene) {
+    FilmSettings film = job.film;
+    if (!job.filmSizeGiven) {
+        film.width = scene.camera.width;
+        film.height = scene.camera.height;
+    }
+    return film;
+}
 
 ExecutionPlan validateJob(const Job& job, const Registry& registry) {
     ExecutionPlan::build(job.pipeline, job.params, job.path, registry.passes, job.bufferFiles);
@@ -226,11 +235,7 @@ RenderOutcome renderJob(const Job& job, const RenderOptions& options, const Regi
     const std::int64_t t1 = jobs::wallNanos();
     outcome.sceneSeconds = 1e-9 * static_cast<double>(t1 - t0);
 
-    FilmSettings film = job.film;
-    if (!job.filmSizeGiven) {
-        film.width = scene.camera.width;
-        film.height = scene.camera.height;
-    }
+    FilmSettings film = jobFilm(job, scene);
     const ExecutionPlan plan = planWithSceneHints(job, scene, film, registry);
     runPreflights(plan, scene);
     std::map<std::string, BufferHandle> imported = loadImports(plan);

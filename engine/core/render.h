@@ -7,6 +7,7 @@
 #include "engine/core/scheduler.h"
 #include "jobs/work_context.h"
 
+#include <map>
 #include <string>
 #include <vector>
 
@@ -31,6 +32,20 @@ struct RenderOutcome {
 // Runs every pass's preflight after loading the scene. Throws InputError.
 ExecutionPlan validateJob(const Job& job, const Registry& registry = installedRegistry());
 RenderOutcome renderJob(const Job& job, const RenderOptions& options, const Registry& registry = installedRegistry());
+
+// The steps of a render between loading the scene and running the passes, for
+// other ways of running a job (fluxgraph replay).
+// The job's film: the scene camera's size unless the job gives one.
+FilmSettings jobFilm(const Job& job, const Scene& scene);
+// The job's plan with the scene's rendering hints applied where the job is
+// silent (parameters that declare a hint; the film filter, in `film`).
+ExecutionPlan planWithSceneHints(const Job& job, const Scene& scene, FilmSettings& film, const Registry& registry);
+// Every live pass checks the scene and its parameters. Throws InputError.
+void runPreflights(const ExecutionPlan& plan, const Scene& scene);
+// Loads (and checks) the plan's imported buffers. Throws InputError.
+std::map<std::string, BufferHandle> loadImports(const ExecutionPlan& plan);
+// Throws InputError unless a file (`what`: "profile", ...) can be written at `path`.
+void ensureWritableFilePath(const std::string& path, const std::string& what);
 
 // One row per pass of each repeat block: its instances summed ("block[*].name").
 std::vector<PassStats> blockPassSums(const std::vector<PassStats>& stats);

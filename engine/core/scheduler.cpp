@@ -495,30 +495,65 @@ ExecutionPlan ExecutionPlan::build(const Pipeline& pipeline, const JobParams& pa
     }
 
     // Cull passes that do not contribute to any result.
-    std::vector<bool> needed(n, false);
-    std::vector<int> stack;
+    std::vector<int> roots;
     for (const std::string& result : pipeline.results)
-        if (const auto it = plan.producer_.find(plan.finalVersion(result)); it != plan.producer_.end()) stack.push_back(it->second);
-    for (const auto& [version, path] : plan.saves_) stack.push_back(plan.producer_.at(version));
+        if (const auto it = plan.producer_.find(plan.finalVersion(result)); it != plan.producer_.end()) roots.push_back(it->second);
+    for (const auto& [version, path] : plan.saves_) roots.push_back(plan.producer_.at(version));
     // A block's stopping condition is computed in every iteration, whether or
     // not its outputs are read later.
     for (const PlannedBlock& block : plan.blocks_)
         for (const auto& members : block.iterationPasses)
             for (int member : members)
-                if (plan.passes_[static_cast<std::size_t>(member)].paramsKey == block.untilInstance) stack.push_back(member);
-    while (!stack.empty()) {
-        const int i = stack.back();
-        stack.pop_back();
+                if (plan.passes_[static_cast<std::size_t>(member)].paramsKey == block.untilInstance) roots.push_back(member);
+    plan.cullAllBut(roots);
+    if (pipeline.streamBatches) plan.chooseStreams();
+    return plan;
+}
+
+void ExecutionPlan::cullAllBut(std::vector<int> roots) {
+    std::vector<bool> needed(passes_.size(), false);
+    while (!roots.empty()) {
+        const int i = roots.back();
+        roots.pop_back();
         if (needed[static_cast<std::size_t>(i)]) continue;
         needed[static_cast<std::size_t>(i)] = true;
-        const PlannedPass& p = plan.passes_[static_cast<std::size_t>(i)];
-        for (int d : p.dependencies) stack.push_back(d);
+        const PlannedPass& p = passes_[static_cast<std::size_t>(i)];
+        for (int d : p.dependencies) roots.push_back(d);
         // Were its iteration skipped, its outputs would take the previous iteration's.
-        if (p.block >= 0 && plan.blocks_[static_cast<std::size_t>(p.block)].canExitEarly())
-            for (const auto& [slot, source] : p.skipAliases) stack.push_back(plan.producer_.at(source));
+        if (p.block >= 0 && blocks_[static_cast<std::size_t>(p.block)].canExitEarly())
+            for (const auto& [slot, source] : p.skipAliases) roots.push_back(producer_.at(source));
     }
-    for (std::size_t i = 0; i < n; ++i) plan.passes_[i].culled = !needed[i];
-    if (pipeline.streamBatches) plan.chooseStreams();
+    for (std::size_t i = 0; i < passes_.size(); ++i) passes_[i].culled = !needed[i];
+}
+
+ExecutionPlan ExecutionPlan::producing(const std::vector<std::string>& versions) const {
+    ExecutionPlan plan = *this;
+    plan.pipeline_.results.clear();
+    plan.saves_.clear();
+    std::vector<int> roots;
+    for (const std::string& version : versions) {
+        if (imports_.count(version)) continue;
+        const auto it = producer_.find(version);
+        if (it == producer_.end())
+            throw InputError(pipeline_.file.empty() ? pipeline_.name : pipeline_.file,
+                             0, "no pass of pipeline '" + pipeline_.name + "' makes buffer '" + version + "'");
+        plan.saves_[version] = "";
+        roots.push_back(it->second);
+    }
+    // Stopping conditions decide whether the iterations before the last needed
+    // pass run at all, so they stay; those of later iterations do not matter.
+    const int lastNeeded = roots.empty() ? -1 : *std::max_element(roots.begin(), roots.end());
+    for (const PlannedBlock& block : blocks_)
+        for (const auto& members : block.iterationPasses)
+            for (int member : members)
+                if (member < lastNeeded && passes_[static_cast<std::size_t>(member)].paramsKey == block.untilInstance)
+                    roots.push_back(member);
+    plan.cullAllBut(roots);
+    for (PlannedPass& p : plan.passes_) {
+        p.streamHost = -1;
+        p.streamedOutputs.clear();
+    }
+    if (plan.pipeline_.streamBatches) plan.chooseStreams();
     return plan;
 }
 
@@ -691,6 +726,28 @@ std::string ExecutionPlan::bufferTypeOf(const std::string& version) const {
     return "";
 }
 
+// Books wall time, and this thread's CPU time less the chunks it ran (booked
+// to their own passes) and less nested timed bodies.
+void timePass(PassTiming& timing, const std::string& label, const std::function<void()>& body) {
+    const std::int64_t wall0 = jobs::wallNanos();
+    const std::int64_t cpu0 = jobs::threadCpuNanos();
+    const std::int64_t chunkCpu0 = jobs::chunkCpuOnThisThread();
+    const std::int64_t nestedCpu0 = tPassSerialCpu;
+    {
+        jobs::ScopedContext scope(&timing.work);
+        body();
+    }
+    const std::int64_t wall1 = jobs::wallNanos();
+    const std::int64_t serialCpu =
+        (jobs::threadCpuNanos() - cpu0) - (jobs::chunkCpuOnThisThread() - chunkCpu0) - (tPassSerialCpu - nestedCpu0);
+    tPassSerialCpu += serialCpu;
+    timing.serialCpuNs += serialCpu;
+    timing.wallNs += wall1 - wall0;
+    if (timing.firstStartNs < 0) timing.firstStartNs = wall0;
+    if (jobs::TraceRecorder::instance().enabled())
+        jobs::TraceRecorder::instance().record({label, "pass", jobs::threadSlot(), wall0, wall1, 0});
+}
+
 RunResult execute(const ExecutionPlan& plan, const Scene& scene, const RayQuery& rays, const RunOptions& options) {
     return execute(plan, scene, &rays, options);
 }
@@ -705,36 +762,15 @@ struct PassRun {
     std::unique_ptr<PassContext> ctx;
     std::map<std::string, BufferHandle*> inputs, outputs;
     std::map<std::string, BufferHandle> streamedInputs;  // slot -> handle holding the current batch
-    jobs::WorkContext work;
-    std::int64_t firstStart = -1;
-    std::int64_t wallNs = 0;
-    std::int64_t serialCpuNs = 0;
+    PassTiming timing;
     std::int64_t batchWallNs = 0;  // wall time of readers' batches run inside this pass
     std::size_t largestBatchBytes = 0;
     std::int64_t batches = 0;
 };
 
-// Runs body() booked to `run`: wall time, and this thread's CPU time less the
-// chunks it ran (booked to their own passes) and less nested timed bodies.
 template <class Body>
 void timed(PassRun& run, const std::string& label, Body&& body) {
-    const std::int64_t wall0 = jobs::wallNanos();
-    const std::int64_t cpu0 = jobs::threadCpuNanos();
-    const std::int64_t chunkCpu0 = jobs::chunkCpuOnThisThread();
-    const std::int64_t nestedCpu0 = tPassSerialCpu;
-    {
-        jobs::ScopedContext scope(&run.work);
-        body();
-    }
-    const std::int64_t wall1 = jobs::wallNanos();
-    const std::int64_t serialCpu =
-        (jobs::threadCpuNanos() - cpu0) - (jobs::chunkCpuOnThisThread() - chunkCpu0) - (tPassSerialCpu - nestedCpu0);
-    tPassSerialCpu += serialCpu;
-    run.serialCpuNs += serialCpu;
-    run.wallNs += wall1 - wall0;
-    if (run.firstStart < 0) run.firstStart = wall0;
-    if (jobs::TraceRecorder::instance().enabled())
-        jobs::TraceRecorder::instance().record({label, "pass", jobs::threadSlot(), wall0, wall1, 0});
+    timePass(run.timing, label, body);
 }
 
 }  // namespace
@@ -866,7 +902,7 @@ RunResult execute(const ExecutionPlan& plan, const Scene& scene, const RayQuery*
         run.ctx->setIteration(pass.iteration);
         run.ctx->setDeclaredSignals(pass.registration->spec.signals);
         if (options.progress) run.ctx->setProgressSink(options.progress);
-        run.work.label = pass.node.instance;
+        run.timing.work.label = pass.node.instance;
         run.instance = pass.registration->create();
     };
     // Stored inputs a pass could also read in batches arrive as one batch (for a
@@ -910,9 +946,9 @@ RunResult execute(const ExecutionPlan& plan, const Scene& scene, const RayQuery*
             s.block = plan.blocks()[static_cast<std::size_t>(pass.block)].name;
             s.blockPass = pass.paramsKey;
         }
-        s.startSeconds = 1e-9 * static_cast<double>(run.firstStart - runStart);
-        s.wallSeconds = 1e-9 * static_cast<double>(run.wallNs - run.batchWallNs);
-        s.cpuSeconds = 1e-9 * static_cast<double>(run.serialCpuNs + run.work.chunkCpuNs.load());
+        s.startSeconds = 1e-9 * static_cast<double>(run.timing.firstStartNs - runStart);
+        s.wallSeconds = 1e-9 * static_cast<double>(run.timing.wallNs - run.batchWallNs);
+        s.cpuSeconds = run.timing.cpuSeconds();
         s.items = run.ctx->items();
         s.counters = run.ctx->counters();
         s.batchesEmitted = run.batches;

@@ -17,6 +17,7 @@
 #pragma once
 
 #include "engine/core/pass.h"
+#include "jobs/work_context.h"
 
 #include <map>
 #include <string>
@@ -91,12 +92,20 @@ public:
     // Imported versions -> (type, path); saved versions -> path.
     const std::map<std::string, std::pair<std::string, std::string>>& imports() const { return imports_; }
     const std::map<std::string, std::string>& saves() const { return saves_; }
+    // The plan that makes only the given buffer versions (and what they need):
+    // every other pass is culled, the versions are stored whole (never
+    // streamed), kept to the end and handed to RunOptions::save with an empty
+    // path as soon as they are made. Throws InputError for a version that no
+    // pass of the plan makes or imports.
+    ExecutionPlan producing(const std::vector<std::string>& versions) const;
     // Graphviz DOT; repeat blocks drawn once with their count unless `unroll`.
     std::string toDot(bool unroll = false) const;
     // The type of a buffer version ("Film", ...), empty if unknown.
     std::string bufferTypeOf(const std::string& version) const;
 
 private:
+    // Culls every pass that none of `roots` (pass indices) needs.
+    void cullAllBut(std::vector<int> roots);
     void chooseStreams();
     bool fusedTasksAcyclic() const;
     Pipeline pipeline_;
@@ -122,6 +131,20 @@ struct PassStats {
     std::int64_t batchesEmitted = 0;
     std::map<std::string, std::int64_t> counters;
 };
+
+// Time booked to one pass instance, possibly in several pieces (the batches it
+// consumed, then its run): wall time, and the CPU time of every thread that
+// worked for it (its own thread's, less nested timed bodies, plus the parallel
+// chunks booked to `work`).
+struct PassTiming {
+    jobs::WorkContext work;
+    std::int64_t firstStartNs = -1;  // jobs::wallNanos() when the first piece began
+    std::int64_t wallNs = 0;
+    std::int64_t serialCpuNs = 0;
+    double cpuSeconds() const { return 1e-9 * static_cast<double>(serialCpuNs + work.chunkCpuNs.load()); }
+};
+// Runs body() booked to `timing`, and records a "pass" trace slice named `label`.
+void timePass(PassTiming& timing, const std::string& label, const std::function<void()>& body);
 
 struct RunOptions {
     std::uint64_t seed = 1;
