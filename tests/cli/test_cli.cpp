@@ -7,6 +7,8 @@
 #include "engine/image/image_io.h"
 #include "engine/core/pass.h"
 
+#include "tests/support/cli_helpers.h"
+
 #include <gtest/gtest.h>
 
 #include <sys/wait.h>
@@ -28,62 +30,14 @@ namespace {
 
 namespace fs = std::filesystem;
 
-struct CommandResult {
-    int exitCode = -1;
-    std::string out;
-    std::string err;
-};
+using test::CommandResult;
+using test::readText;
+using test::runFluxgraph;
+using test::sourcePath;
+using test::writeText;
 
-std::string readText(const fs::path& path) {
-    std::ifstream in(path, std::ios::binary);
-    std::stringstream buffer;
-    buffer << in.rdbuf();
-    return buffer.str();
-}
+fs::path scratchDirectory() { return test::scratchDirectory("cli"); }
 
-void writeText(const fs::path& path, const std::string& text) {
-    std::ofstream out(path, std::ios::binary);
-    out << text;
-    ASSERT_TRUE(out.good()) << path;
-}
-
-std::string shellQuote(const std::string& word) {
-    std::string quoted = "'";
-    for (char c : word) quoted += c == '\'' ? std::string("'\\''") : std::string(1, c);
-    return quoted + "'";
-}
-
-// A fresh, empty directory per test (ctest runs tests as separate processes, in parallel).
-fs::path scratchDirectory() {
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    const fs::path dir = fs::path(FLUXGRAPH_TEST_TMP) / "cli" / info->name();
-    fs::remove_all(dir);
-    fs::create_directories(dir);
-    return dir;
-}
-
-// Runs the binary with `dir` as working directory, so that anything written to
-// a relative path lands in the scratch directory; stdout and stderr are
-// captured in dir/logs, away from the output directories the tests inspect.
-CommandResult runFluxgraph(const fs::path& dir, const std::vector<std::string>& args) {
-    const fs::path logs = dir / "logs";
-    fs::create_directories(logs);
-    std::string command = "cd " + shellQuote(dir.string()) + " && " + shellQuote(FLUXGRAPH_BINARY);
-    for (const std::string& a : args) {
-        command += ' ';  // appended separately: GCC 12 warns (-Wrestrict, falsely) on " " + string here
-        command += shellQuote(a);
-    }
-    command += " </dev/null >" + shellQuote((logs / "stdout").string()) + " 2>" + shellQuote((logs / "stderr").string());
-    const int status = std::system(command.c_str());
-    CommandResult result;
-    if (status != -1 && WIFEXITED(status)) result.exitCode = WEXITSTATUS(status);
-    else if (status != -1 && WIFSIGNALED(status)) result.exitCode = 128 + WTERMSIG(status);
-    result.out = readText(logs / "stdout");
-    result.err = readText(logs / "stderr");
-    return result;
-}
-
-std::string sourcePath(const std::string& relative) { return (fs::path(FLUXGRAPH_SOURCE_DIR) / relative).string(); }
 std::string quickstartJob() { return sourcePath("data/jobs/quickstart.toml"); }
 std::string cornellScene() { return sourcePath("data/cornell-box/cornell-box.toml"); }
 

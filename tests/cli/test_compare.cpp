@@ -4,6 +4,8 @@
 // with nothing on stdout; the heatmap is written atomically.
 #include "engine/image/image_compare.h"
 
+#include "tests/support/cli_helpers.h"
+
 #include <gtest/gtest.h>
 
 #include <sys/wait.h>
@@ -23,49 +25,18 @@ namespace {
 
 namespace fs = std::filesystem;
 
-struct CommandResult {
-    int exitCode = -1;
-    std::string out;
-    std::string err;
-};
+using test::CommandResult;
+using test::readText;
+using test::runFluxgraph;
+using test::sourcePath;
+using test::writeText;
 
-std::string readText(const fs::path& path) {
-    std::ifstream in(path, std::ios::binary);
-    std::stringstream buffer;
-    buffer << in.rdbuf();
-    return buffer.str();
-}
-
-std::string shellQuote(const std::string& word) {
-    std::string quoted = "'";
-    for (char c : word) quoted += c == '\'' ? std::string("'\\''") : std::string(1, c);
-    return quoted + "'";
-}
-
-fs::path scratchDirectory() {
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    const fs::path dir = fs::path(FLUXGRAPH_TEST_TMP) / "cli_compare" / info->name();
-    fs::remove_all(dir);
-    fs::create_directories(dir);
-    return dir;
-}
+fs::path scratchDirectory() { return test::scratchDirectory("cli_compare"); }
 
 // Runs `fluxgraph compare ARGS...` in `dir`; output captured in dir/logs.
-CommandResult runCompare(const fs::path& dir, const std::vector<std::string>& args) {
-    const fs::path logs = dir / "logs";
-    fs::create_directories(logs);
-    std::string command = "cd " + shellQuote(dir.string()) + " && " + shellQuote(FLUXGRAPH_BINARY) + " compare";
-    for (const std::string& a : args) {
-        command += ' ';
-        command += shellQuote(a);
-    }
-    command += " </dev/null >" + shellQuote((logs / "stdout").string()) + " 2>" + shellQuote((logs / "stderr").string());
-    const int status = std::system(command.c_str());
-    CommandResult result;
-    if (status != -1 && WIFEXITED(status)) result.exitCode = WEXITSTATUS(status);
-    result.out = readText(logs / "stdout");
-    result.err = readText(logs / "stderr");
-    return result;
+CommandResult runCompare(const fs::path& dir, std::vector<std::string> args) {
+    args.insert(args.begin(), "compare");
+    return runFluxgraph(dir, args);
 }
 
 void expectInputError(const CommandResult& r) {

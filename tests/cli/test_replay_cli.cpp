@@ -2,6 +2,8 @@
 // small job, prints a row per repetition and the median, says the outputs
 // were identical, round-trips its inputs through --save-inputs / --inputs and
 // writes a trace; bad requests cost one stderr line and exit code 2.
+#include "tests/support/cli_helpers.h"
+
 #include <gtest/gtest.h>
 
 #include <sys/wait.h>
@@ -19,53 +21,13 @@ namespace {
 
 namespace fs = std::filesystem;
 
-struct CommandResult {
-    int exitCode = -1;
-    std::string out;
-    std::string err;
-};
+using test::CommandResult;
+using test::readText;
+using test::runFluxgraph;
+using test::sourcePath;
+using test::writeText;
 
-std::string readText(const fs::path& path) {
-    std::ifstream in(path, std::ios::binary);
-    std::stringstream buffer;
-    buffer << in.rdbuf();
-    return buffer.str();
-}
-
-std::string shellQuote(const std::string& word) {
-    std::string quoted = "'";
-    for (char c : word) quoted += c == '\'' ? std::string("'\\''") : std::string(1, c);
-    return quoted + "'";
-}
-
-fs::path scratchDirectory() {
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    const fs::path dir = fs::path(FLUXGRAPH_TEST_TMP) / "cli-replay" / info->name();
-    fs::remove_all(dir);
-    fs::create_directories(dir);
-    return dir;
-}
-
-// Runs the binary in `dir`; stdout and stderr are captured in dir/logs.
-CommandResult runFluxgraph(const fs::path& dir, const std::vector<std::string>& args) {
-    const fs::path logs = dir / "logs";
-    fs::create_directories(logs);
-    std::string command = "cd " + shellQuote(dir.string()) + " && " + shellQuote(FLUXGRAPH_BINARY);
-    for (const std::string& a : args) {
-        command += ' ';
-        command += shellQuote(a);
-    }
-    command += " </dev/null >" + shellQuote((logs / "stdout").string()) + " 2>" + shellQuote((logs / "stderr").string());
-    const int status = std::system(command.c_str());
-    CommandResult result;
-    if (status != -1 && WIFEXITED(status)) result.exitCode = WEXITSTATUS(status);
-    else if (status != -1 && WIFSIGNALED(status)) result.exitCode = 128 + WTERMSIG(status);
-    result.out = readText(logs / "stdout");
-    result.err = readText(logs / "stderr");
-    return result;
-}
-
-std::string sourcePath(const std::string& relative) { return (fs::path(FLUXGRAPH_SOURCE_DIR) / relative).string(); }
+fs::path scratchDirectory() { return test::scratchDirectory("cli-replay"); }
 
 std::vector<std::string> replayGather(std::vector<std::string> extra) {
     std::vector<std::string> args = {"replay", sourcePath("data/jobs/cornell-spm.toml"), "--pass", "gather",

@@ -2,6 +2,8 @@
 // quick-start job at 1 and 2 threads with tiny settings, and the test checks
 // the printed table, the CSV rows, the PNG plot (matplotlib is a dependency, so
 // a missing one fails the test) and the exit codes of bad input.
+#include "tests/support/cli_helpers.h"
+
 #include <gtest/gtest.h>
 
 #include <sys/wait.h>
@@ -19,51 +21,13 @@ namespace {
 
 namespace fs = std::filesystem;
 
-struct CommandResult {
-    int exitCode = -1;
-    std::string out;
-    std::string err;
-};
+using test::CommandResult;
+using test::readText;
+using test::runFluxgraph;
+using test::sourcePath;
+using test::writeText;
 
-std::string readText(const fs::path& path) {
-    std::ifstream in(path, std::ios::binary);
-    std::stringstream buffer;
-    buffer << in.rdbuf();
-    return buffer.str();
-}
-
-std::string shellQuote(const std::string& word) {
-    std::string quoted = "'";
-    for (char c : word) quoted += c == '\'' ? std::string("'\\''") : std::string(1, c);
-    return quoted + "'";
-}
-
-fs::path scratchDirectory() {
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    const fs::path dir = fs::path(FLUXGRAPH_TEST_TMP) / "scale_cli" / info->name();
-    fs::remove_all(dir);
-    fs::create_directories(dir);
-    return dir;
-}
-
-// Runs the binary in `dir`, stdout and stderr captured in dir/logs.
-CommandResult runFluxgraph(const fs::path& dir, const std::vector<std::string>& args) {
-    const fs::path logs = dir / "logs";
-    fs::create_directories(logs);
-    std::string command = "cd " + shellQuote(dir.string()) + " && " + shellQuote(FLUXGRAPH_BINARY);
-    for (const std::string& a : args) {
-        command += ' ';
-        command += shellQuote(a);
-    }
-    command += " </dev/null >" + shellQuote((logs / "stdout").string()) + " 2>" + shellQuote((logs / "stderr").string());
-    const int status = std::system(command.c_str());
-    CommandResult result;
-    if (status != -1 && WIFEXITED(status)) result.exitCode = WEXITSTATUS(status);
-    else if (status != -1 && WIFSIGNALED(status)) result.exitCode = 128 + WTERMSIG(status);
-    result.out = readText(logs / "stdout");
-    result.err = readText(logs / "stderr");
-    return result;
-}
+fs::path scratchDirectory() { return test::scratchDirectory("scale_cli"); }
 
 std::string quickstartJob() { return (fs::path(FLUXGRAPH_SOURCE_DIR) / "data/jobs/quickstart.toml").string(); }
 

@@ -7,12 +7,35 @@
 #include "engine/scene/scene.h"
 #include "engine/core/scheduler.h"
 
+#include <functional>
 #include <map>
 #include <memory>
 #include <string>
 #include <vector>
 
 namespace fg::test {
+
+// A test pass whose work is given as functions: run() and, for streamed or
+// streamable inputs, consumeBatch().
+using PassBody = std::function<void(PassContext&)>;
+using BatchBody = std::function<void(PassContext&, const std::string&)>;
+class LambdaPass : public Pass {
+public:
+    LambdaPass(PassBody run, BatchBody consume) : run_(std::move(run)), consume_(std::move(consume)) {}
+    void consumeBatch(PassContext& ctx, const std::string& slot) override {
+        if (consume_) consume_(ctx, slot);
+    }
+    void run(PassContext& ctx) override { run_(ctx); }
+
+private:
+    PassBody run_;
+    BatchBody consume_;
+};
+inline PassRegistration lambdaPass(PassSpec spec, PassBody run, BatchBody consume = {}) {
+    return {std::move(spec), [run = std::move(run), consume = std::move(consume)] {
+                return std::make_unique<LambdaPass>(run, consume);
+            }};
+}
 
 template <class T>
 BufferHandle makeBuffer(std::shared_ptr<T> data) {

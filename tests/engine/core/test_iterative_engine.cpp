@@ -12,6 +12,7 @@
 #include "engine/scene/scene_loader.h"
 #include "jobs/parallel.h"
 #include "passes/passes.h"
+#include "tests/support/pass_helpers.h"
 
 #include <gtest/gtest.h>
 
@@ -187,24 +188,7 @@ TEST(RepeatBlock, ATimeBudgetStopsAfterTheIterationThatEndsPastIt) {
 
 // --- Test passes on a bare scene -------------------------------------------------
 
-using Body = std::function<void(PassContext&)>;
-using BatchBody = std::function<void(PassContext&, const std::string&)>;
-class LambdaPass : public Pass {
-public:
-    LambdaPass(Body run, BatchBody consume) : run_(std::move(run)), consume_(std::move(consume)) {}
-    void consumeBatch(PassContext& ctx, const std::string& slot) override {
-        if (consume_) consume_(ctx, slot);
-    }
-    void run(PassContext& ctx) override { run_(ctx); }
-
-private:
-    Body run_;
-    BatchBody consume_;
-};
-
-PassRegistration lambdaPass(PassSpec spec, Body run, BatchBody consume = {}) {
-    return {std::move(spec), [run, consume] { return std::make_unique<LambdaPass>(run, consume); }};
-}
+using test::lambdaPass;
 
 PipelineNode node(const std::string& instance, const std::string& pass, std::map<std::string, std::string> in = {},
                   std::map<std::string, std::string> out = {}) {

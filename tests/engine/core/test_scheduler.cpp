@@ -1,5 +1,7 @@
 #include "engine/core/scheduler.h"
 
+#include "tests/support/pass_helpers.h"
+
 #include "engine/core/error.h"
 #include "engine/scene/scene.h"
 #include "jobs/parallel.h"
@@ -54,29 +56,19 @@ struct BufferTypeName<LabelBuffer> {
 
 namespace {
 
-using PassBody = std::function<void(PassContext&)>;
-
-class LambdaPass : public Pass {
-public:
-    explicit LambdaPass(PassBody body) : body_(std::move(body)) {}
-    void run(PassContext& context) override { body_(context); }
-
-private:
-    PassBody body_;
-};
+using test::PassBody;
 
 SlotSpec numbers(const std::string& name) { return {name, "Numbers", ""}; }
 
 PassRegistration makePass(const std::string& name, std::vector<SlotSpec> inputs, std::vector<SlotSpec> outputs,
                           PassBody body, std::vector<ParamSpec> params = {}) {
-    PassRegistration r;
-    r.spec.name = name;
-    r.spec.doc = "test pass " + name;
-    r.spec.inputs = std::move(inputs);
-    r.spec.outputs = std::move(outputs);
-    r.spec.params = std::move(params);
-    r.create = [body = std::move(body)] { return std::make_unique<LambdaPass>(body); };
-    return r;
+    PassSpec spec;
+    spec.name = name;
+    spec.doc = "test pass " + name;
+    spec.inputs = std::move(inputs);
+    spec.outputs = std::move(outputs);
+    spec.params = std::move(params);
+    return test::lambdaPass(std::move(spec), std::move(body));
 }
 
 PipelineNode node(const std::string& instance, const std::string& pass, int line,

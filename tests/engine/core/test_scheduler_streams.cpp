@@ -4,6 +4,8 @@
 // or when fusing the reader into the producer's task would make a cycle.
 #include "engine/core/scheduler.h"
 
+#include "tests/support/pass_helpers.h"
+
 #include "engine/scene/scene.h"
 #include "jobs/parallel.h"
 
@@ -42,31 +44,17 @@ struct BufferTypeName<Batch> {
 
 namespace {
 
-using Body = std::function<void(PassContext&)>;
-using BatchBody = std::function<void(PassContext&, const std::string&)>;
-
-class StreamPass : public Pass {
-public:
-    StreamPass(Body run, BatchBody consume) : run_(std::move(run)), consume_(std::move(consume)) {}
-    void consumeBatch(PassContext& ctx, const std::string& slot) override {
-        if (consume_) consume_(ctx, slot);
-    }
-    void run(PassContext& ctx) override { run_(ctx); }
-
-private:
-    Body run_;
-    BatchBody consume_;
-};
+using Body = test::PassBody;
+using test::BatchBody;
 
 PassRegistration makePass(const std::string& name, std::vector<SlotSpec> inputs, std::vector<SlotSpec> outputs,
                           Body run, BatchBody consume = {}) {
-    PassRegistration r;
-    r.spec.name = name;
-    r.spec.doc = "test pass " + name;
-    r.spec.inputs = std::move(inputs);
-    r.spec.outputs = std::move(outputs);
-    r.create = [run = std::move(run), consume = std::move(consume)] { return std::make_unique<StreamPass>(run, consume); };
-    return r;
+    PassSpec spec;
+    spec.name = name;
+    spec.doc = "test pass " + name;
+    spec.inputs = std::move(inputs);
+    spec.outputs = std::move(outputs);
+    return test::lambdaPass(std::move(spec), std::move(run), std::move(consume));
 }
 
 SlotSpec batches(const std::string& name, bool streamable) { return {name, "Batch", "", streamable}; }
