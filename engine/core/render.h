@@ -12,6 +12,9 @@
 
 namespace fg {
 
+class RayQuery;
+struct Scene;
+
 struct RenderOptions {
     bool showProgress = false;     // a progress bar on stderr
     std::string profilePath;       // Chrome trace-event JSON, empty = none
@@ -31,6 +34,16 @@ struct RenderOutcome {
 // Runs every pass's preflight after loading the scene. Throws InputError.
 ExecutionPlan validateJob(const Job& job, const Registry& registry = installedRegistry());
 RenderOutcome renderJob(const Job& job, const RenderOptions& options, const Registry& registry = installedRegistry());
+
+// A scene loaded and its Embree scene built once, for many renders of it
+// (fluxgraph batch). It must be what loadScene(job.scenePath, job.sceneDefines)
+// gives; sceneSeconds and accelSeconds of such a render are 0.
+struct PreparedScene {
+    const Scene& scene;
+    const RayQuery& rays;
+};
+RenderOutcome renderJob(const Job& job, const RenderOptions& options, const PreparedScene& prepared,
+                        const Registry& registry = installedRegistry());
 
 // One row per pass of each repeat block: its instances summed ("block[*].name").
 std::vector<PassStats> blockPassSums(const std::vector<PassStats>& stats);
