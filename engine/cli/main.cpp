@@ -1,6 +1,7 @@
 // The fluxgraph command line: render, validate, graph, passes, pipelines.
 // Input errors print one line "file:line: message" and exit with code 2,
 // leaving no output file behind; internal errors exit with code 1.
+#include "engine/cli/batch.h"
 #include "engine/cli/compare.h"
 #include "engine/core/error.h"
 #include "engine/core/job.h"
@@ -121,6 +122,8 @@ int main(int argc, char** argv) {
     app.add_subcommand("pipelines", "list the built-in pipelines");
     fg::cli::CompareOptions compareOptions;
     CLI::App* compare = fg::cli::addCompareSubcommand(app, compareOptions);
+    fg::cli::BatchCliOptions batchOptions;
+    CLI::App* batch = fg::cli::addBatchSubcommand(app, batchOptions);
 
     try {
         app.parse(argc, argv);
@@ -143,6 +146,10 @@ int main(int argc, char** argv) {
             return 0;
         }
         if (compare->parsed()) return fg::cli::runCompare(compareOptions);
+        if (batch->parsed()) {
+            batchOptions.commandLine = shellCommandLine(argc, argv);
+            return fg::cli::runBatch(batchOptions);
+        }
         if (threads >= 0) overrides.threads = threads;
         if (seed >= 0) overrides.seed = static_cast<std::uint64_t>(seed);
         if (render->parsed() && render->count("--seed") && seed < 0) throw fg::InputError("--seed: must be non-negative");
