@@ -18,6 +18,7 @@
 #include "engine/core/job.h"
 
 #include <map>
+#include <optional>
 #include <string>
 #include <vector>
 
