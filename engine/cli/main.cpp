@@ -1,6 +1,7 @@
 // The fluxgraph command line: render, validate, graph, passes, pipelines.
 // Input errors print one line "file:line: message" and exit with code 2,
 // leaving no output file behind; internal errors exit with code 1.
+#include "engine/cli/batch.h"
 #include "engine/cli/compare.h"
 #include "engine/cli/scale.h"
 #include "engine/cli/replay.h"
@@ -127,6 +128,8 @@ int main(int argc, char** argv) {
     CLI::App* scale = fg::cli::addScaleSubcommand(app, scaleOptions);
     fg::cli::ReplayCommandOptions replayOptions;
     CLI::App* replay = fg::cli::addReplaySubcommand(app, replayOptions);
+    fg::cli::BatchCliOptions batchOptions;
+    CLI::App* batch = fg::cli::addBatchSubcommand(app, batchOptions);
 
     try {
         app.parse(argc, argv);
@@ -151,6 +154,10 @@ int main(int argc, char** argv) {
         if (compare->parsed()) return fg::cli::runCompare(compareOptions);
         if (scale->parsed()) return fg::cli::runScale(scaleOptions);
         if (replay->parsed()) return fg::cli::runReplay(replayOptions);
+        if (batch->parsed()) {
+            batchOptions.commandLine = shellCommandLine(argc, argv);
+            return fg::cli::runBatch(batchOptions);
+        }
         if (threads >= 0) overrides.threads = threads;
         if (seed >= 0) overrides.seed = static_cast<std::uint64_t>(seed);
         if (render->parsed() && render->count("--seed") && seed < 0) throw fg::InputError("--seed: must be non-negative");

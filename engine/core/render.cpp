@@ -17,6 +17,7 @@
 #include <iomanip>
 #include <map>
 #include <mutex>
+#include <optional>
 #include <set>
 #include <sstream>
 #include <unistd.h>
@@ -222,7 +223,11 @@ ExecutionPlan validateJob(const Job& job, const Registry& registry) {
     return plan;
 }
 
-RenderOutcome renderJob(const Job& job, const RenderOptions& options, const Registry& registry) {
+namespace {
+
+// `prepared` null: the scene is loaded and its Embree scene built here.
+RenderOutcome renderWith(const Job& job, const RenderOptions& options, const PreparedScene* prepared,
+                         const Registry& registry) {
     // Validated before anything slow happens; rebuilt below with the scene's hints.
     ExecutionPlan::build(job.pipeline, job.params, job.path, registry.passes, job.bufferFiles);
     ensureWritableDirectory(job.output.directory);
@@ -231,7 +236,9 @@ RenderOutcome renderJob(const Job& job, const RenderOptions& options, const Regi
 
     RenderOutcome outcome;
     const std::int64_t t0 = jobs::wallNanos();
-    const Scene scene = loadScene(job.scenePath, job.sceneDefines);
+    std::optional<Scene> ownScene;
+    if (!prepared) ownScene.emplace(loadScene(job.scenePath, job.sceneDefines));
+    const Scene& scene = prepared ? prepared->scene : *ownScene;
     const std::int64_t t1 = jobs::wallNanos();
     outcome.sceneSeconds = 1e-9 * static_cast<double>(t1 - t0);
 
@@ -241,7 +248,9 @@ RenderOutcome renderJob(const Job& job, const RenderOptions& options, const Regi
     std::map<std::string, BufferHandle> imported = loadImports(plan);
     for (const auto& [version, path] : plan.saves()) ensureWritableFilePath(path, "saved buffer");
     const jobs::ThreadLimit threadLimit(job.threads);
-    const RayQuery rays(scene);
+    std::optional<RayQuery> ownRays;
+    if (!prepared) ownRays.emplace(scene);
+    const RayQuery& rays = prepared ? prepared->rays : *ownRays;
     outcome.accelSeconds = 1e-9 * static_cast<double>(jobs::wallNanos() - t1);
 
     ProgressBar bar;
@@ -326,6 +335,17 @@ RenderOutcome renderJob(const Job& job, const RenderOptions& options, const Regi
         writeText(options.statsPath, statsJson(outcome));
     }
     return outcome;
+}
+
+}  // namespace
+
+RenderOutcome renderJob(const Job& job, const RenderOptions& options, const Registry& registry) {
+    return renderWith(job, options, nullptr, registry);
+}
+
+RenderOutcome renderJob(const Job& job, const RenderOptions& options, const PreparedScene& prepared,
+                        const Registry& registry) {
+    return renderWith(job, options, &prepared, registry);
 }
 
 std::vector<PassStats> blockPassSums(const std::vector<PassStats>& stats) {

@@ -13,6 +13,9 @@
 
 namespace fg {
 
+class RayQuery;
+struct Scene;
+
 struct RenderOptions {
     bool showProgress = false;     // a progress bar on stderr
     std::string profilePath;       // Chrome trace-event JSON, empty = none
@@ -46,6 +49,15 @@ void runPreflights(const ExecutionPlan& plan, const Scene& scene);
 std::map<std::string, BufferHandle> loadImports(const ExecutionPlan& plan);
 // Throws InputError unless a file (`what`: "profile", ...) can be written at `path`.
 void ensureWritableFilePath(const std::string& path, const std::string& what);
+// A scene loaded and its Embree scene built once, for many renders of it
+// (fluxgraph batch). It must be what loadScene(job.scenePath, job.sceneDefines)
+// gives; sceneSeconds and accelSeconds of such a render are 0.
+struct PreparedScene {
+    const Scene& scene;
+    const RayQuery& rays;
+};
+RenderOutcome renderJob(const Job& job, const RenderOptions& options, const PreparedScene& prepared,
+                        const Registry& registry = installedRegistry());
 
 // One row per pass of each repeat block: its instances summed ("block[*].name").
 std::vector<PassStats> blockPassSums(const std::vector<PassStats>& stats);

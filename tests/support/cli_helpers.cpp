@@ -30,6 +30,7 @@ std::string readText(const fs::path& path) {
 }
 
 void writeText(const fs::path& path, const std::string& text) {
+    if (path.has_parent_path()) fs::create_directories(path.parent_path());
     std::ofstream out(path, std::ios::binary);
     out << text;
     ASSERT_TRUE(out.good()) << path;

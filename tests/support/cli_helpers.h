@@ -15,7 +15,8 @@ struct CommandResult {
 };
 
 std::string readText(const std::filesystem::path& path);
-// Writes `text` to `path` (a failed write fails the calling test).
+// Writes `text` to `path`, making its directory if needed (a failed write fails
+// the calling test).
 void writeText(const std::filesystem::path& path, const std::string& text);
 // A fresh, empty directory FLUXGRAPH_TEST_TMP/<group>/<test name> (ctest runs
 // tests as separate processes, in parallel).
