@@ -203,7 +203,6 @@ RunResult runOnBareScene(const Pipeline& pipeline, const std::vector<PassRegistr
 }
 
 TEST(InoutSlot, AReaderOfTheOldVersionSeesTheOldDataAndRunsBeforeTheWrite) {
-    std::atomic<std::int64_t> seenBefore{-1}, seenAfter{-1};
     std::vector<PassRegistration> registry = {
         lambdaPass({"make", "", {}, {{"counter", "Counter", ""}}, {}, {}, {}},
                    [](PassContext& ctx) { ctx.createOutput<Counter>("counter").value = 41; }),
@@ -232,8 +231,6 @@ TEST(InoutSlot, AReaderOfTheOldVersionSeesTheOldDataAndRunsBeforeTheWrite) {
             EXPECT_EQ(static_cast<const Counter*>(run.results.at("after").data.get())->value, 42);
         }
     }
-    (void)seenBefore;
-    (void)seenAfter;
 }
 
 TEST(OptionalInput, PresentAndAbsent) {
