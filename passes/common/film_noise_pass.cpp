@@ -70,7 +70,7 @@ PassRegistration filmNoisePass() {
     PassSpec spec;
     spec.name = "film_noise";
     spec.doc = "Relative standard error of a progressively accumulated film (batch means); raises 'converged'";
-    SlotSpec previous{"previous", "FilmNoise", "optional: the statistics after the previous batch (carried)"};
+    SlotSpec previous{"previous", "FilmNoise", "the statistics after the previous batch (carried)"};
     previous.optional = true;
     spec.inputs = {{"image", "Film", "the film after this batch of samples was added"}, previous};
     spec.outputs = {{"noise", "FilmNoise", "per-pixel batch statistics and the image's relative standard error"}};

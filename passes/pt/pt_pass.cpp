@@ -265,7 +265,7 @@ PassRegistration pathTracerPass() {
     spec.name = "pt";
     spec.doc = "Reference unidirectional path tracer with NEE, MIS, Russian roulette and homogeneous media";
     SlotSpec accumulate{"accumulate", "Film",
-                        "optional: a film of earlier samples (same settings) the new samples are added to"};
+                        "a film of earlier samples (same settings) the new samples are added to"};
     accumulate.optional = true;
     spec.inputs = {accumulate};
     spec.outputs = {{"image", "Film", "radiance estimate per pixel, with time_ns and samples AOVs"}};
