@@ -1006,6 +1006,7 @@ RunResult execute(const ExecutionPlan& plan, const Scene& scene, const RayQuery*
                     PassRun& producer = runs[i];
                     const std::string& buffer = passes[i].node.outputBindings.at(slot);
                     const std::int64_t wall0 = jobs::wallNanos();
+                    if (options.batchTap) options.batchTap(buffer, batch, bytes);
                     bool wanted = false;
                     for (std::size_t j : hosted[i]) {
                         const PlannedPass& reader = passes[j];

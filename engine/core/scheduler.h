@@ -153,6 +153,9 @@ struct RunOptions {
     std::map<std::string, BufferHandle> imported;  // imported version -> buffer (loaded before the run)
     // Called with each saved version as soon as its producer finishes.
     std::function<void(const std::string& version, const std::string& path, const BufferHandle&)> save;
+    // Called with every batch of a streamed version, in emission order, before
+    // its readers see it (to record a stream and replay it later).
+    std::function<void(const std::string& version, const std::shared_ptr<void>& batch, std::size_t bytes)> batchTap;
 };
 
 struct RunResult {

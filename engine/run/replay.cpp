@@ -157,8 +157,10 @@ ReplayResult replayPass(const Job& job, const ReplayOptions& options, const Regi
     result.threads = jobs::maxThreads();
     result.inputsLoaded = loadInputs;
 
-    // The inputs, by version: shared read-only by every repetition.
+    // The inputs, by version: shared read-only by every repetition; streamed
+    // inputs as the batches the pipeline emitted, in order.
     std::map<std::string, BufferHandle> inputs;
+    std::map<std::string, std::vector<std::pair<std::shared_ptr<void>, std::size_t>>> recordedBatches;
     std::vector<std::string> versions;
     for (const auto& [slot, inout] : readSlots(spec)) {
         const std::string& version = target.node.inputBindings.at(slot->name);
@@ -171,6 +173,37 @@ ReplayResult replayPass(const Job& job, const ReplayOptions& options, const Regi
             if (!version.empty())
                 inputs[version] = loadBuffer(inputPath(options.inputsDirectory, version), slot->type, version);
         }
+    } else if (options.saveInputsDirectory.empty() &&
+               std::any_of(versions.begin(), versions.end(), [&](const std::string& v) { return plan.streamed(v); })) {
+        // Streamed inputs are recorded batch by batch as the pipeline streams them
+        // to the pass, so every repetition sees the batches of a full render: the
+        // pass runs once inside the pipeline (its outputs are those of a render)
+        // and its stored inputs are kept.
+        std::vector<std::string> kept;
+        for (const std::string& version : versions)
+            if (!plan.streamed(version)) kept.push_back(version);
+        for (const auto& [slot, version] : target.node.outputBindings) kept.push_back(version);
+        const ExecutionPlan upstream = plan.producing(kept);
+        for (const std::string& version : versions)
+            if (plan.streamed(version) && !upstream.streamed(version))
+                throw std::logic_error("replay: '" + version + "' is no longer streamed without the passes after '" +
+                                       target.node.instance + "'");
+        for (const PlannedPass& p : upstream.passes())
+            result.passesRunForInputs += p.culled || p.node.instance == target.node.instance ? 0 : 1;
+        RunOptions runOptions;
+        runOptions.seed = job.seed;
+        runOptions.film = film;
+        runOptions.imported = imported;
+        runOptions.save = [&inputs](const std::string& version, const std::string&, const BufferHandle& buffer) {
+            inputs[version] = buffer;
+        };
+        runOptions.batchTap = [&](const std::string& version, const std::shared_ptr<void>& batch, std::size_t bytes) {
+            if (std::find(versions.begin(), versions.end(), version) != versions.end())
+                recordedBatches[version].push_back({batch, bytes});
+        };
+        execute(upstream, scene, rays, runOptions);
+        for (const std::string& version : versions)
+            if (!inputs.count(version) && imported.count(version)) inputs[version] = imported.at(version);
     } else {
         const ExecutionPlan upstream = plan.producing(versions);
         for (const PlannedPass& p : upstream.passes()) result.passesRunForInputs += p.culled ? 0 : 1;
@@ -189,6 +222,12 @@ ReplayResult replayPass(const Job& job, const ReplayOptions& options, const Regi
     for (const auto& [slot, inout] : readSlots(spec)) {
         const std::string& version = target.node.inputBindings.at(slot->name);
         if (version.empty()) continue;
+        if (const auto recorded = recordedBatches.find(version); recorded != recordedBatches.end()) {
+            std::size_t bytes = 0;
+            for (const auto& [batch, size] : recorded->second) bytes += size;
+            result.inputs.push_back({slot->name, version, slot->type, bytes, recorded->second.size()});
+            continue;
+        }
         const BufferHandle& buffer = inputs.at(version);
         if (!buffer.data) throw std::logic_error("input '" + version + "' of '" + target.node.instance + "' was not made");
         result.inputs.push_back({slot->name, version, buffer.type, buffer.bytes ? buffer.bytes() : 0});
@@ -218,8 +257,14 @@ ReplayResult replayPass(const Job& job, const ReplayOptions& options, const Regi
     for (int repetition = 1; repetition <= options.repeat; ++repetition) {
         std::map<std::string, BufferHandle> outputHandles;
         std::map<std::string, BufferHandle*> inputSlots, outputSlots;
+        std::map<std::string, BufferHandle> standIns;  // streamed inputs: the batch being consumed
         for (const SlotSpec& in : spec.inputs) {
             const std::string& version = target.node.inputBindings.at(in.name);
+            if (recordedBatches.count(version)) {
+                standIns[in.name].type = in.type;
+                inputSlots[in.name] = &standIns[in.name];
+                continue;
+            }
             inputSlots[in.name] = version.empty() ? nullptr : &inputs.at(version);
         }
         for (const SlotSpec& out : spec.outputs) {
@@ -237,9 +282,21 @@ ReplayResult replayPass(const Job& job, const ReplayOptions& options, const Regi
         PassTiming timing;
         timing.work.label = target.node.instance;
         const std::string label = target.node.instance + " #" + std::to_string(repetition);
-        for (const SlotSpec& in : spec.inputs)
-            if (in.streamable && inputSlots.at(in.name))
+        // As the scheduler does: streamed inputs batch by batch as they were emitted
+        // (interleaved across slots in emission order is not kept: each slot's
+        // batches in order), stored streamable inputs as one batch.
+        for (const SlotSpec& in : spec.inputs) {
+            const std::string& version = target.node.inputBindings.at(in.name);
+            if (const auto recorded = recordedBatches.find(version); recorded != recordedBatches.end()) {
+                for (const auto& [batch, size] : recorded->second) {
+                    standIns.at(in.name).data = batch;
+                    timePass(timing, label, [&] { pass->consumeBatch(context, in.name); });
+                }
+                standIns.at(in.name).data.reset();
+            } else if (in.streamable && inputSlots.at(in.name)) {
                 timePass(timing, label, [&] { pass->consumeBatch(context, in.name); });
+            }
+        }
         timePass(timing, label, [&] { pass->run(context); });
 
         ReplayRepetition& stats = result.repetitions.emplace_back();
@@ -283,7 +340,9 @@ std::string formatReplayReport(const ReplayResult& result) {
         const ReplayInput& input = result.inputs[i];
         out << (i ? "," : "") << ' ' << input.slot;
         if (input.version != input.slot) out << " = " << input.version;
-        out << " (" << input.type << ", " << input.bytes << " bytes)";
+        out << " (" << input.type << ", " << input.bytes << " bytes";
+        if (input.batches > 0) out << " in " << input.batches << " streamed batches";
+        out << ")";
     }
     out << '\n';
     out << std::left << std::setw(12) << "repetition" << std::right << std::setw(12) << "wall s" << std::setw(12)

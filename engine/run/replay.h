@@ -6,11 +6,12 @@
 // encoded with their codec and compared byte for byte, so a pass whose result
 // depends on anything but its inputs, parameters and seed shows up.
 //
-// Streamed inputs are not recorded batch by batch: the buffer is made whole
-// (it is kept for the replay, so it is never streamed) and handed to
-// Pass::consumeBatch as one batch, as the scheduler does with a stored
-// streamable input. A producer that emits several batches in the full run
-// therefore splits the input differently from the replay.
+// Streamed inputs are recorded batch by batch as the pipeline streams them to
+// the pass (which then runs once inside the pipeline, as in a render) and
+// every repetition consumes the same batches in the same order, so its
+// outputs equal a render's byte for byte. With --save-inputs or --inputs a
+// streamed input is made whole instead and handed to Pass::consumeBatch as one
+// batch, as the scheduler does with a stored streamable input.
 #pragma once
 
 #include "engine/core/job.h"
@@ -37,6 +38,7 @@ struct ReplayInput {
     std::string version;  // the buffer version the slot reads in the plan
     std::string type;
     std::size_t bytes = 0;
+    std::size_t batches = 0;  // > 0: a streamed input, recorded as the pipeline emitted it
 };
 
 struct ReplayRepetition {

@@ -11,6 +11,8 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
+
 #include <filesystem>
 #include <fstream>
 #include <string>
@@ -89,8 +91,8 @@ TEST(Replay, GatherMatchesFullRun) {
 }
 
 // splat reads caustic_photons in batches inside the photon pass in a render;
-// the replay hands it the whole map as one batch, which is the same split
-// while the photons fit in one batch.
+// the replay records those batches and hands every repetition the same ones
+// (several here: 20000 photon paths in batches of 4096).
 TEST(Replay, StreamedSplatMatchesFullRun) {
     // The Cornell box has no caustics; the metal ring's are splatted.
     const fs::path dir = scratchDirectory();
@@ -101,11 +103,17 @@ TEST(Replay, StreamedSplatMatchesFullRun) {
     }
     JobOverrides overrides;
     overrides.sets = kSmallPds;
+    overrides.sets.push_back("passes.photon.batch_size=4096");
     const Job job = loadJob(jobPath.string(), overrides);
     ReplayOptions options;
     options.instance = "splat";
     options.repeat = 1;
-    ASSERT_GT(replayPass(job, options).repetitions.at(0).items, 0) << "no caustic photons to splat";
+    const ReplayResult once = replayPass(job, options);
+    ASSERT_GT(once.repetitions.at(0).items, 0) << "no caustic photons to splat";
+    const auto caustics = std::find_if(once.inputs.begin(), once.inputs.end(),
+                                       [](const ReplayInput& in) { return in.slot == "caustic_photons"; });
+    ASSERT_NE(caustics, once.inputs.end());
+    EXPECT_GT(caustics->batches, 1u) << formatReplayReport(once);
     expectReplayMatchesFullRun(job, "splat");
 }
 
