@@ -6,6 +6,7 @@ packages=(
   libembree-dev libtbb-dev libopenimageio-dev libopenexr-dev libglm-dev
   libtomlplusplus-dev libtinyobjloader-dev libpugixml-dev libassimp-dev libcli11-dev
   libgtest-dev libbenchmark-dev python3 python3-numpy python3-skimage python3-matplotlib
+  slurm-wlm munge   # the Slurm test's local cluster (tools/slurm_local.sh)
 )
 missing=()
 for p in "${packages[@]}"; do
@@ -20,3 +21,8 @@ SUDO=""
 echo "install-deps: installing ${missing[*]}"
 $SUDO apt-get update -qq
 DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}"
+# Where installing starts the system's SLURM and munge daemons, stop them: the
+# test starts its own, and nothing else here needs them.
+for service in slurmctld slurmd munge; do
+  $SUDO service "$service" stop >/dev/null 2>&1 || true
+done

@@ -9,10 +9,14 @@
 // Ctrl-C: the first SIGINT lets the current run finish and write its row, then
 // the batch stops with exit code 130; a second SIGINT abandons the current run
 // at once (its images are written atomically, so none is left half-written).
+//
+// On a cluster, --slurm writes (and with --submit submits) an sbatch job array
+// whose tasks run this binary with --task I; --collect merges their tables.
 #include "engine/cli/batch.h"
 
 #include "engine/core/error.h"
 #include "engine/run/batch.h"
+#include "engine/run/batch_slurm.h"
 #include "jobs/parallel.h"
 
 #include <CLI/CLI.hpp>
@@ -22,9 +26,12 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
+#include <cctype>
 #include <chrono>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
@@ -91,7 +98,17 @@ private:
     std::size_t rows_ = 0;
 };
 
-int runWorkers(const BatchCliOptions& options, const BatchPlan& plan, const std::string& startedAt) {
+// Arguments that make a worker or an array task render like this invocation.
+void addTaskArguments(const BatchCliOptions& options, std::vector<std::string>& args) {
+    if (options.task != BatchCliOptions::kNoTask) {
+        args.insert(args.end(), {"--task", std::to_string(options.task)});
+        args.insert(args.end(), {"--runs-per-task", std::to_string(options.runsPerTask)});
+    }
+}
+
+int runWorkers(const BatchCliOptions& options, const BatchPlan& plan, const BatchOptions& batchOptions) {
+    const std::string& startedAt = batchOptions.startedAt;
+    const std::size_t total = std::min(batchOptions.runCount, plan.runs.size() - std::min(batchOptions.firstRun, plan.runs.size()));
     const int threads = options.threads >= 0 ? options.threads : std::max(1, jobs::hardwareThreads() / options.jobs);
     const std::string self = std::filesystem::read_symlink("/proc/self/exe").string();
     std::vector<pid_t> children;
@@ -101,6 +118,7 @@ int runWorkers(const BatchCliOptions& options, const BatchPlan& plan, const std:
                                          "--threads", std::to_string(threads)};
         if (options.force) args.emplace_back("--force");
         if (options.failFast) args.emplace_back("--fail-fast");
+        addTaskArguments(options, args);
         std::vector<char*> argv;
         for (std::string& a : args) argv.push_back(a.data());
         argv.push_back(nullptr);
@@ -123,7 +141,7 @@ int runWorkers(const BatchCliOptions& options, const BatchPlan& plan, const std:
     }
 
     const bool showProgress = ::isatty(STDERR_FILENO);
-    RowCounter rows((std::filesystem::path(plan.outputDirectory) / kBatchCsvName).string());
+    RowCounter rows(batchTableBase(plan, batchOptions) + ".csv");
     const auto start = std::chrono::steady_clock::now();
     std::vector<int> exitCodes(children.size(), -1);
     std::size_t running = children.size();
@@ -149,11 +167,9 @@ int runWorkers(const BatchCliOptions& options, const BatchPlan& plan, const std:
         if (showProgress) {
             const std::size_t done = rows.poll();
             const double elapsed = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-            const double left = done > 0 ? elapsed / static_cast<double>(done) *
-                                               static_cast<double>(plan.runs.size() - std::min(done, plan.runs.size()))
-                                         : 0.0;
-            std::fprintf(stderr, "\rbatch: %zu/%zu runs, %.1f s elapsed, ~%.1f s left   ", done, plan.runs.size(),
-                         elapsed, left);
+            const double left =
+                done > 0 ? elapsed / static_cast<double>(done) * static_cast<double>(total - std::min(done, total)) : 0.0;
+            std::fprintf(stderr, "\rbatch: %zu/%zu runs, %.1f s elapsed, ~%.1f s left   ", done, total, elapsed, left);
             std::fflush(stderr);
         }
         if (running > 0) std::this_thread::sleep_for(std::chrono::milliseconds(50));
@@ -181,13 +197,119 @@ CLI::App* addBatchSubcommand(CLI::App& app, BatchCliOptions& options) {
     batch->add_option("--jobs,-j", options.jobs, "runs at once, in separate processes (threads split between them)")
         ->check(CLI::Range(1, 4096));
     batch->add_option("--threads", options.threads, "worker threads per run (0 = all)")->check(CLI::Range(0, 4096));
+    batch->add_flag("--slurm", options.slurm,
+                    "write <output>/batch.sbatch, a SLURM job array of this plan (one task per --runs-per-task runs)");
+    batch->add_flag("--submit", options.submit, "with --slurm: submit the script with sbatch and print the job id");
+    batch->add_option("--runs-per-task", options.runsPerTask, "runs per array task (default 1)");
+    batch->add_option("--partition", options.partition, "with --slurm: the SLURM partition");
+    batch->add_option("--time", options.timeLimit, "with --slurm: time limit per task (HH:MM:SS, D-HH:MM:SS)");
+    batch->add_option("--task", options.task,
+                      "render only array task I's runs [I*K, I*K+K), into <output>/tasks/task-I.csv/.jsonl");
+    batch->add_flag("--collect", options.collect,
+                    "merge every task's rows into results.csv/.jsonl; exit 1 while runs are missing");
     batch->add_option("--worker", options.worker)->group("");
     batch->add_option("--started", options.startedAt)->group("");
     return batch;
 }
 
+namespace {
+
+// Option combinations that make no sense; empty when they are fine.
+std::string clusterOptionsProblem(const BatchCliOptions& options) {
+    const bool task = options.task != BatchCliOptions::kNoTask;
+    if (options.runsPerTask < 1) return "batch: --runs-per-task must be at least 1";
+    if (task && options.slurm) return "batch: --task runs one array task of a written script; it does not go with --slurm";
+    if (options.collect && (options.slurm || task)) return "batch: --collect goes alone, without --slurm or --task";
+    if (!options.slurm && (options.submit || !options.partition.empty() || !options.timeLimit.empty()))
+        return "batch: --submit, --partition and --time go with --slurm";
+    // They are written into the script: nothing a shell or sbatch could read as more.
+    if (options.timeLimit.find_first_not_of("0123456789:-") != std::string::npos)
+        return "batch: --time " + options.timeLimit + ": expected minutes, HH:MM:SS or D-HH:MM:SS";
+    for (char c : options.partition)
+        if (!std::isalnum(static_cast<unsigned char>(c)) && c != '_' && c != '-' && c != '.' && c != ',')
+            return "batch: --partition " + options.partition + ": not a partition name";
+    return {};
+}
+
+std::string shellQuote(const std::string& word) {
+    std::string quoted = "'";
+    for (char c : word) quoted += c == '\'' ? std::string("'\\''") : std::string(1, c);
+    return quoted + "'";
+}
+
+std::string absolutePath(const std::string& path) {
+    return std::filesystem::absolute(path).lexically_normal().string();
+}
+
+int collect(const BatchPlan& plan) {
+    const BatchCollection collection = collectBatchTasks(plan);
+    std::cout << "batch: collected " << collection.finished << " of " << collection.runs << " runs into "
+              << (std::filesystem::path(plan.outputDirectory) / kBatchCsvName).string() << " and " << kBatchJsonlName
+              << "; " << collection.missing.size() << " missing";
+    if (!collection.missing.empty()) {
+        std::cout << " (" << collection.failed << " failed, the rest not finished yet):";
+        constexpr std::size_t kNamesShown = 5;
+        for (std::size_t i = 0; i < std::min(kNamesShown, collection.missing.size()); ++i)
+            std::cout << " " << collection.missing[i];
+        if (collection.missing.size() > kNamesShown) std::cout << " ...";
+    }
+    std::cout << "\n";
+    return collection.missing.empty() ? 0 : kFailedRunExit;
+}
+
+// sbatch --parsable prints "jobid" or "jobid;cluster".
+int submit(const std::string& script, std::size_t tasks, const std::string& collectCommand) {
+    const std::string command = "sbatch --parsable " + shellQuote(script) + " 2>&1";
+    FILE* pipe = ::popen(command.c_str(), "r");
+    if (!pipe) {
+        std::cerr << "batch: cannot run sbatch\n";
+        return kFailedRunExit;
+    }
+    std::string output;
+    char buffer[256];
+    while (std::fgets(buffer, sizeof buffer, pipe)) output += buffer;
+    const int status = ::pclose(pipe);
+    while (!output.empty() && (output.back() == '\n' || output.back() == ' ')) output.pop_back();
+    // Warnings may come first; the id is the last line.
+    const std::string last = output.substr(output.find_last_of('\n') == std::string::npos ? 0 : output.find_last_of('\n') + 1);
+    const std::string jobId = last.substr(0, last.find(';'));
+    if (status != 0 || jobId.empty() || jobId.find_first_not_of("0123456789") != std::string::npos) {
+        std::cerr << "batch: sbatch failed: " << oneLine(output.empty() ? "no output" : output) << "\n";
+        return kFailedRunExit;
+    }
+    std::cout << "batch: submitted job " << jobId << " (" << tasks << " array task"
+              << (tasks == 1 ? "" : "s") << "); when it has finished: " << collectCommand << "\n";
+    return 0;
+}
+
+int writeScript(const BatchCliOptions& options, const BatchPlan& plan, const BatchOptions& batchOptions) {
+    // Every run is checked before anything is queued.
+    validateBatchPlan(plan, batchOptions.threads);
+    SlurmScriptOptions script;
+    script.binary = std::filesystem::read_symlink("/proc/self/exe").string();
+    script.planPath = absolutePath(options.planPath);
+    script.workingDirectory = std::filesystem::current_path().string();
+    script.runsPerTask = static_cast<std::size_t>(options.runsPerTask);
+    script.partition = options.partition;
+    script.timeLimit = options.timeLimit;
+    if (options.force) script.taskArguments.emplace_back("--force");
+    if (options.failFast) script.taskArguments.emplace_back("--fail-fast");
+    if (options.threads >= 0) script.taskArguments.insert(script.taskArguments.end(), {"--threads", std::to_string(options.threads)});
+    const std::string path = writeSlurmArrayScript(plan, script);
+    const std::size_t tasks = batchTaskCount(plan.runs.size(), script.runsPerTask);
+    const std::string collectCommand = "fluxgraph batch " + options.planPath + " --collect";
+    std::cout << "batch: wrote " << path << " (" << plan.runs.size() << " runs in " << tasks << " array task"
+              << (tasks == 1 ? "" : "s") << ")\n";
+    if (options.submit) return submit(path, tasks, collectCommand);
+    std::cout << "submit it with: sbatch " << path << "\nthen, when it has finished: " << collectCommand << "\n";
+    return 0;
+}
+
+}  // namespace
+
 int runBatch(const BatchCliOptions& options) {
     try {
+        if (const std::string problem = clusterOptionsProblem(options); !problem.empty()) throw InputError(problem);
         const BatchPlan plan = loadBatchPlan(options.planPath);
         BatchOptions batchOptions;
         batchOptions.force = options.force;
@@ -196,6 +318,21 @@ int runBatch(const BatchCliOptions& options) {
         batchOptions.commandLine = options.commandLine;
         batchOptions.startedAt = options.startedAt.empty() ? batchTimestamp() : options.startedAt;
         batchOptions.stopRequested = &stopRequested;
+        if (options.collect) return collect(plan);
+        if (options.slurm) return writeScript(options, plan, batchOptions);
+        if (options.task != BatchCliOptions::kNoTask) {
+            const auto runsPerTask = static_cast<std::size_t>(options.runsPerTask);
+            const std::size_t tasks = batchTaskCount(plan.runs.size(), runsPerTask);
+            if (options.task < 0 || static_cast<std::size_t>(options.task) >= tasks)
+                throw InputError("batch: --task " + std::to_string(options.task) + " is out of range: " +
+                                 std::to_string(plan.runs.size()) + " runs in tasks of " +
+                                 std::to_string(runsPerTask) + " make tasks 0 to " +
+                                 std::to_string(static_cast<long long>(tasks) - 1));
+            const auto task = static_cast<std::size_t>(options.task);
+            batchOptions.firstRun = task * runsPerTask;
+            batchOptions.runCount = runsPerTask;
+            batchOptions.tableBase = batchTaskTableBase(plan, task);
+        }
         installSigintHandler();
 
         if (!options.worker.empty()) {
@@ -206,8 +343,8 @@ int runBatch(const BatchCliOptions& options) {
         } else if (options.jobs > 1) {
             // Every run is checked before any process starts rendering.
             validateBatchPlan(plan, batchOptions.threads);
-            prepareBatchOutput(plan);
-            return runWorkers(options, plan, batchOptions.startedAt);
+            prepareBatchOutput(plan, batchOptions.tableBase);
+            return runWorkers(options, plan, batchOptions);
         } else {
             batchOptions.showProgress = ::isatty(STDERR_FILENO);
         }
@@ -221,7 +358,7 @@ int runBatch(const BatchCliOptions& options) {
         }
         if (!worker)
             std::cout << "batch: " << summary.ok << " ok, " << summary.skipped << " skipped, " << summary.failed
-                      << " failed; results in " << plan.outputDirectory << "/" << kBatchCsvName << "\n";
+                      << " failed; results in " << batchTableBase(plan, batchOptions) << ".csv\n";
         return summary.failed > 0 ? kFailedRunExit : 0;
     } catch (const InputError& e) {
         std::cerr << oneLine(e.what()) << "\n";

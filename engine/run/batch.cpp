@@ -16,6 +16,7 @@
 #include <sys/resource.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <chrono>
 #include <cmath>
@@ -326,12 +327,21 @@ const std::vector<std::string>& batchCsvColumns() {
     return columns;
 }
 
-void prepareBatchOutput(const BatchPlan& plan) {
+std::string batchTableBase(const BatchPlan& plan, const BatchOptions& options) {
+    if (!options.tableBase.empty()) return options.tableBase;
+    return (fs::path(plan.outputDirectory) / fs::path(kBatchCsvName).stem()).string();
+}
+
+void prepareBatchOutput(const BatchPlan& plan, const std::string& tableBase) {
     std::error_code ec;
     fs::create_directories(plan.outputDirectory, ec);
     if (ec || !fs::is_directory(plan.outputDirectory))
         throw InputError(plan.outputDirectory + ": cannot create the batch output directory");
-    const std::string csv = (fs::path(plan.outputDirectory) / kBatchCsvName).string();
+    const std::string csv = (tableBase.empty() ? batchTableBase(plan, BatchOptions{}) : tableBase) + ".csv";
+    if (fs::path(csv).has_parent_path()) {
+        fs::create_directories(fs::path(csv).parent_path(), ec);
+        if (ec) throw InputError(fs::path(csv).parent_path().string() + ": cannot create the table directory");
+    }
     if (fs::exists(csv) && fs::file_size(csv) > 0) return;
     std::string header;
     for (const std::string& column : batchCsvColumns()) header += (header.empty() ? "" : ",") + column;
@@ -340,14 +350,18 @@ void prepareBatchOutput(const BatchPlan& plan) {
 
 BatchSummary runBatch(const BatchPlan& plan, const BatchOptions& options) {
     const std::vector<Job> jobs = validateBatchPlan(plan, options.threads);
-    if (options.writeHeader) prepareBatchOutput(plan);
-    const std::string csvPath = (fs::path(plan.outputDirectory) / kBatchCsvName).string();
-    const std::string jsonlPath = (fs::path(plan.outputDirectory) / kBatchJsonlName).string();
+    const std::string tableBase = batchTableBase(plan, options);
+    if (options.writeHeader) prepareBatchOutput(plan, tableBase);
+    const std::string csvPath = tableBase + ".csv";
+    const std::string jsonlPath = tableBase + ".jsonl";
     const std::string started = options.startedAt.empty() ? utcTimestamp() : options.startedAt;
 
     std::vector<std::size_t> mine;
-    for (std::size_t i = 0; i < plan.runs.size(); ++i)
-        if (static_cast<int>(i % static_cast<std::size_t>(options.workerCount)) == options.workerIndex) mine.push_back(i);
+    const std::size_t first = std::min(options.firstRun, plan.runs.size());
+    const std::size_t end = first + std::min(options.runCount, plan.runs.size() - first);
+    for (std::size_t i = first; i < end; ++i)
+        if (static_cast<int>((i - first) % static_cast<std::size_t>(options.workerCount)) == options.workerIndex)
+            mine.push_back(i);
     SceneCache cache;
     for (std::size_t i : mine) cache.expectUse(jobs[i]);
 

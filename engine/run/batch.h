@@ -18,6 +18,8 @@
 #include "engine/run/batch_plan.h"
 
 #include <atomic>
+#include <cstddef>
+#include <limits>
 #include <optional>
 #include <string>
 #include <vector>
@@ -33,6 +35,14 @@ struct BatchOptions {
     // (--jobs N starts N such processes, which share the table files).
     int workerIndex = 0;
     int workerCount = 1;
+    // Only runs [firstRun, firstRun + runCount) of the plan are this invocation's
+    // (one array task of a cluster batch, batch_slurm.h); workers split that range.
+    std::size_t firstRun = 0;
+    std::size_t runCount = std::numeric_limits<std::size_t>::max();
+    // Rows go to <tableBase>.csv and <tableBase>.jsonl; empty: the plan's
+    // results.csv / results.jsonl. Cluster tasks write their own tables so that
+    // tasks running at once on different machines never append to one file.
+    std::string tableBase;
     bool writeHeader = true;    // false in workers: the parent wrote it
     std::string commandLine;    // for the EXR metadata
     std::string startedAt;      // the table's batch_started value; empty: now (UTC)
@@ -55,8 +65,11 @@ std::string batchTimestamp();
 
 // The CSV columns, in order (per-pass details are only in the JSON lines).
 const std::vector<std::string>& batchCsvColumns();
-// Creates the output directory and writes the CSV header if the file is new or empty.
-void prepareBatchOutput(const BatchPlan& plan);
+// <output>/results, or options.tableBase when set (without .csv / .jsonl).
+std::string batchTableBase(const BatchPlan& plan, const BatchOptions& options);
+// Creates the output directory (and the table's) and writes the CSV header if
+// the table is new or empty.
+void prepareBatchOutput(const BatchPlan& plan, const std::string& tableBase = {});
 
 // Validates the whole plan first (throws InputError naming the plan line), then
 // renders. A failed run (any exception) is recorded with its one-line error.

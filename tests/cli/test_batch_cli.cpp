@@ -147,6 +147,66 @@ TEST(BatchCli, MalformedPlansExitTwoNamingThePlanLine) {
     expectPlanError(runFluxgraph(dir, {"batch", "missing.toml"}), "missing.toml: ");
 }
 
+// The cluster side without a cluster: the tasks of a job array run here one
+// after another, each into its own table, and --collect merges them.
+TEST(BatchCli, TasksWriteTheirOwnTablesAndCollectMergesThemInRunOrder) {
+    const fs::path dir = scratchDirectory();
+    writeJobs(dir);
+    writeText(dir / "plan.toml", std::string("output = \"out\"\n") + kTinySet +
+                                     "[[sweep]]\njob = \"jobs/a/pt.toml\"\nset = { \"seed\" = [1, 2, 3, 4, 5] }\n");
+    CommandResult r = runFluxgraph(dir, {"batch", "plan.toml", "--slurm", "--runs-per-task", "2", "--partition", "debug"});
+    ASSERT_EQ(r.exitCode, 0) << r.err;
+    const std::string script = readText(dir / "out/batch.sbatch");
+    EXPECT_NE(script.find("#SBATCH --array=0-2\n"), std::string::npos) << script;
+    EXPECT_NE(script.find("#SBATCH --partition=debug\n"), std::string::npos) << script;
+    EXPECT_NE(script.find("plan.toml' --task \"$SLURM_ARRAY_TASK_ID\" --runs-per-task 2\n"), std::string::npos) << script;
+    EXPECT_NE(r.out.find("sbatch " + fs::absolute(dir / "out/batch.sbatch").lexically_normal().string()), std::string::npos)
+        << r.out;
+    EXPECT_TRUE(fs::is_directory(dir / "out/tasks"));
+
+    ASSERT_EQ(runFluxgraph(dir, {"batch", "plan.toml", "--task", "2", "--runs-per-task", "2"}).exitCode, 0);
+    EXPECT_EQ(lines(dir / "out/tasks/task-2.csv").size(), 2u);  // header and run 4
+    r = runFluxgraph(dir, {"batch", "plan.toml", "--collect"});
+    EXPECT_EQ(r.exitCode, 1) << r.err;
+    EXPECT_NE(r.out.find("collected 1 of 5 runs"), std::string::npos) << r.out;
+    EXPECT_NE(r.out.find("; 4 missing"), std::string::npos) << r.out;
+
+    ASSERT_EQ(runFluxgraph(dir, {"batch", "plan.toml", "--task", "1", "--runs-per-task", "2"}).exitCode, 0);
+    ASSERT_EQ(runFluxgraph(dir, {"batch", "plan.toml", "--task", "0", "--runs-per-task", "2"}).exitCode, 0);
+    // A rerun task appends its rows again; the merged table keeps one per run.
+    ASSERT_EQ(runFluxgraph(dir, {"batch", "plan.toml", "--task", "0", "--runs-per-task", "2", "--force"}).exitCode, 0);
+    EXPECT_EQ(lines(dir / "out/tasks/task-0.csv").size(), 5u);
+    r = runFluxgraph(dir, {"batch", "plan.toml", "--collect"});
+    EXPECT_EQ(r.exitCode, 0) << r.out << r.err;
+    EXPECT_NE(r.out.find("collected 5 of 5 runs"), std::string::npos) << r.out;
+    const std::vector<std::string> csv = lines(dir / "out/results.csv");
+    ASSERT_EQ(csv.size(), 6u);
+    EXPECT_EQ(csv[0].rfind("batch_started,run,", 0), 0u);
+    for (int seed = 1; seed <= 5; ++seed)
+        EXPECT_NE(csv[seed].find(",jobs-a-pt--seed=" + std::to_string(seed) + ","), std::string::npos) << csv[seed];
+    EXPECT_EQ(countStatus(csv, "ok"), 5u);
+    EXPECT_EQ(lines(dir / "out/results.jsonl").size(), 5u);
+    EXPECT_FALSE(fs::exists(dir / "out/results.csv.collecting"));
+}
+
+TEST(BatchCli, MalformedClusterOptionsExitTwoWithOneLine) {
+    const fs::path dir = scratchDirectory();
+    writeJobs(dir);
+    writeText(dir / "plan.toml", std::string("output = \"out\"\njobs = [\"jobs/*/pt.toml\"]\n") + kTinySet);
+    expectPlanError(runFluxgraph(dir, {"batch", "plan.toml", "--task", "2"}), "batch: --task 2 is out of range");
+    expectPlanError(runFluxgraph(dir, {"batch", "plan.toml", "--task", "1", "--runs-per-task", "2"}),
+                    "batch: --task 1 is out of range");
+    expectPlanError(runFluxgraph(dir, {"batch", "plan.toml", "--task", "0", "--runs-per-task", "0"}),
+                    "batch: --runs-per-task must be at least 1");
+    expectPlanError(runFluxgraph(dir, {"batch", "plan.toml", "--slurm", "--runs-per-task", "-1"}),
+                    "batch: --runs-per-task must be at least 1");
+    expectPlanError(runFluxgraph(dir, {"batch", "plan.toml", "--slurm", "--task", "0"}), "batch: --task ");
+    expectPlanError(runFluxgraph(dir, {"batch", "plan.toml", "--collect", "--task", "0"}), "batch: --collect ");
+    expectPlanError(runFluxgraph(dir, {"batch", "plan.toml", "--submit"}), "batch: --submit");
+    expectPlanError(runFluxgraph(dir, {"batch", "plan.toml", "--slurm", "--time", "1h; rm"}), "batch: --time ");
+    EXPECT_FALSE(fs::exists(dir / "out"));
+}
+
 // Starts the binary in the background, sends SIGINT once the first row is in
 // the table, and checks that what is left is whole and consistent.
 TEST(BatchCli, SigintStopsAfterWholeRowsAndExits130) {
