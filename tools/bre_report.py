@@ -11,7 +11,7 @@ several volume-photon counts:
     light, whose few very bright pixels decide the whole-image RMSE), and
     over that crop in 4 x 4-pixel blocks (the reference's own noise, fireflies
     of rare caustic paths, averages down there);
-  - the per-pass profile (`fluxgraph render --stats`, with counters);
+  - the per-pass profile (the `fluxgraph batch` results table, with counters);
   - the per-pixel query cost (the query_cost AOV: BVH nodes + photons tested)
     as a false-colour image, the time-per-pixel image of Jakob et al. Fig. 1;
   - optionally a sweep of the BVH leaf size at one photon count.
@@ -25,7 +25,9 @@ Usage:
                       [--reference PATH] [--crop X,Y,W,H] [--out results/bre]
 
 The job is data/<scene>/bre.toml with passes.photon.volume_photons set per
-run; the reference is data/<scene>/reference/reference.exr unless given.
+run, all runs rendered by one `fluxgraph batch` (results/bre/runs: plan,
+images, results table; a rerun renders only what changed); the reference is
+data/<scene>/reference/reference.exr unless given.
 Counts above --max-count are listed as not run. Passes of the pipeline run
 concurrently (the surface part beside the volume part), so per-pass wall times
 overlap; CPU times are each pass's own.
@@ -54,20 +56,36 @@ def run(cmd, **kwargs):
     return subprocess.run([str(c) for c in cmd], check=True, capture_output=True, text=True, **kwargs)
 
 
-def render(binary, job, out_dir, name, sets, threads):
+def batch(binary, job, out_dir, sweeps, threads):
+    """Renders every run of `sweeps` ([{parameter: [values]}], each a cartesian
+    product over the job) with one `fluxgraph batch`, resumable: a run whose
+    image matches its job and settings is not rendered again. Returns, per run
+    in plan order, (exr, png, passes by instance, the run's row)."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    stats = out_dir / f"{name}-stats.json"
-    cmd = [binary, "render", job, "--out", out_dir, "-q", "--stats", stats, "--set", f"output.name={name}"]
-    for s in sets:
-        cmd += ["--set", s]
+    plan = out_dir / "plan.toml"
+    lines = [f"output = {json.dumps(str(out_dir))}"]
+    for sweep in sweeps:
+        values = ", ".join(f"{json.dumps(key)} = [{', '.join(str(v) for v in vals)}]" for key, vals in sweep.items())
+        lines += ["[[sweep]]", f"job = {json.dumps(str(job))}", f"set = {{ {values} }}"]
+    plan.write_text("\n".join(lines) + "\n")
+    table = out_dir / "results.jsonl"
+    before = len(table.read_text().splitlines()) if table.exists() else 0
+    cmd = [binary, "batch", plan]
     if threads:
         cmd += ["--threads", str(threads)]
-    start = time.time()
-    run(cmd)
-    total = time.time() - start
-    data = json.loads(stats.read_text())
-    passes = {p["instance"]: p for p in data["passes"]}
-    return out_dir / f"{name}.exr", out_dir / f"{name}.png", passes, data, total
+    subprocess.run([str(c) for c in cmd], check=True)
+    rows = [json.loads(line) for line in table.read_text().splitlines()[before:]]
+    for row in rows:
+        if row["status"] == "failed":
+            fail(f"{row['run']}: {row['error']}")
+    results = []
+    for row in rows:
+        exr = Path(row["exr"][0])
+        if "passes" not in row:  # skipped: rendered by an earlier invocation; its stats are in that row
+            earlier = [json.loads(line) for line in table.read_text().splitlines()[:before]]
+            row = next(r for r in reversed(earlier) if r["run"] == row["run"] and "passes" in r)
+        results.append((exr, exr.with_suffix(".png"), {p["instance"]: p for p in row["passes"]}, row))
+    return results
 
 
 def compare(binary, image, reference, heatmap=None, extra=()):
@@ -196,16 +214,20 @@ def main():
     crop = args.crop if args.crop is not None else DEFAULT_CROPS.get(args.scene)
     args.crop = crop
 
-    rows, skipped = [], []
-    for count in counts:
-        if args.max_count is not None and count > args.max_count:
-            skipped.append(count)
-            continue
+    skipped = [c for c in counts if args.max_count is not None and c > args.max_count]
+    counts = [c for c in counts if c not in skipped]
+    leaves = [int(x) for x in args.leaf_sweep.split(",") if x]
+    if args.max_count is not None and args.sweep_count > args.max_count:
+        leaves = []
+    sweeps = [{"passes.photon.volume_photons": counts}] if counts else []
+    if leaves:
+        sweeps.append({"passes.photon.volume_photons": [args.sweep_count], "passes.photon_bvh.leaf_size": leaves})
+    runs = batch(binary, job, out / "runs", sweeps, args.threads) if sweeps else []
+
+    rows = []
+    for count, (exr, png, passes, data) in zip(counts, runs):
         name = f"{args.scene}-{human(count)}"
-        print(f"== {name}", file=sys.stderr)
-        exr, png, passes, data, total = render(binary, job, out, name,
-                                               [f"passes.photon.volume_photons={count}"], args.threads)
-        row = {"count": count, "name": name, "passes": passes, "data": data, "total": total}
+        row = {"count": count, "name": name, "passes": passes, "data": data}
         bq = passes["beam_query"]["counters"]
         rays = max(1, bq["camera_samples"])
         row["nodes_per_ray"] = bq["nodes_visited"] / rays
@@ -221,16 +243,7 @@ def main():
                                                                          "query_time_ns", percentile=0.95)
         upscale(png, out / f"{name}-x4.png")
         rows.append(row)
-
-    sweep = []
-    if args.leaf_sweep and (args.max_count is None or args.sweep_count <= args.max_count):
-        for leaf in [int(x) for x in args.leaf_sweep.split(",") if x]:
-            name = f"{args.scene}-{human(args.sweep_count)}-leaf{leaf}"
-            print(f"== {name}", file=sys.stderr)
-            _, _, passes, _, _ = render(binary, job, out / "sweep", name,
-                                        [f"passes.photon.volume_photons={args.sweep_count}",
-                                         f"passes.photon_bvh.leaf_size={leaf}"], args.threads)
-            sweep.append((leaf, passes))
+    sweep = [(leaf, passes) for leaf, (_, _, passes, _) in zip(leaves, runs[len(counts):])]
 
     write_markdown(out, args, job, reference, rows, skipped, sweep)
     print(f"wrote {out / 'README.md'}", file=sys.stderr)
