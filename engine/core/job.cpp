@@ -4,6 +4,7 @@
 #include "engine/core/job.h"
 
 #include "engine/core/error.h"
+#include "engine/core/text_input.h"
 
 #include <toml++/toml.h>
 
@@ -413,11 +414,7 @@ Job parseJob(const std::string& text, const std::string& path, const JobOverride
 }
 
 Job loadJob(const std::string& path, const JobOverrides& overrides, const Registry& registry) {
-    std::ifstream in(path, std::ios::binary);
-    if (!in) throw InputError(path + ": cannot open job file");
-    std::stringstream buffer;
-    buffer << in.rdbuf();
-    return parseJob(buffer.str(), path, overrides, registry);
+    return parseJob(readTextInput(path, "job file"), path, overrides, registry);
 }
 
 }  // namespace fg

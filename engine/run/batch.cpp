@@ -232,7 +232,8 @@ bool upToDate(const Job& job, const std::vector<std::string>& exrFiles) {
     std::string overrides;
     for (const std::string& o : job.overrides) overrides += (overrides.empty() ? "" : " ") + o;
     for (const std::string& file : exrFiles) {
-        if (!fs::is_regular_file(file)) return false;
+        std::error_code ec;
+        if (!fs::is_regular_file(file, ec)) return false;
         Metadata metadata;
         try {
             readExr(file, &metadata);
@@ -329,10 +330,11 @@ const std::vector<std::string>& batchCsvColumns() {
 void prepareBatchOutput(const BatchPlan& plan) {
     std::error_code ec;
     fs::create_directories(plan.outputDirectory, ec);
-    if (ec || !fs::is_directory(plan.outputDirectory))
+    if (ec || !fs::is_directory(plan.outputDirectory, ec))
         throw InputError(plan.outputDirectory + ": cannot create the batch output directory");
     const std::string csv = (fs::path(plan.outputDirectory) / kBatchCsvName).string();
-    if (fs::exists(csv) && fs::file_size(csv) > 0) return;
+    const std::uintmax_t csvSize = fs::file_size(csv, ec);
+    if (!ec && csvSize > 0) return;
     std::string header;
     for (const std::string& column : batchCsvColumns()) header += (header.empty() ? "" : ",") + column;
     appendLine(csv, header + "\n");

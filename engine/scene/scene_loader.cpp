@@ -65,7 +65,10 @@ Scene loadByFormat(const std::string& path, const std::map<std::string, std::str
 }  // namespace
 
 Scene loadScene(const std::string& path, const std::map<std::string, std::string>& defines) {
-    if (!std::filesystem::exists(path)) throw InputError(path + ": scene file not found");
+    std::error_code ec;
+    if (!std::filesystem::exists(path, ec)) {
+        throw InputError(path + (ec ? ": cannot open scene file (" + ec.message() + ")" : ": scene file not found"));
+    }
     Scene scene = loadByFormat(path, defines);
     checkSceneExtent(scene, path);
     return scene;

@@ -20,6 +20,7 @@
 #include "engine/scene/scene_xml.h"
 
 #include "engine/core/error.h"
+#include "engine/core/text_input.h"
 #include "engine/scene/spectrum.h"
 
 #include <pugixml.hpp>
@@ -276,14 +277,12 @@ private:
         file->path = path;
         const std::string dir = fs::path(path).parent_path().string();
         file->directory = dir.empty() ? "." : dir;
-        std::ifstream in(path, std::ios::binary);
-        if (!in) {
-            if (includedFrom) fail(*includedFrom, "cannot open included file " + inQuotes(path));
-            throw InputError(path, 0, "cannot open scene file");
+        try {
+            file->text = readTextInput(path, includedFrom ? "included file" : "scene file");
+        } catch (const InputError& e) {
+            if (includedFrom) fail(*includedFrom, e.what());
+            throw;
         }
-        std::ostringstream text;
-        text << in.rdbuf();
-        file->text = text.str();
         file->lineStarts.push_back(0);
         for (std::size_t i = 0; i < file->text.size(); ++i)
             if (file->text[i] == '\n') file->lineStarts.push_back(i + 1);
