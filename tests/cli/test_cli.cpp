@@ -344,6 +344,37 @@ TEST(Cli, OverlongPathComponentsAreInputErrors) {
     expectInputError(out);
 }
 
+TEST(Cli, ValidateRejectsOutputNamesThatCannotBeFiles) {
+    const fs::path dir = scratchDirectory();
+    const std::string job = (dir / "job.toml").string();
+    writeText(job, "scene = \"" + cornellScene() + "\"\npipeline = \"pt\"\n\n[output]\nname = \"" +
+                       std::string(300, 'n') + "\"\n");
+    for (const std::string command : {"validate", "render"}) {
+        std::vector<std::string> args{command, job};
+        if (command == std::string("render")) args.insert(args.end(), {"--out", (dir / "out").string()});
+        const CommandResult r = runFluxgraph(dir, args);
+        expectInputError(r);
+        EXPECT_EQ(r.err.rfind(job + ":5: output file name", 0), 0u) << r.err;
+    }
+    writeText(job, "scene = \"" + cornellScene() + "\"\npipeline = \"pt\"\n\n[output]\nname = \"a\\u0000b\"\n");
+    const CommandResult nul = runFluxgraph(dir, {"validate", job});
+    expectInputError(nul);
+    EXPECT_EQ(nul.err.rfind(job + ":", 0), 0u) << nul.err;
+    EXPECT_EQ(filesBelow(dir), std::vector<std::string>{"job.toml"});
+}
+
+TEST(Cli, ThreadCountsHaveOneBound) {
+    const fs::path dir = scratchDirectory();
+    const CommandResult flag =
+        runFluxgraph(dir, tinyRender({"render", quickstartJob(), "--out", (dir / "out").string(), "--threads", "100000"}));
+    expectInputError(flag);
+    EXPECT_NE(flag.err.find("--threads: must be 0 (all) or a count up to 4096"), std::string::npos) << flag.err;
+    const CommandResult set = runFluxgraph(dir, {"validate", quickstartJob(), "--set", "threads=100000"});
+    expectInputError(set);
+    EXPECT_NE(set.err.find("4096"), std::string::npos) << set.err;
+    EXPECT_TRUE(filesBelow(dir).empty()) << joined(filesBelow(dir));
+}
+
 TEST(Cli, ValidateRefusesDevicesAndOversizedFiles) {
     const fs::path dir = scratchDirectory();
     for (const std::string& path : {std::string("/dev/zero"), dir.string()}) {
