@@ -161,8 +161,8 @@ int main(int argc, char** argv) {
         if (threads >= 0) overrides.threads = threads;
         if (seed >= 0) overrides.seed = static_cast<std::uint64_t>(seed);
         if (render->parsed() && render->count("--seed") && seed < 0) throw fg::InputError("--seed: must be non-negative");
-        if (render->parsed() && render->count("--threads") && threads < 0)
-            throw fg::InputError("--threads: must be 0 (all) or a positive count");
+        if (render->parsed() && render->count("--threads") && (threads < 0 || threads > fg::kMaxThreads))
+            throw fg::InputError("--threads: must be 0 (all) or a count up to " + std::to_string(fg::kMaxThreads));
         if (!outDir.empty()) overrides.outputDirectory = outDir;
         const fg::Job job = fg::loadJob(jobPath, overrides);
 

@@ -4,6 +4,7 @@
 #include "engine/core/job.h"
 
 #include "engine/core/error.h"
+#include "engine/core/text_input.h"
 
 #include <toml++/toml.h>
 
@@ -303,10 +304,11 @@ Job parseJob(const std::string& text, const std::string& path, const JobOverride
     }
 
     job.seed = static_cast<std::uint64_t>(r.getInt(root, "seed", "seed", 1, 0, INT64_MAX));
-    job.threads = static_cast<int>(r.getInt(root, "threads", "threads", 0, 0, 4096));
+    job.threads = static_cast<int>(r.getInt(root, "threads", "threads", 0, 0, kMaxThreads));
     if (overrides.seed) job.seed = *overrides.seed;
     if (overrides.threads) {
-        if (*overrides.threads < 0) throw InputError("--threads: must be 0 (all) or a positive count");
+        if (*overrides.threads < 0 || *overrides.threads > kMaxThreads)
+            throw InputError("--threads: must be 0 (all) or a count up to " + std::to_string(kMaxThreads));
         job.threads = *overrides.threads;
     }
 
@@ -387,14 +389,27 @@ Job parseJob(const std::string& text, const std::string& path, const JobOverride
         r.checkKeys(*out, "output.", {"directory", "name", "exr", "png", "exposure", "half"});
         job.output.directory = r.getString(*out, "directory", "output.directory", job.output.directory);
         job.output.name = r.getString(*out, "name", "output.name", job.output.name);
-        if (job.output.name.empty() || job.output.name.find('/') != std::string::npos)
-            r.fail(*out, "output.name", "output.name must be a plain file stem");
+        if (job.output.name.empty() || job.output.name.find_first_of(std::string("/\0", 2)) != std::string::npos)
+            r.fail(*out, "output.name", "output.name must be a plain file stem (no '/' or NUL)");
         job.output.exr = r.getBool(*out, "exr", "output.exr", true);
         job.output.png = r.getBool(*out, "png", "output.png", true);
         job.output.exposure = static_cast<float>(r.getFloat(*out, "exposure", "output.exposure", 0.0, -64.0, 64.0));
         job.output.half = r.getBool(*out, "half", "output.half", false);
     }
     if (overrides.outputDirectory) job.output.directory = *overrides.outputDirectory;
+    // Checked here, not when the images are written, so that validate catches it
+    // and a render does not fail at its very end: file names are limited to 255
+    // bytes, and the temporary name an image is first written to adds about 30.
+    constexpr std::size_t kMaxOutputStemBytes = 200;
+    for (const std::string& result : job.pipeline.results) {
+        const std::string stem = job.pipeline.results.size() == 1 ? job.output.name : job.output.name + "-" + result;
+        if (stem.size() <= kMaxOutputStemBytes) continue;
+        const std::string message = "output file name '" + stem.substr(0, 40) + "...' is " + std::to_string(stem.size()) +
+                                    " bytes long; output.name must keep it to " + std::to_string(kMaxOutputStemBytes);
+        const toml::table* out = r.getTable(root, "output", "output");
+        if (out && out->get("name")) r.fail(*out->get("name"), "output.name", message);
+        throw InputError(path + ": " + message);
+    }
 
     if (const toml::table* passes = r.getTable(root, "passes", "passes")) {
         for (const auto& [instanceKey, node] : *passes) {
@@ -413,11 +428,7 @@ Job parseJob(const std::string& text, const std::string& path, const JobOverride
 }
 
 Job loadJob(const std::string& path, const JobOverrides& overrides, const Registry& registry) {
-    std::ifstream in(path, std::ios::binary);
-    if (!in) throw InputError(path + ": cannot open job file");
-    std::stringstream buffer;
-    buffer << in.rdbuf();
-    return parseJob(buffer.str(), path, overrides, registry);
+    return parseJob(readTextInput(path, "job file"), path, overrides, registry);
 }
 
 }  // namespace fg

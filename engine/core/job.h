@@ -65,6 +65,9 @@
 
 namespace fg {
 
+// One bound for `threads` in job files and --threads on any command line.
+inline constexpr int kMaxThreads = 4096;
+
 struct OutputSettings {
     std::string directory = ".";
     std::string name;

@@ -47,7 +47,7 @@ bool canCreateFileIn(const fs::path& dir) {
 void ensureWritableDirectory(const std::string& dir) {
     std::error_code ec;
     fs::create_directories(dir, ec);
-    if (ec || !fs::is_directory(dir)) throw InputError(dir + ": cannot create output directory");
+    if (ec || !fs::is_directory(dir, ec)) throw InputError(dir + ": cannot create output directory");
     if (!canCreateFileIn(dir)) throw InputError(dir + ": output directory is not writable");
 }
 

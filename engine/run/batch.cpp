@@ -233,7 +233,8 @@ bool upToDate(const Job& job, const std::vector<std::string>& exrFiles) {
     std::string overrides;
     for (const std::string& o : job.overrides) overrides += (overrides.empty() ? "" : " ") + o;
     for (const std::string& file : exrFiles) {
-        if (!fs::is_regular_file(file)) return false;
+        std::error_code ec;
+        if (!fs::is_regular_file(file, ec)) return false;
         Metadata metadata;
         try {
             readExr(file, &metadata);
@@ -335,14 +336,15 @@ std::string batchTableBase(const BatchPlan& plan, const BatchOptions& options) {
 void prepareBatchOutput(const BatchPlan& plan, const std::string& tableBase) {
     std::error_code ec;
     fs::create_directories(plan.outputDirectory, ec);
-    if (ec || !fs::is_directory(plan.outputDirectory))
+    if (ec || !fs::is_directory(plan.outputDirectory, ec))
         throw InputError(plan.outputDirectory + ": cannot create the batch output directory");
     const std::string csv = (tableBase.empty() ? batchTableBase(plan, BatchOptions{}) : tableBase) + ".csv";
     if (fs::path(csv).has_parent_path()) {
         fs::create_directories(fs::path(csv).parent_path(), ec);
         if (ec) throw InputError(fs::path(csv).parent_path().string() + ": cannot create the table directory");
     }
-    if (fs::exists(csv) && fs::file_size(csv) > 0) return;
+    const std::uintmax_t csvSize = fs::file_size(csv, ec);
+    if (!ec && csvSize > 0) return;
     std::string header;
     for (const std::string& column : batchCsvColumns()) header += (header.empty() ? "" : ",") + column;
     appendLine(csv, header + "\n");

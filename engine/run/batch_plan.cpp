@@ -6,6 +6,7 @@
 #include "engine/core/error.h"
 #include "engine/core/pass.h"
 #include "engine/core/scheduler.h"
+#include "engine/core/text_input.h"
 
 #include <toml++/toml.h>
 
@@ -218,7 +219,8 @@ BatchPlan parseBatchPlan(const std::string& text, const std::string& path) {
                 if (!ref->is_string()) fail(path, *ref, "'sweep.reference' must be an image path");
                 const std::string value = **ref->as_string();
                 reference = fs::path(value).is_absolute() ? value : (planDir / value).lexically_normal().string();
-                if (!fs::is_regular_file(reference)) fail(path, *ref, "reference '" + value + "' does not exist");
+                std::error_code ec;
+                if (!fs::is_regular_file(reference, ec)) fail(path, *ref, "reference '" + value + "' does not exist");
             }
             std::vector<NamedSet> sets;
             if (const toml::node* set = sweep->get("set")) sets = readSetTable(path, *set, "sweep.set", true);
@@ -250,11 +252,7 @@ BatchPlan parseBatchPlan(const std::string& text, const std::string& path) {
 }
 
 BatchPlan loadBatchPlan(const std::string& path) {
-    std::ifstream in(path, std::ios::binary);
-    if (!in) throw InputError(path + ": cannot open batch plan");
-    std::stringstream buffer;
-    buffer << in.rdbuf();
-    return parseBatchPlan(buffer.str(), path);
+    return parseBatchPlan(readTextInput(path, "batch plan"), path);
 }
 
 Job loadBatchJob(const BatchPlan& plan, const BatchRun& run, std::optional<int> threads) {

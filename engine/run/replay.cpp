@@ -135,7 +135,7 @@ ReplayResult replayPass(const Job& job, const ReplayOptions& options, const Regi
     if (!options.saveInputsDirectory.empty()) {
         std::error_code ec;
         fs::create_directories(options.saveInputsDirectory, ec);
-        if (ec || !fs::is_directory(options.saveInputsDirectory))
+        if (ec || !fs::is_directory(options.saveInputsDirectory, ec))
             throw InputError(options.saveInputsDirectory + ": cannot create directory for the inputs");
         ensureWritableFilePath((fs::path(options.saveInputsDirectory) / "inputs.fgbuf").string(), "inputs");
     }

@@ -8,7 +8,11 @@
 
 #include <tiny_obj_loader.h>
 
+#include <charconv>
+#include <cmath>
 #include <filesystem>
+#include <fstream>
+#include <sstream>
 #include <unordered_map>
 
 namespace fg {
@@ -29,6 +33,35 @@ struct CornerKeyHash {
     }
 };
 
+// tinyobjloader reads a coordinate it cannot parse ("nan", "inf", "x") as 0, so
+// vertex positions are checked on the text: each must be a finite number.
+void checkVertexPositions(const std::string& text, const std::string& path) {
+    std::size_t start = 0;
+    int line = 0;
+    int vertex = 0;
+    while (start < text.size()) {
+        std::size_t end = text.find('\n', start);
+        if (end == std::string::npos) end = text.size();
+        ++line;
+        std::istringstream words(text.substr(start, end - start));
+        start = end + 1;
+        std::string keyword;
+        if (!(words >> keyword) || keyword != "v") continue;
+        ++vertex;
+        std::string word;
+        for (int axis = 0; axis < 3 && words >> word; ++axis) {
+            const char* first = word.data() + (word.front() == '+' ? 1 : 0);
+            const char* last = word.data() + word.size();
+            double value = 0.0;
+            const auto [stop, error] = std::from_chars(first, last, value);
+            if (error != std::errc() || stop != last || !std::isfinite(value)) {
+                throw InputError(path, line, "vertex " + std::to_string(vertex) + " has a coordinate '" + word +
+                                                 "' that is not a finite number");
+            }
+        }
+    }
+}
+
 std::string firstLine(const std::string& text) {
     std::string line = text.substr(0, text.find('\n'));
     while (!line.empty() && (line.back() == '\r' || line.back() == ' ')) line.pop_back();
@@ -41,11 +74,20 @@ TriangleMesh loadObjMesh(const std::string& path) {
     std::error_code ec;
     if (!std::filesystem::is_regular_file(path, ec)) throw InputError(path, 0, "OBJ file not found");
 
+    std::ifstream in(path, std::ios::binary);
+    if (!in) throw InputError(path, 0, "cannot open OBJ file");
+    std::ostringstream buffer;
+    buffer << in.rdbuf();
+    if (in.bad()) throw InputError(path, 0, "cannot read OBJ file");
+    const std::string text = buffer.str();
+    checkVertexPositions(text, path);
+
     tinyobj::ObjReaderConfig config;
     config.triangulate = true;
     config.vertex_color = false;
     tinyobj::ObjReader reader;
-    if (!reader.ParseFromFile(path, config)) {
+    // Materials (.mtl) are not read: the scene file assigns them.
+    if (!reader.ParseFromString(text, "", config)) {
         const std::string why = firstLine(reader.Error());
         throw InputError(path, 0, "cannot parse OBJ file" + (why.empty() ? std::string() : ": " + why));
     }

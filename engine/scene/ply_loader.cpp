@@ -1,6 +1,12 @@
 // Stanford PLY meshes (Turk 1994; ASCII, binary little- and big-endian)
-// through the Open Asset Import Library. The file's own header is checked
-// first so that Assimp, which guesses formats, only ever sees PLY data.
+// through the Open Asset Import Library. Assimp does the parse because it
+// reads every property layout and list encoding; but it trusts the header: a
+// header without end_header makes its parser loop forever (or, in a binary
+// file, read out of bounds), and a huge element count makes it allocate for
+// that count before it notices the file is short. So the header is checked
+// here first: magic, end_header within a bound, known format and property
+// types, and element counts that the file's size can hold. Only a file that
+// passes is given to Assimp.
 // Assimp only parses and validates (indices in range): its other
 // post-processing steps assert, and abort the program, on legal but
 // degenerate input such as an empty face. Polygons are therefore
@@ -14,11 +20,136 @@
 #include <assimp/postprocess.h>
 #include <assimp/scene.h>
 
+#include <algorithm>
+#include <charconv>
+#include <cstdint>
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <optional>
+#include <sstream>
+#include <string_view>
+#include <vector>
 
 namespace fg {
+
+namespace {
+
+// Longer headers are not written by any exporter; the bound keeps a file
+// without end_header from being scanned to its end as header text.
+constexpr std::size_t kMaxHeaderBytes = 64 * 1024;
+
+// Size in bytes of a PLY scalar type (both the 1994 names and the sized aliases).
+std::optional<std::uint64_t> scalarSize(std::string_view type) {
+    if (type == "char" || type == "uchar" || type == "int8" || type == "uint8") return 1;
+    if (type == "short" || type == "ushort" || type == "int16" || type == "uint16") return 2;
+    if (type == "int" || type == "uint" || type == "int32" || type == "uint32" || type == "float" || type == "float32")
+        return 4;
+    if (type == "double" || type == "float64") return 8;
+    return std::nullopt;
+}
+
+bool isIntegerType(std::string_view type) {
+    return type != "float" && type != "float32" && type != "double" && type != "float64";
+}
+
+struct PlyElement {
+    std::string name;
+    std::uint64_t count = 0;
+    int line = 0;
+    std::uint64_t fixedBytes = 0;  // scalars, plus the count field of each list (its items vary)
+    std::uint64_t valueCount = 0;  // scalars and lists (at least their count) per record
+};
+
+// Checks the header of `data` (which starts with "ply") and that the element
+// counts fit the file's size; throws an InputError naming path:line otherwise.
+void checkPlyHeader(const std::string& data, const std::string& path) {
+    std::size_t position = 0;
+    int line = 0;
+    std::string format;
+    std::vector<PlyElement> elements;
+    bool ended = false;
+    while (!ended) {
+        const std::size_t newline = std::string_view(data).substr(0, kMaxHeaderBytes).find('\n', position);
+        if (newline == std::string::npos) {
+            throw InputError(path, 0, "PLY header has no end_header line" +
+                                          std::string(data.size() > kMaxHeaderBytes ? " within its first 64 KiB" : ""));
+        }
+        ++line;
+        std::string text = data.substr(position, newline - position);
+        position = newline + 1;
+        if (!text.empty() && text.back() == '\r') text.pop_back();
+        std::istringstream words(text);
+        std::string keyword;
+        words >> keyword;
+        const auto fail = [&](const std::string& message) { throw InputError(path, line, message); };
+        if (line == 1) continue;  // "ply", checked by the caller
+        if (keyword.empty() || keyword == "comment" || keyword == "obj_info") continue;
+        std::vector<std::string> rest;
+        for (std::string word; words >> word;) rest.push_back(word);
+        if (keyword == "format") {
+            if (!format.empty()) fail("PLY header has a second format line");
+            if (rest.size() != 2) fail("PLY format line must be 'format <ascii|binary_little_endian|binary_big_endian> 1.0'");
+            if (rest[0] != "ascii" && rest[0] != "binary_little_endian" && rest[0] != "binary_big_endian")
+                fail("unknown PLY format '" + rest[0] + "' (expected ascii, binary_little_endian or binary_big_endian)");
+            format = rest[0];
+        } else if (keyword == "element") {
+            if (rest.size() != 2) fail("PLY element line must be 'element <name> <count>'");
+            PlyElement element;
+            element.name = rest[0];
+            element.line = line;
+            const std::string& count = rest[1];
+            const auto [end, error] = std::from_chars(count.data(), count.data() + count.size(), element.count);
+            if (error == std::errc::result_out_of_range)
+                fail("PLY element '" + element.name + "' has an impossibly large count " + count);
+            if (error != std::errc() || end != count.data() + count.size())
+                fail("PLY element '" + element.name + "' has a count that is not a non-negative integer: '" + count + "'");
+            elements.push_back(element);
+        } else if (keyword == "property") {
+            if (elements.empty()) fail("PLY property before any element");
+            PlyElement& element = elements.back();
+            if (!rest.empty() && rest[0] == "list") {
+                if (rest.size() != 4) fail("PLY list property must be 'property list <count type> <item type> <name>'");
+                const std::optional<std::uint64_t> countSize = scalarSize(rest[1]);
+                if (!countSize || !isIntegerType(rest[1])) fail("PLY list count type must be an integer type, not '" + rest[1] + "'");
+                if (!scalarSize(rest[2])) fail("unknown PLY property type '" + rest[2] + "'");
+                element.fixedBytes += *countSize;
+            } else {
+                if (rest.size() != 2) fail("PLY property line must be 'property <type> <name>'");
+                const std::optional<std::uint64_t> size = scalarSize(rest[0]);
+                if (!size) fail("unknown PLY property type '" + rest[0] + "'");
+                element.fixedBytes += *size;
+            }
+            ++element.valueCount;
+        } else if (keyword == "end_header") {
+            ended = true;
+        } else {
+            fail("unexpected line in PLY header: '" + text + "'");
+        }
+    }
+    if (format.empty()) throw InputError(path, 0, "PLY header has no format line");
+
+    // The smallest body the header allows: in binary the fixed part of every
+    // record; in ASCII every value takes at least one character and a separator
+    // (the last one may end the file without its separator).
+    const std::uint64_t bodyBytes = data.size() - position;
+    const bool ascii = format == "ascii";
+    const std::uint64_t available = bodyBytes + (ascii ? 1 : 0);
+    std::uint64_t needed = 0;
+    for (const PlyElement& element : elements) {
+        // An element without properties still counts a byte per record, so that
+        // its count is bounded too.
+        const std::uint64_t recordBytes = std::max<std::uint64_t>(1, ascii ? 2 * element.valueCount : element.fixedBytes);
+        if (element.count > available / recordBytes || needed + element.count * recordBytes > available) {
+            throw InputError(path, element.line,
+                             "PLY element '" + element.name + "' has " + std::to_string(element.count) +
+                                 " records, more than the file's " + std::to_string(bodyBytes) + " bytes of data can hold");
+        }
+        needed += element.count * recordBytes;
+    }
+}
+
+}  // namespace
 
 TriangleMesh loadPlyMesh(const std::string& path) {
     std::error_code ec;
@@ -30,6 +161,7 @@ TriangleMesh loadPlyMesh(const std::string& path) {
     if (data.size() < 4 || data.compare(0, 3, "ply") != 0 || (data[3] != '\n' && data[3] != '\r')) {
         throw InputError(path, 0, "not a PLY file (it must start with the line 'ply')");
     }
+    checkPlyHeader(data, path);
 
     Assimp::Importer importer;
     const unsigned flags = aiProcess_ValidateDataStructure;

@@ -6,6 +6,7 @@
 #include "engine/scene/scene_toml.h"
 
 #include "engine/core/error.h"
+#include "engine/core/text_input.h"
 
 #include <toml++/toml.h>
 
@@ -688,13 +689,9 @@ Scene parseTomlScene(std::string_view text, const std::string& pathForMessages, 
 }
 
 Scene loadTomlScene(const std::string& path) {
-    std::ifstream in(path, std::ios::binary);
-    if (!in) throw InputError(path, 0, "cannot open scene file");
-    std::ostringstream text;
-    text << in.rdbuf();
-    if (in.bad()) throw InputError(path, 0, "cannot read scene file");
+    const std::string text = readTextInput(path, "scene file");
     const std::string baseDir = fs::path(path).parent_path().string();
-    return parseTomlScene(text.str(), path, baseDir.empty() ? "." : baseDir);
+    return parseTomlScene(text, path, baseDir.empty() ? "." : baseDir);
 }
 
 }  // namespace fg

@@ -20,6 +20,7 @@
 #include "engine/scene/scene_xml.h"
 
 #include "engine/core/error.h"
+#include "engine/core/text_input.h"
 #include "engine/scene/spectrum.h"
 
 #include <pugixml.hpp>
@@ -245,7 +246,7 @@ public:
         const SourceFile& file = readFile(path, nullptr);
         Node root = rootNode(file);
         includeStack_.push_back(canonical(path));
-        expand(file.document.document_element(), root, file, root.version);
+        expand(file.document.document_element(), root, file, root.version, 0);
         includeStack_.pop_back();
         for (const auto& [name, p] : parameters_) {
             if (p.fromDefine && !p.declared && !p.used) {
@@ -276,14 +277,12 @@ private:
         file->path = path;
         const std::string dir = fs::path(path).parent_path().string();
         file->directory = dir.empty() ? "." : dir;
-        std::ifstream in(path, std::ios::binary);
-        if (!in) {
-            if (includedFrom) fail(*includedFrom, "cannot open included file " + inQuotes(path));
-            throw InputError(path, 0, "cannot open scene file");
+        try {
+            file->text = readTextInput(path, includedFrom ? "included file" : "scene file");
+        } catch (const InputError& e) {
+            if (includedFrom) fail(*includedFrom, e.what());
+            throw;
         }
-        std::ostringstream text;
-        text << in.rdbuf();
-        file->text = text.str();
         file->lineStarts.push_back(0);
         for (std::size_t i = 0; i < file->text.size(); ++i)
             if (file->text[i] == '\n') file->lineStarts.push_back(i + 1);
@@ -357,7 +356,14 @@ private:
         return out;
     }
 
-    void expand(const pugi::xml_node& element, Node& parent, const SourceFile& file, const Version& version) {
+    // The preprocessor and the builder recurse once per element level, so the
+    // depth is bounded before a deep document can exhaust the stack; real
+    // scenes nest a handful of levels.
+    static constexpr int kMaxElementDepth = 256;
+    static constexpr std::size_t kMaxIncludeDepth = 32;
+
+    // `depth` is the nesting depth of `parent` below <scene>, counted through includes.
+    void expand(const pugi::xml_node& element, Node& parent, const SourceFile& file, const Version& version, int depth) {
         for (const pugi::xml_node child : element.children()) {
             if (child.type() == pugi::node_pcdata || child.type() == pugi::node_cdata) {
                 if (!trim(child.value()).empty()) {
@@ -375,6 +381,8 @@ private:
             node.file = &file;
             node.line = file.lineAt(child.offset_debug());
             node.version = version;
+            if (depth + 1 > kMaxElementDepth)
+                fail(node, "elements nested more than " + std::to_string(kMaxElementDepth) + " deep");
             for (const pugi::xml_attribute a : child.attributes()) {
                 if (node.attribute(a.name())) fail(node, "attribute " + inQuotes(a.name()) + " given twice");
                 node.attributes.emplace_back(a.name(), substitute(a.value(), node));
@@ -407,15 +415,15 @@ private:
             }
             if (node.tag == "include") {
                 checkAttributes(node, {"filename"});
-                include(node, parent, file);
+                include(node, parent, file, depth);
                 continue;
             }
-            expand(child, node, file, version);
+            expand(child, node, file, version, depth + 1);
             parent.children.push_back(std::move(node));
         }
     }
 
-    void include(const Node& node, Node& parent, const SourceFile& file) {
+    void include(const Node& node, Node& parent, const SourceFile& file, int depth) {
         const std::string& name = requireAttribute(node, "filename");
         const std::string path = resolver_.resolve(name, file.directory);
         std::error_code ec;
@@ -424,11 +432,12 @@ private:
         if (std::find(includeStack_.begin(), includeStack_.end(), key) != includeStack_.end()) {
             fail(node, "include cycle: " + path + " includes itself (directly or through other files)");
         }
-        if (includeStack_.size() > 64) fail(node, "includes nested more than 64 deep");
+        if (includeStack_.size() > kMaxIncludeDepth)
+            fail(node, "includes nested more than " + std::to_string(kMaxIncludeDepth) + " deep");
         const SourceFile& included = readFile(path, &node);
         const Node includedRoot = rootNode(included, &node.version);
         includeStack_.push_back(key);
-        expand(included.document.document_element(), parent, included, includedRoot.version);
+        expand(included.document.document_element(), parent, included, includedRoot.version, depth);
         includeStack_.pop_back();
     }
 

@@ -89,6 +89,7 @@ public:
     }
     float pdfLi(const Vec3&, const Vec3&, const Vec3&, const Vec3&) const override { return 0.0f; }
     Rgb power() const override { return kFourPi * intensity_; }
+    std::optional<Vec3> position() const override { return position_; }
 
     std::optional<EmissionSample> sampleEmission(const Vec2&, const Vec2& uDir) const override {
         EmissionSample e;
@@ -151,6 +152,7 @@ public:
     }
     float pdfLi(const Vec3&, const Vec3&, const Vec3&, const Vec3&) const override { return 0.0f; }
     Rgb power() const override { return intensity_ * static_cast<float>(2.0 * kPi * coneMass_); }
+    std::optional<Vec3> position() const override { return position_; }
 
     // Directions are drawn in proportion to the falloff, so every photon carries the same flux.
     std::optional<EmissionSample> sampleEmission(const Vec2&, const Vec2& uDir) const override {

@@ -55,6 +55,9 @@ public:
     virtual std::optional<EmissionSample> sampleEmission(const Vec2& uPos, const Vec2& uDir) const = 0;
     // Infinite and directional lights need the scene's bounding sphere.
     virtual void setSceneBounds(const Vec3& center, float radius);
+    // Where a point or spot light sits, so that loaders can check it lies in a
+    // representable scene; none for lights that are shapes or at infinity.
+    virtual std::optional<Vec3> position() const { return std::nullopt; }
 };
 
 std::shared_ptr<Light> makePointLight(const Vec3& position, const Rgb& intensity);

@@ -11,6 +11,7 @@
 
 #include <gtest/gtest.h>
 
+#include <sys/stat.h>
 #include <sys/wait.h>
 
 #include <algorithm>
@@ -316,6 +317,87 @@ TEST(Cli, ValidateReportsAMissingScene) {
     expectInputError(r);
     EXPECT_NE(r.err.find((dir / "missing" / "scene.toml").string()), std::string::npos) << r.err;
     EXPECT_TRUE(r.out.empty()) << r.out;
+}
+
+// A path component over the 255-byte file-name limit makes the system calls fail
+// with ENAMETOOLONG; that is the user's path, not a defect.
+TEST(Cli, OverlongPathComponentsAreInputErrors) {
+    const fs::path dir = scratchDirectory();
+    const std::string overlong(300, 'a');
+    const std::string jobPath = (dir / (overlong + ".toml")).string();
+    const CommandResult direct = runFluxgraph(dir, {"validate", jobPath});
+    expectInputError(direct);
+    EXPECT_EQ(direct.err.rfind(jobPath + ": cannot open job file", 0), 0u) << direct.err;
+
+    for (const std::string& scene : {overlong + ".toml", overlong + "/scene.toml", overlong + ".xml"}) {
+        const std::string job = (dir / "job.toml").string();
+        writeText(job, "scene = \"" + scene + "\"\npipeline = \"pt\"\n");
+        for (const std::string command : {"validate", "render"}) {
+            std::vector<std::string> args{command, job};
+            if (command == std::string("render")) args.insert(args.end(), {"--out", (dir / "out").string()});
+            const CommandResult r = runFluxgraph(dir, args);
+            expectInputError(r);
+            EXPECT_NE(r.err.find((dir / scene).string()), std::string::npos) << r.err;
+        }
+    }
+    const CommandResult out = runFluxgraph(dir, tinyRender({"render", quickstartJob(), "--out", (dir / overlong).string()}));
+    expectInputError(out);
+}
+
+TEST(Cli, ValidateRejectsOutputNamesThatCannotBeFiles) {
+    const fs::path dir = scratchDirectory();
+    const std::string job = (dir / "job.toml").string();
+    writeText(job, "scene = \"" + cornellScene() + "\"\npipeline = \"pt\"\n\n[output]\nname = \"" +
+                       std::string(300, 'n') + "\"\n");
+    for (const std::string command : {"validate", "render"}) {
+        std::vector<std::string> args{command, job};
+        if (command == std::string("render")) args.insert(args.end(), {"--out", (dir / "out").string()});
+        const CommandResult r = runFluxgraph(dir, args);
+        expectInputError(r);
+        EXPECT_EQ(r.err.rfind(job + ":5: output file name", 0), 0u) << r.err;
+    }
+    writeText(job, "scene = \"" + cornellScene() + "\"\npipeline = \"pt\"\n\n[output]\nname = \"a\\u0000b\"\n");
+    const CommandResult nul = runFluxgraph(dir, {"validate", job});
+    expectInputError(nul);
+    EXPECT_EQ(nul.err.rfind(job + ":", 0), 0u) << nul.err;
+    EXPECT_EQ(filesBelow(dir), std::vector<std::string>{"job.toml"});
+}
+
+TEST(Cli, ThreadCountsHaveOneBound) {
+    const fs::path dir = scratchDirectory();
+    const CommandResult flag =
+        runFluxgraph(dir, tinyRender({"render", quickstartJob(), "--out", (dir / "out").string(), "--threads", "100000"}));
+    expectInputError(flag);
+    EXPECT_NE(flag.err.find("--threads: must be 0 (all) or a count up to 4096"), std::string::npos) << flag.err;
+    const CommandResult set = runFluxgraph(dir, {"validate", quickstartJob(), "--set", "threads=100000"});
+    expectInputError(set);
+    EXPECT_NE(set.err.find("4096"), std::string::npos) << set.err;
+    EXPECT_TRUE(filesBelow(dir).empty()) << joined(filesBelow(dir));
+}
+
+TEST(Cli, ValidateRefusesDevicesAndOversizedFiles) {
+    const fs::path dir = scratchDirectory();
+    for (const std::string& path : {std::string("/dev/zero"), dir.string()}) {
+        const CommandResult r = runFluxgraph(dir, {"validate", path});
+        expectInputError(r);
+        EXPECT_EQ(r.err, path + ": cannot open job file (not a regular file)\n");
+    }
+    // A scene that is a FIFO would block the reader forever.
+    const fs::path fifo = dir / "fifo.toml";
+    ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
+    const std::string job = (dir / "job.toml").string();
+    writeText(job, "scene = \"fifo.toml\"\npipeline = \"pt\"\n");
+    const CommandResult scene = runFluxgraph(dir, {"validate", job});
+    expectInputError(scene);
+    EXPECT_EQ(scene.err, fifo.string() + ": cannot open scene file (not a regular file)\n");
+    // Size is checked before reading (a sparse file: no disk space used).
+    const fs::path big = dir / "big.toml";
+    std::ofstream(big).put('#');
+    fs::resize_file(big, 65 * 1024 * 1024);
+    const CommandResult oversized = runFluxgraph(dir, {"validate", big.string()});
+    expectInputError(oversized);
+    EXPECT_EQ(oversized.err, big.string() + ": job file is larger than 64 MiB\n");
+    fs::remove(big);
 }
 
 // ---------------------------------------------------------------- rendering

@@ -7,12 +7,15 @@
 
 #include <algorithm>
 #include <bit>
+#include <chrono>
 #include <cstdint>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <future>
 #include <sstream>
 #include <string>
+#include <thread>
 #include <vector>
 
 namespace fg {
@@ -166,6 +169,77 @@ TEST(PlyLoader, BadFilesAreErrorsNamingTheFile) {
         "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
         "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 zero 0\n0 1 0\n3 0 1 2\n";
     expectError(write(dir / "nan.ply", notANumber), "cannot parse PLY file");
+}
+
+// Loads on a detached thread so that a loader that hangs fails the test instead
+// of stalling it (a std::async future would wait for the load when destroyed).
+void expectErrorWithinSeconds(const fs::path& path, const std::string& fragment) {
+    std::packaged_task<std::string()> load([file = path.string()]() -> std::string {
+        try {
+            loadPlyMesh(file);
+            return "no error";
+        } catch (const InputError& e) {
+            return e.what();
+        } catch (const std::exception& e) {
+            return std::string("not an input error: ") + e.what();
+        }
+    });
+    std::future<std::string> message = load.get_future();
+    std::thread(std::move(load)).detach();
+    ASSERT_EQ(message.wait_for(std::chrono::seconds(10)), std::future_status::ready) << "loading " << path << " hangs";
+    const std::string text = message.get();
+    EXPECT_NE(text.find(path.string()), std::string::npos) << text;
+    EXPECT_NE(text.find(fragment), std::string::npos) << text;
+}
+
+std::string binaryBody(std::size_t bytes) { return std::string(bytes, '\x01'); }
+
+TEST(PlyLoader, MalformedHeadersAreErrorsNotHangsOrCrashes) {
+    const fs::path dir = scratchDir();
+    expectErrorWithinSeconds(write(dir / "no_end_ascii.ply", "ply\nformat ascii 1.0\n"), "no end_header");
+    expectErrorWithinSeconds(
+        write(dir / "no_end_binary.ply",
+              "ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\n" + binaryBody(64)),
+        "no end_header");
+    expectErrorWithinSeconds(write(dir / "endless_comment.ply", "ply\nformat ascii 1.0\n" +
+                                                                     std::string(100 * 1024, 'c')),
+                             "within its first 64 KiB");
+    expectErrorWithinSeconds(write(dir / "format.ply", "ply\nformat binary_middle_endian 1.0\nend_header\n"),
+                             "unknown PLY format");
+    expectErrorWithinSeconds(write(dir / "noformat.ply", "ply\nelement vertex 0\nend_header\n"), "no format line");
+    expectErrorWithinSeconds(
+        write(dir / "type.ply", "ply\nformat ascii 1.0\nelement vertex 1\nproperty float128 x\nend_header\n0\n"),
+        ":4: unknown PLY property type");
+    expectErrorWithinSeconds(
+        write(dir / "listcount.ply",
+              "ply\nformat ascii 1.0\nelement face 1\nproperty list float int vertex_indices\nend_header\n0\n"),
+        "count type must be an integer");
+    expectErrorWithinSeconds(write(dir / "orphan.ply", "ply\nformat ascii 1.0\nproperty float x\nend_header\n"),
+                             "property before any element");
+    expectErrorWithinSeconds(write(dir / "count.ply", "ply\nformat ascii 1.0\nelement vertex -3\nend_header\n"),
+                             "not a non-negative integer");
+}
+
+TEST(PlyLoader, ElementCountsMustFitTheFileSize) {
+    const fs::path dir = scratchDir();
+    const std::string vertices = "element vertex 1000000000\nproperty float x\nproperty float y\nproperty float z\n"
+                                 "element face 1\nproperty list uchar int vertex_indices\nend_header\n";
+    expectErrorWithinSeconds(write(dir / "huge_ascii.ply", "ply\nformat ascii 1.0\n" + vertices + "0 0 0\n3 0 0 0\n"),
+                             ":3: PLY element 'vertex' has 1000000000 records");
+    expectErrorWithinSeconds(
+        write(dir / "huge_binary.ply", "ply\nformat binary_little_endian 1.0\n" + vertices + binaryBody(64)),
+        ":3: PLY element 'vertex' has 1000000000 records");
+    expectErrorWithinSeconds(write(dir / "huge_le.ply", "ply\nformat binary_big_endian 1.0\nelement vertex "
+                                                        "18446744073709551615\nproperty double x\nend_header\n" +
+                                                            binaryBody(8)),
+                             "records");
+    expectErrorWithinSeconds(write(dir / "overflow.ply", "ply\nformat binary_big_endian 1.0\nelement vertex "
+                                                         "99999999999999999999\nproperty double x\nend_header\n"),
+                             "impossibly large count");
+    // Lists count only their count field: the fixed part of 2 face records fits, a third does not.
+    const std::string faces = "ply\nformat binary_little_endian 1.0\nelement face 3\n"
+                              "property list uchar int vertex_indices\nend_header\n";
+    expectErrorWithinSeconds(write(dir / "faces.ply", faces + binaryBody(2)), "PLY element 'face' has 3 records");
 }
 
 }  // namespace

@@ -2,6 +2,7 @@
 
 #include "engine/core/error.h"
 #include "engine/accel/ray_query.h"
+#include "engine/scene/scene_loader.h"
 
 #include <gtest/gtest.h>
 
@@ -593,6 +594,54 @@ TEST(ObjLoader, ErrorsNameTheFile) {
         ADD_FAILURE();
     } catch (const InputError& e) {
         EXPECT_NE(std::string(e.what()).find("empty.obj"), std::string::npos);
+    }
+}
+
+// Loads dir/name holding `text` through loadScene; returns the error message, or "" if it loaded.
+std::string loadSceneError(const fs::path& dir, const std::string& name, const std::string& text) {
+    writeFile(dir / name, text);
+    try {
+        loadScene((dir / name).string());
+    } catch (const InputError& e) {
+        return e.what();
+    }
+    return "";
+}
+
+TEST(SceneExtent, CoordinatesBeyondRepresentableRangeAreErrors) {
+    const fs::path dir = scratchDir();
+    const std::string path = (dir / "scene.toml").string();
+    const auto expectRejected = [&](const std::string& text, const std::string& fragment) {
+        const std::string message = loadSceneError(dir, "scene.toml", text);
+        EXPECT_NE(message.find(path + ": " + fragment), std::string::npos) << message;
+        EXPECT_NE(message.find("beyond 1e10"), std::string::npos) << message;
+    };
+    expectRejected("[camera]\neye = [2e18, 0, 0]\ntarget = [0, 0, 0]\n", "camera position");
+    expectRejected("[camera]\neye = [0, 0, 5]\ntarget = [0, 0, -3e12]\n", "camera target");
+    expectRejected(std::string(kCamera) + "\n[[light]]\ntype = \"point\"\nposition = [0, -2e18, 0]\nintensity = 1\n",
+                   "light position");
+    expectRejected(std::string(kCamera) + kWhite + "\n[[shape]]\ntype = \"sphere\"\nmaterial = \"white\"\nradius = 1e11\n",
+                   "shape");
+    writeFile(dir / "far.obj", "v 0 0 0\nv 1e12 0 0\nv 0 1 0\nf 1 2 3\n");
+    expectRejected(std::string(kCamera) + kWhite + "\n[[shape]]\ntype = \"obj\"\nfile = \"far.obj\"\nmaterial = \"white\"\n",
+                   "shape 'far' vertex");
+    // Large but representable scenes still load.
+    EXPECT_EQ(loadSceneError(dir, "big.toml", "[camera]\neye = [1e9, 0, 0]\ntarget = [0, 0, 0]\n"), "");
+}
+
+TEST(ObjLoader, NonFiniteVerticesAreErrors) {
+    const fs::path dir = scratchDir();
+    for (const std::string value : {"nan", "inf", "-inf", "1e400", "zero"}) {
+        const fs::path path = dir / (value + ".obj");
+        writeFile(path, "v 0 0 0\nv 1 0 0\nv " + value + " 0 0\nf 1 2 3\n");
+        try {
+            loadObjMesh(path.string());
+            ADD_FAILURE() << "no error for a vertex at " << value;
+        } catch (const InputError& e) {
+            EXPECT_NE(std::string(e.what()).find(path.string() + ":3: vertex 3 has a coordinate '" + value + "' that is not a finite number"),
+                      std::string::npos)
+                << e.what();
+        }
     }
 }
 

@@ -303,6 +303,48 @@ TEST(SceneXml, IncludesArePathsRelativeToTheIncludingFile) {
     EXPECT_TRUE(contains(m3, "bsdf 'velvet'")) << m3;
 }
 
+TEST(SceneXml, DeepNestingIsAnErrorNotAStackOverflow) {
+    const fs::path dir = scratchDir();
+    // Each element on its own line, so the element past the bound is on line 2 + bound.
+    const auto nested = [](int depth) {
+        std::string open, close;
+        for (int i = 0; i < depth; ++i) {
+            open += "<shape type=\"rectangle\">\n";
+            close += "</shape>\n";
+        }
+        return open + close;
+    };
+    for (const int depth : {257, 9000}) {
+        const fs::path path = writeFile(dir / ("deep" + std::to_string(depth) + ".xml"),
+                                        "<scene version=\"3.0.0\">\n" + nested(depth) + "</scene>\n");
+        const std::string message = loadError(path).what();
+        EXPECT_TRUE(contains(message, path.string() + ":258: elements nested more than 256 deep")) << message;
+    }
+    // The depth counts through includes: 200 levels around an include of 100 more.
+    writeFile(dir / "inner.xml", "<scene version=\"3.0.0\">\n" + nested(100) + "</scene>\n");
+    std::string open, close;
+    for (int i = 0; i < 200; ++i) {
+        open += "<shape type=\"rectangle\">\n";
+        close += "</shape>\n";
+    }
+    const fs::path outer = writeFile(dir / "outer.xml", "<scene version=\"3.0.0\">\n" + open +
+                                                            "<include filename=\"inner.xml\"/>\n" + close + "</scene>\n");
+    const std::string message = loadError(outer).what();
+    EXPECT_TRUE(contains(message, (dir / "inner.xml").string() + ":58: elements nested more than 256 deep")) << message;
+}
+
+TEST(SceneXml, IncludeChainsAreBounded) {
+    const fs::path dir = scratchDir();
+    const int files = 40;
+    for (int i = 0; i < files; ++i) {
+        const std::string next = i + 1 < files ? "    <include filename=\"part" + std::to_string(i + 1) + ".xml\"/>\n" : "";
+        writeFile(dir / ("part" + std::to_string(i) + ".xml"), "<scene version=\"3.0.0\">\n" + next + "</scene>\n");
+    }
+    const fs::path path = writeFile(dir / "scene.xml", sceneText("    <include filename=\"part0.xml\"/>\n"));
+    const std::string message = loadError(path).what();
+    EXPECT_TRUE(contains(message, (dir / "part31.xml").string() + ":2: includes nested more than 32 deep")) << message;
+}
+
 TEST(SceneXml, PathElementsAddSearchDirectories) {
     const fs::path dir = scratchDir();
     writeFile(dir / "assets" / "geometry" / "quad.obj", kQuadObj);
