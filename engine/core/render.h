@@ -66,6 +66,9 @@ std::string formatPassTable(const RenderOutcome& outcome);
 // The run's statistics as JSON: per pass (instance, pass, start, wall, cpu,
 // items, output bytes, counters) plus scene-load and Embree-build times.
 std::string statsJson(const RenderOutcome& outcome);
+// `s` as the inside of a JSON string literal (quotes, backslashes and control
+// characters escaped).
+std::string jsonEscape(const std::string& s);
 // Chrome trace-event JSON of the given slices (times relative to the earliest).
 std::string chromeTraceJson(const std::vector<jobs::TraceSlice>& slices);
 
