@@ -388,9 +388,17 @@ Job parseJob(const std::string& text, const std::string& path, const JobOverride
     if (const toml::table* out = r.getTable(root, "output", "output")) {
         r.checkKeys(*out, "output.", {"directory", "name", "exr", "png", "exposure", "half"});
         job.output.directory = r.getString(*out, "directory", "output.directory", job.output.directory);
+        // An empty directory would otherwise surface at the end of a render as a
+        // nameless "cannot create output directory".
+        if (job.output.directory.empty())
+            r.fail(*out->get("directory"), "output.directory", "output.directory must not be empty");
         job.output.name = r.getString(*out, "name", "output.name", job.output.name);
-        if (job.output.name.empty() || job.output.name.find_first_of(std::string("/\0", 2)) != std::string::npos)
-            r.fail(*out, "output.name", "output.name must be a plain file stem (no '/' or NUL)");
+        // The name becomes part of a path: a '/' would reach into other directories,
+        // a NUL would cut the path short, and "." or ".." name directories.
+        const std::string& name = job.output.name;
+        if (name.empty() || name == "." || name == ".." || name.find_first_of(std::string("/\0", 2)) != std::string::npos)
+            r.fail(out->get("name") ? *out->get("name") : static_cast<const toml::node&>(*out), "output.name",
+                   "output.name must be a plain file name (no '/', no NUL, not empty, not '.' or '..')");
         job.output.exr = r.getBool(*out, "exr", "output.exr", true);
         job.output.png = r.getBool(*out, "png", "output.png", true);
         job.output.exposure = static_cast<float>(r.getFloat(*out, "exposure", "output.exposure", 0.0, -64.0, 64.0));

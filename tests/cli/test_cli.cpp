@@ -359,7 +359,35 @@ TEST(Cli, ValidateRejectsOutputNamesThatCannotBeFiles) {
     writeText(job, "scene = \"" + cornellScene() + "\"\npipeline = \"pt\"\n\n[output]\nname = \"a\\u0000b\"\n");
     const CommandResult nul = runFluxgraph(dir, {"validate", job});
     expectInputError(nul);
-    EXPECT_EQ(nul.err.rfind(job + ":", 0), 0u) << nul.err;
+    EXPECT_EQ(nul.err.rfind(job + ":5: output.name must be a plain file name", 0), 0u) << nul.err;
+    EXPECT_EQ(filesBelow(dir), std::vector<std::string>{"job.toml"});
+}
+
+TEST(Cli, OutputNameMustBeAPlainFileName) {
+    const fs::path dir = scratchDirectory();
+    const std::string job = (dir / "job.toml").string();
+    for (const std::string name : {"\\u0000", "", "a/b", "..", "."}) {
+        writeText(job, "scene = \"" + cornellScene() + "\"\npipeline = \"pt\"\n\n[output]\ndirectory = \"out\"\nname = \"" +
+                           name + "\"\n");
+        for (const std::string command : {"validate", "render"}) {
+            const CommandResult r = runFluxgraph(dir, tinyRender({command, job}));
+            expectInputError(r);
+            EXPECT_EQ(r.err, job + ":6: output.name must be a plain file name (no '/', no NUL, not empty, not '.' or '..')\n")
+                << "name = \"" << name << "\"";
+        }
+    }
+    EXPECT_EQ(filesBelow(dir), std::vector<std::string>{"job.toml"});
+}
+
+TEST(Cli, OutputDirectoryMustNotBeEmpty) {
+    const fs::path dir = scratchDirectory();
+    const std::string job = (dir / "job.toml").string();
+    writeText(job, "scene = \"" + cornellScene() + "\"\npipeline = \"pt\"\n\n[output]\nname = \"image\"\ndirectory = \"\"\n");
+    for (const std::string command : {"validate", "render"}) {
+        const CommandResult r = runFluxgraph(dir, tinyRender({command, job}));
+        expectInputError(r);
+        EXPECT_EQ(r.err, job + ":6: output.directory must not be empty\n");
+    }
     EXPECT_EQ(filesBelow(dir), std::vector<std::string>{"job.toml"});
 }
 
