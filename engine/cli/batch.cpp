@@ -69,7 +69,7 @@ void installSigintHandler() {
 std::string oneLine(std::string message) {
     for (char& c : message)
         if (c == '\n' || c == '\r') c = ' ';
-    return message;
+    return printableMessage(message);
 }
 
 // Counts the rows appended to the CSV since construction, for the parent's progress line.

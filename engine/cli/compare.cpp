@@ -49,7 +49,7 @@ std::string oneLine(std::string message) {
     for (char& c : message)
         if (c == '\n' || c == '\r') c = ' ';
     while (!message.empty() && message.back() == ' ') message.pop_back();
-    return message;
+    return printableMessage(message);
 }
 
 std::string formatValue(double value) {

@@ -138,7 +138,7 @@ int main(int argc, char** argv) {
     } catch (const CLI::CallForAllHelp& e) {
         return app.exit(e);
     } catch (const CLI::ParseError& e) {
-        std::cerr << "fluxgraph: " << e.what() << "\n";
+        std::cerr << "fluxgraph: " << fg::printableMessage(e.what()) << "\n";
         return kInputErrorExit;
     }
 
@@ -192,10 +192,11 @@ int main(int argc, char** argv) {
         }
         return 0;
     } catch (const fg::InputError& e) {
-        std::cerr << e.what() << "\n";
+        // Messages quote keys, values and paths from the input, which may hold any bytes.
+        std::cerr << fg::printableMessage(e.what()) << "\n";
         return kInputErrorExit;
     } catch (const std::exception& e) {
-        std::cerr << "fluxgraph: internal error: " << e.what() << "\n";
+        std::cerr << "fluxgraph: internal error: " << fg::printableMessage(e.what()) << "\n";
         return 1;
     }
 }

@@ -21,7 +21,7 @@ constexpr int kOutputsDifferExit = 3;
 std::string oneLine(std::string message) {
     for (char& c : message)
         if (c == '\n' || c == '\r') c = ' ';
-    return message;
+    return printableMessage(message);
 }
 
 }  // namespace

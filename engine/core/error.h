@@ -5,6 +5,7 @@
 
 #include <stdexcept>
 #include <string>
+#include <string_view>
 
 namespace fg {
 
@@ -25,5 +26,11 @@ private:
     std::string file_;
     int line_;
 };
+
+// `message` made safe to print as one terminal line: control characters
+// (newlines, tabs and the C1 range included) and bytes that are not part of
+// valid UTF-8 become \xNN, one per byte; valid UTF-8 such as "é" or "×" is
+// kept as is. Input files can hold any bytes, and messages quote them.
+std::string printableMessage(std::string_view message);
 
 }  // namespace fg

@@ -391,6 +391,30 @@ TEST(Cli, OutputDirectoryMustNotBeEmpty) {
     EXPECT_EQ(filesBelow(dir), std::vector<std::string>{"job.toml"});
 }
 
+TEST(Cli, UnknownKeysWithControlOrNonUtf8BytesAreEscaped) {
+    const fs::path dir = scratchDirectory();
+    const std::string job = (dir / "job.toml").string();
+    // TOML lets a quoted key hold \x01 (written as an escape) but not invalid
+    // UTF-8, which reaches the same message through --set.
+    writeText(job, "scene = \"" + cornellScene() + "\"\npipeline = \"pt\"\n\"bad\\u0001key\xc3\xa9\" = 1\n");
+    for (const std::string command : {"validate", "render"}) {
+        const CommandResult r = runFluxgraph(dir, tinyRender({command, job}));
+        expectInputError(r);
+        EXPECT_EQ(r.err.rfind(job + ":3: unknown key 'bad\\x01key\xc3\xa9'", 0), 0u) << r.err;
+        EXPECT_EQ(r.err.find('\x01'), std::string::npos) << r.err;
+    }
+    const CommandResult set = runFluxgraph(dir, {"validate", quickstartJob(), "--set", "passes.pt.a\x01\xff\n=1"});
+    expectInputError(set);
+    EXPECT_EQ(set.err.rfind("--set passes.pt.a\\x01\\xFF\\x0A=1: unknown parameter 'a\\x01\\xFF\\x0A'", 0), 0u)
+        << set.err;
+    EXPECT_EQ(set.err.find_first_of("\x01\xff"), std::string::npos) << set.err;
+    writeText(job, "scene = \"" + cornellScene() + "\"\npipeline = \"pt\"\n\"bad\xffkey\" = 1\n");
+    const CommandResult raw = runFluxgraph(dir, {"validate", job});
+    expectInputError(raw);
+    EXPECT_EQ(raw.err.rfind(job + ":3:", 0), 0u) << raw.err;
+    EXPECT_EQ(raw.err.find('\xff'), std::string::npos) << raw.err;
+}
+
 TEST(Cli, ThreadCountsHaveOneBound) {
     const fs::path dir = scratchDirectory();
     const CommandResult flag =
