@@ -12,6 +12,7 @@
 #include "engine/image/image_compare.h"
 
 #include "engine/core/error.h"
+#include "engine/image/image_diagnostics.h"
 
 #include <OpenImageIO/imageio.h>
 
@@ -226,8 +227,9 @@ void writeRelativeErrorHeatmap(const std::string& path, const ImageChannels& tes
 ImageChannels readImageLinear(const std::string& path) {
     bool srgbEncoded = false;
     {
+        CapturedStderr libraryMessages;
         std::unique_ptr<OIIO::ImageInput> input = OIIO::ImageInput::open(path);
-        if (!input) throw InputError(path, 0, "cannot read image: " + OIIO::geterror());
+        if (!input) throw InputError(path, 0, "cannot read image: " + imageReadFailure(OIIO::geterror(), libraryMessages));
         const OIIO::TypeDesc format = input->spec().format;
         srgbEncoded = format.basetype != OIIO::TypeDesc::FLOAT && format.basetype != OIIO::TypeDesc::HALF &&
                       format.basetype != OIIO::TypeDesc::DOUBLE;

@@ -6,6 +6,7 @@
 #include "engine/image/image_io.h"
 
 #include "engine/core/error.h"
+#include "engine/image/image_diagnostics.h"
 
 #include <OpenImageIO/imageio.h>
 
@@ -132,8 +133,9 @@ void writePngPreview(const std::string& path, const ImageChannels& image, float 
 }
 
 ImageChannels readExr(const std::string& path, Metadata* metadata) {
+    CapturedStderr libraryMessages;
     std::unique_ptr<OIIO::ImageInput> input = OIIO::ImageInput::open(path);
-    if (!input) throw InputError(path, 0, "cannot read image: " + OIIO::geterror());
+    if (!input) throw InputError(path, 0, "cannot read image: " + imageReadFailure(OIIO::geterror(), libraryMessages));
     const OIIO::ImageSpec& spec = input->spec();
     const int channels = spec.nchannels;
     ImageChannels image;
@@ -143,7 +145,7 @@ ImageChannels readExr(const std::string& path, Metadata* metadata) {
 
     std::vector<float> interleaved(pixels * static_cast<std::size_t>(channels));
     if (!input->read_image(0, 0, 0, channels, OIIO::TypeDesc::FLOAT, interleaved.data()))
-        throw InputError(path, 0, "cannot read image: " + input->geterror());
+        throw InputError(path, 0, "cannot read image: " + imageReadFailure(input->geterror(), libraryMessages));
 
     int rgbChannel[3] = {-1, -1, -1};
     const char* rgbNames[3] = {"R", "G", "B"};

@@ -1,6 +1,7 @@
 #include "engine/shading/texture.h"
 
 #include "engine/core/error.h"
+#include "engine/image/image_diagnostics.h"
 
 #include <OpenImageIO/imageio.h>
 
@@ -84,13 +85,14 @@ std::shared_ptr<Texture> makeBitmapTexture(RgbImage image, const Vec2& uvScale) 
 }
 
 RgbImage readRgbImage(const std::string& path) {
+    CapturedStderr libraryMessages;
     auto input = OIIO::ImageInput::open(path);
-    if (!input) throw InputError(path, 0, "cannot read image: " + OIIO::geterror());
+    if (!input) throw InputError(path, 0, "cannot read image: " + imageReadFailure(OIIO::geterror(), libraryMessages));
     const OIIO::ImageSpec& spec = input->spec();
     const int channels = spec.nchannels;
     std::vector<float> data(static_cast<std::size_t>(spec.width) * spec.height * channels);
     if (!input->read_image(0, 0, 0, channels, OIIO::TypeDesc::FLOAT, data.data())) {
-        throw InputError(path, 0, "cannot decode image: " + input->geterror());
+        throw InputError(path, 0, "cannot decode image: " + imageReadFailure(input->geterror(), libraryMessages));
     }
     // 8/16-bit images are display-encoded unless they say otherwise; float formats are linear.
     const std::string colorSpace = spec.get_string_attribute("oiio:ColorSpace");

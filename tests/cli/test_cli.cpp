@@ -415,6 +415,30 @@ TEST(Cli, UnknownKeysWithControlOrNonUtf8BytesAreEscaped) {
     EXPECT_EQ(raw.err.find('\xff'), std::string::npos) << raw.err;
 }
 
+// libpng prints its own "libpng error: ..." line on stderr when OIIO reads a
+// truncated PNG; that must end up in fluxgraph's one line, not beside it.
+TEST(Cli, TruncatedPngTextureOrEnvironmentMapCostsOneLine) {
+    const fs::path dir = scratchDirectory();
+    const std::string png = readText(sourcePath("data/cornell-box/preview.png"));
+    writeText(dir / "half.png", png.substr(0, png.size() / 2));
+    const std::string job = (dir / "job.toml").string();
+    writeText(job, "scene = \"scene.toml\"\npipeline = \"pt\"\n[film]\nwidth = 16\nheight = 16\n");
+    const std::string camera = "[camera]\neye = [0, 0, -5]\ntarget = [0, 0, 0]\nup = [0, 1, 0]\nfov = 40\n";
+    const std::string texture = "[[material]]\nname = \"t\"\ntype = \"diffuse\"\nreflectance = { bitmap = \"half.png\" }\n";
+    const std::string envmap = "[[light]]\ntype = \"envmap\"\nfile = \"half.png\"\n";
+    for (const std::string& scene : {camera + texture, camera + envmap}) {
+        writeText(dir / "scene.toml", scene);
+        for (const std::string command : {"validate", "render"}) {
+            const CommandResult r = runFluxgraph(dir, {command, job});
+            expectInputError(r);
+            EXPECT_NE(r.err.find("half.png: cannot decode image: "), std::string::npos) << r.err;
+            EXPECT_NE(r.err.find("hit end of file"), std::string::npos) << r.err;
+            EXPECT_EQ(r.err.rfind((dir / "scene.toml").string() + ":", 0), 0u) << r.err;
+        }
+    }
+    EXPECT_EQ(filesBelow(dir), (std::vector<std::string>{"half.png", "job.toml", "scene.toml"}));
+}
+
 TEST(Cli, ThreadCountsHaveOneBound) {
     const fs::path dir = scratchDirectory();
     const CommandResult flag =
