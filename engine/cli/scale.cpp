@@ -9,13 +9,13 @@
 
 #include "engine/core/error.h"
 #include "engine/core/job.h"
+#include "engine/core/output_files.h"
 #include "engine/run/scale.h"
 
 #include <CLI/CLI.hpp>
 
 #include <cstdio>
 #include <filesystem>
-#include <fstream>
 #include <iostream>
 #include <thread>
 #include <unistd.h>
@@ -93,8 +93,7 @@ std::string drawPlot(const std::string& csvPath, const std::string& plotPath) {
 }
 
 void writeCsv(const std::string& path, const std::string& text) {
-    std::ofstream out(path, std::ios::binary);
-    if (!(out << text) || !out.flush()) throw InputError(path + ": cannot write the CSV");
+    writeAtomically(path, [&](const std::string& temporary) { writeFileChecked(path, temporary, text); });
 }
 
 }  // namespace

@@ -3,7 +3,7 @@
 // and atomic saving. The layout is described in codec.h.
 #include "engine/core/codec.h"
 
-#include "engine/image/image_io.h"
+#include "engine/core/output_files.h"
 
 #include <algorithm>
 #include <cerrno>
@@ -260,7 +260,8 @@ std::vector<std::string> codecTypes() {
 
 // --- Files -------------------------------------------------------------------
 
-void saveBuffer(const BufferHandle& buffer, const std::string& path, const std::string& jobText) {
+void writeBufferFile(const BufferHandle& buffer, const std::string& path, const std::string& temporaryPath,
+                     const std::string& jobText) {
     const BufferCodec* codec = findCodec(buffer.type);
     if (!codec)
         throw InputError(path, 0,
@@ -273,9 +274,7 @@ void saveBuffer(const BufferHandle& buffer, const std::string& path, const std::
 
     CodecWriter writer;
     codec->write(buffer.data.get(), writer);
-    writeAtomically(path, [&](const std::string& temporary) {
-        std::ofstream out(temporary, std::ios::binary | std::ios::trunc);
-        if (!out) throw InputError(path, 0, "cannot write buffer file: " + std::generic_category().message(errno));
+    writeFileChecked(path, temporaryPath, [&](std::ostream& out) {
         put(out, kBufferFileMagic, sizeof kBufferFileMagic);
         putScalar(out, kBufferFormatVersion);
         putString(out, buffer.type);
@@ -288,9 +287,11 @@ void saveBuffer(const BufferHandle& buffer, const std::string& path, const std::
         putScalar(out, writer.itemCount());
         putString(out, jobText);
         writer.writePayload(out);
-        out.close();
-        if (!out) throw InputError(path, 0, "cannot write buffer file: " + std::generic_category().message(errno));
     });
+}
+
+void saveBuffer(const BufferHandle& buffer, const std::string& path, const std::string& jobText) {
+    writeAtomically(path, [&](const std::string& temporary) { writeBufferFile(buffer, path, temporary, jobText); });
 }
 
 BufferHandle loadBuffer(const std::string& path, const std::string& expectedType, const std::string& bufferName) {

@@ -211,8 +211,12 @@ std::vector<BufferCodec> builtinCodecs();
 // function above, so nothing depends on static initialisation order.
 void registerBuiltinCodecs();
 
-// Writes atomically (temporary + rename). Throws InputError on failure.
+// Writes atomically (temporary + rename, every write checked). Throws InputError on failure.
 void saveBuffer(const BufferHandle& buffer, const std::string& path, const std::string& jobText);
+// The same file written to `temporaryPath` only (errors name `path`), for
+// outputs committed together (OutputCommit).
+void writeBufferFile(const BufferHandle& buffer, const std::string& path, const std::string& temporaryPath,
+                     const std::string& jobText);
 // Throws InputError("<path>: ...") on one line: missing or unreadable file, not
 // a buffer file, unsupported format version, truncated or corrupt, and a type
 // other than expectedType (empty: any), naming the buffer `bufferName` if given.

@@ -5,6 +5,7 @@
 
 #include "engine/core/codec.h"
 #include "engine/core/error.h"
+#include "engine/core/output_files.h"
 #include "engine/image/image_io.h"
 #include "engine/accel/ray_query.h"
 #include "engine/scene/scene_loader.h"
@@ -43,11 +44,10 @@ bool canCreateFileIn(const fs::path& dir) {
 }
 
 // Creates the output directory if needed and proves it is writable, before any
-// work is done, so that a long render never fails at the very end.
-void ensureWritableDirectory(const std::string& dir) {
-    std::error_code ec;
-    fs::create_directories(dir, ec);
-    if (ec || !fs::is_directory(dir, ec)) throw InputError(dir + ": cannot create output directory");
+// work is done, so that a long render never fails at the very end. `outputs`
+// remembers the directories it creates, to remove them if the run fails.
+void ensureWritableDirectory(const std::string& dir, OutputCommit& outputs) {
+    outputs.createDirectories(dir);
     if (!canCreateFileIn(dir)) throw InputError(dir + ": output directory is not writable");
 }
 
@@ -231,9 +231,12 @@ RenderOutcome renderWith(const Job& job, const RenderOptions& options, const Pre
                          const Registry& registry) {
     // Validated before anything slow happens; rebuilt below with the scene's hints.
     ExecutionPlan::build(job.pipeline, job.params, job.path, registry.passes, job.bufferFiles);
-    ensureWritableDirectory(job.output.directory);
+    // Every output goes to a temporary first; all are renamed at the end, or
+    // none (and the directories made for them are removed again).
+    OutputCommit outputs;
+    ensureWritableDirectory(job.output.directory, outputs);
     if (!options.profilePath.empty()) ensureWritableFilePath(options.profilePath, "profile");
-    if (!options.statsPath.empty()) ensureWritableFilePath(options.statsPath, "profile");
+    if (!options.statsPath.empty()) ensureWritableFilePath(options.statsPath, "statistics");
 
     RenderOutcome outcome;
     const std::int64_t t0 = jobs::wallNanos();
@@ -259,8 +262,10 @@ RenderOutcome renderWith(const Job& job, const RenderOptions& options, const Pre
     runOptions.seed = job.seed;
     runOptions.film = film;
     runOptions.imported = std::move(imported);
-    runOptions.save = [&job, &outcome](const std::string& version, const std::string& path, const BufferHandle& buffer) {
-        saveBuffer(buffer, path, job.text);
+    std::mutex savedFilesMutex;
+    runOptions.save = [&](const std::string& version, const std::string& path, const BufferHandle& buffer) {
+        writeBufferFile(buffer, path, outputs.stage(path), job.text);
+        const std::lock_guard lock(savedFilesMutex);
         outcome.files.push_back(path);
         (void)version;
     };
@@ -312,29 +317,29 @@ RenderOutcome renderWith(const Job& job, const RenderOptions& options, const Pre
         channels.extra = image.aovs();
         const std::string stem = job.pipeline.results.size() == 1 ? job.output.name : job.output.name + "-" + result;
         const fs::path base = fs::path(job.output.directory) / stem;
+        const auto writeImage = [&](const std::string& path, const std::vector<unsigned char>& encoded) {
+            writeFileChecked(path, outputs.stage(path),
+                             std::string_view(reinterpret_cast<const char*>(encoded.data()), encoded.size()));
+            outcome.files.push_back(path);
+        };
         if (job.output.exr) {
-            writeExr(base.string() + ".exr", channels, metadata, job.output.half);
-            outcome.files.push_back(base.string() + ".exr");
+            const std::string path = base.string() + ".exr";
+            writeImage(path, encodeExr(path, channels, metadata, job.output.half));
         }
         if (job.output.png) {
-            writePngPreview(base.string() + ".png", channels, job.output.exposure);
-            outcome.files.push_back(base.string() + ".png");
+            const std::string path = base.string() + ".png";
+            writeImage(path, encodePngPreview(path, channels, job.output.exposure));
         }
     }
-    const auto writeText = [](const std::string& path, const std::string& text) {
-        writeAtomically(path, [&](const std::string& tmp) {
-            std::ofstream out(tmp, std::ios::binary);
-            if (!(out << text) || !out.flush()) throw InputError(path + ": cannot write");
-        });
-    };
     if (!options.profilePath.empty()) {
-        writeText(options.profilePath, chromeTraceJson(recorder.take()));
+        writeFileChecked(options.profilePath, outputs.stage(options.profilePath), chromeTraceJson(recorder.take()));
         outcome.files.push_back(options.profilePath);
     }
     if (!options.statsPath.empty()) {
         outcome.files.push_back(options.statsPath);
-        writeText(options.statsPath, statsJson(outcome));
+        writeFileChecked(options.statsPath, outputs.stage(options.statsPath), statsJson(outcome));
     }
+    outputs.commit();
     return outcome;
 }
 

@@ -1,18 +1,16 @@
 // Image files through OpenImageIO: float or half OpenEXR with extra AOV
 // channels and string metadata, and 8-bit sRGB PNG previews (sRGB transfer
-// function of IEC 61966-2-1). Every write goes to a temporary file in the
-// destination directory and is renamed onto the final name only once the
-// writer has closed it, so readers never observe a partial image.
+// function of IEC 61966-2-1). Images are encoded in memory and written through
+// output_files.h: to a checked temporary, renamed onto the final name only
+// once every byte is known to be written.
 #include "engine/image/image_io.h"
 
 #include "engine/core/error.h"
 #include "engine/image/image_diagnostics.h"
 
+#include <OpenImageIO/filesystem.h>
 #include <OpenImageIO/imageio.h>
 
-#include <unistd.h>
-
-#include <atomic>
 #include <cmath>
 #include <filesystem>
 #include <memory>
@@ -41,22 +39,28 @@ void validateImage(const ImageChannels& image) {
     }
 }
 
-// Opens, writes and closes one image; any failure becomes an InputError naming
-// the destination the user asked for (not the temporary name).
-void writeWithOiio(const std::string& finalPath, const std::string& temporaryPath, const OIIO::ImageSpec& spec,
-                   OIIO::TypeDesc bufferType, const void* pixels) {
-    auto fail = [&](const std::string& reason) {
-        throw InputError(finalPath, 0, "cannot write image: " + reason);
+// OpenImageIO's PNG writer ignores failed writes (a full disk gives a
+// truncated file and a successful close), so the image is encoded into memory
+// and its bytes written by writeFileChecked, which checks every write.
+// `formatPath` picks the format by its extension and names the file in errors.
+std::vector<unsigned char> encodeWithOiio(const std::string& formatPath, const OIIO::ImageSpec& spec,
+                                          OIIO::TypeDesc bufferType, const void* pixels) {
+    auto fail = [&](const std::string& reason) -> void {
+        throw InputError(formatPath, 0, "cannot write image: " + reason);
     };
-    std::unique_ptr<OIIO::ImageOutput> output = OIIO::ImageOutput::create(temporaryPath);
+    std::vector<unsigned char> encoded;
+    OIIO::Filesystem::IOVecOutput memory(encoded);
+    std::unique_ptr<OIIO::ImageOutput> output = OIIO::ImageOutput::create(formatPath);
     if (!output) fail(OIIO::geterror());
-    if (!output->open(temporaryPath, spec)) fail(output->geterror());
+    if (!output->supports("ioproxy")) fail("the " + std::string(output->format_name()) + " writer cannot write to memory");
+    if (!output->set_ioproxy(&memory) || !output->open(formatPath, spec)) fail(output->geterror());
     if (!output->write_image(bufferType, pixels)) {
         const std::string reason = output->geterror();
         output->close();
         fail(reason);
     }
     if (!output->close()) fail(output->geterror());
+    return encoded;
 }
 
 float srgbEncode(float linear) {
@@ -67,27 +71,8 @@ float srgbEncode(float linear) {
 
 }  // namespace
 
-std::string temporaryPathFor(const std::string& path) {
-    static std::atomic<unsigned long> counter{0};
-    const std::filesystem::path target(path);
-    // The real extension stays last so that the writer picks the format from it.
-    std::string name = ".";
-    name += target.stem().string();
-    name += ".tmp-";
-    name += std::to_string(::getpid());
-    name += '-';
-    name += std::to_string(counter.fetch_add(1));
-    name += target.extension().string();
-    return (target.parent_path() / name).string();
-}
-
-void atomicRename(const std::string& from, const std::string& to) {
-    std::error_code error;
-    std::filesystem::rename(from, to, error);
-    if (error) throw InputError(to, 0, "cannot write file: " + error.message());
-}
-
-void writeExr(const std::string& path, const ImageChannels& image, const Metadata& metadata, bool halfFloat) {
+std::vector<unsigned char> encodeExr(const std::string& path, const ImageChannels& image, const Metadata& metadata,
+                                     bool halfFloat) {
     validateImage(image);
     const int channels = 3 + static_cast<int>(image.extra.size());
     OIIO::ImageSpec spec(image.width, image.height, channels, halfFloat ? OIIO::TypeDesc::HALF : OIIO::TypeDesc::FLOAT);
@@ -110,12 +95,17 @@ void writeExr(const std::string& path, const ImageChannels& image, const Metadat
         out[2] = image.rgb[p].z;
         for (std::size_t c = 0; c < image.extra.size(); ++c) out[3 + c] = image.extra[c].second[p];
     }
+    return encodeWithOiio(path, spec, OIIO::TypeDesc::FLOAT, interleaved.data());
+}
+
+void writeExr(const std::string& path, const ImageChannels& image, const Metadata& metadata, bool halfFloat) {
+    const std::vector<unsigned char> encoded = encodeExr(path, image, metadata, halfFloat);
     writeAtomically(path, [&](const std::string& temporary) {
-        writeWithOiio(path, temporary, spec, OIIO::TypeDesc::FLOAT, interleaved.data());
+        writeFileChecked(path, temporary, std::string_view(reinterpret_cast<const char*>(encoded.data()), encoded.size()));
     });
 }
 
-void writePngPreview(const std::string& path, const ImageChannels& image, float exposureStops) {
+std::vector<unsigned char> encodePngPreview(const std::string& path, const ImageChannels& image, float exposureStops) {
     validateImage(image);
     const float scale = std::exp2(exposureStops);
     std::vector<unsigned char> bytes(image.rgb.size() * 3);
@@ -127,8 +117,13 @@ void writePngPreview(const std::string& path, const ImageChannels& image, float 
     }
     OIIO::ImageSpec spec(image.width, image.height, 3, OIIO::TypeDesc::UINT8);
     spec.attribute("oiio:ColorSpace", "sRGB");
+    return encodeWithOiio(path, spec, OIIO::TypeDesc::UINT8, bytes.data());
+}
+
+void writePngPreview(const std::string& path, const ImageChannels& image, float exposureStops) {
+    const std::vector<unsigned char> encoded = encodePngPreview(path, image, exposureStops);
     writeAtomically(path, [&](const std::string& temporary) {
-        writeWithOiio(path, temporary, spec, OIIO::TypeDesc::UINT8, bytes.data());
+        writeFileChecked(path, temporary, std::string_view(reinterpret_cast<const char*>(encoded.data()), encoded.size()));
     });
 }
 

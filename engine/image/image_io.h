@@ -4,8 +4,8 @@
 #pragma once
 
 #include "engine/core/math.h"
+#include "engine/core/output_files.h"
 
-#include <cstdio>
 #include <string>
 #include <utility>
 #include <vector>
@@ -29,24 +29,11 @@ void writePngPreview(const std::string& path, const ImageChannels& image, float 
 // Reads R, G, B and any other channels back; metadata strings with the "fluxgraph:" prefix stripped.
 ImageChannels readExr(const std::string& path, Metadata* metadata = nullptr);
 
-// Writes to temporaryPathFor(path) (same directory, ".<stem>.tmp-<pid>-<n><ext>")
-// through `writer`, then renames onto `path`;
-// removes the temporary on any failure and rethrows.
-template <class Writer>
-void writeAtomically(const std::string& path, Writer&& writer);
-void atomicRename(const std::string& from, const std::string& to);
-std::string temporaryPathFor(const std::string& path);
-
-template <class Writer>
-void writeAtomically(const std::string& path, Writer&& writer) {
-    const std::string tmp = temporaryPathFor(path);
-    try {
-        writer(tmp);
-        atomicRename(tmp, path);
-    } catch (...) {
-        std::remove(tmp.c_str());
-        throw;
-    }
-}
+// The bytes writeExr and writePngPreview write, for callers that commit several
+// outputs together (OutputCommit). `path` only names the file in errors.
+std::vector<unsigned char> encodeExr(const std::string& path, const ImageChannels& image, const Metadata& metadata,
+                                     bool halfFloat = false);
+std::vector<unsigned char> encodePngPreview(const std::string& path, const ImageChannels& image,
+                                            float exposureStops = 0.0f);
 
 }  // namespace fg

@@ -6,6 +6,7 @@
 #include "engine/run/batch_slurm.h"
 
 #include "engine/core/error.h"
+#include "engine/core/output_files.h"
 #include "engine/run/batch.h"
 
 #include <algorithm>
@@ -148,12 +149,7 @@ void replaceFile(const fs::path& path, const std::string& text) {
     std::string hiddenName = path.filename().string();
     hiddenName.insert(0, 1, '.');  // not "." + name: GCC 12 warns (-Wrestrict, falsely) on that
     const fs::path temporary = path.parent_path() / (hiddenName + ".collecting");
-    {
-        std::ofstream out(temporary, std::ios::binary | std::ios::trunc);
-        out << text;
-        out.close();
-        if (!out) throw InputError(temporary.string() + ": cannot write");
-    }
+    writeFileChecked(path.string(), temporary.string(), text);
     std::error_code ec;
     fs::rename(temporary, path, ec);
     if (ec) throw InputError(path.string() + ": cannot replace: " + ec.message());

@@ -320,8 +320,7 @@ ReplayResult replayPass(const Job& job, const ReplayOptions& options, const Regi
     if (!options.profilePath.empty()) {
         const std::string trace = chromeTraceJson(recorder.take());
         writeAtomically(options.profilePath, [&](const std::string& temporary) {
-            std::ofstream out(temporary, std::ios::binary);
-            if (!(out << trace) || !out.flush()) throw InputError(options.profilePath + ": cannot write");
+            writeFileChecked(options.profilePath, temporary, trace);
         });
         result.files.push_back(options.profilePath);
     }

@@ -8,6 +8,7 @@
 #include "engine/core/pass.h"
 
 #include "tests/support/cli_helpers.h"
+#include "tests/support/small_filesystem.h"
 
 #include <gtest/gtest.h>
 
@@ -307,6 +308,78 @@ TEST(Cli, UnwritableProfilePathIsRejectedBeforeRendering) {
         EXPECT_NE(r.err.find("profile"), std::string::npos) << r.err;
         EXPECT_TRUE(filesBelow(dir).empty()) << "left behind: " << joined(filesBelow(dir));
     }
+}
+
+// A render whose noise makes the PNG about 130 KiB and the trace about 300 KiB.
+std::vector<std::string> renderTooBigFor64KiB(std::vector<std::string> args) {
+    for (const char* set : {"film.width=256", "film.height=256", "passes.pt.spp=1"}) {
+        args.push_back("--set");
+        args.push_back(set);
+    }
+    return args;
+}
+
+// OpenImageIO's PNG writer ignores failed writes: a full disk once gave a
+// truncated PNG and exit 0.
+TEST(Cli, AFullDiskIsAnInputErrorAndLeavesNeitherImagesNorTheOutputDirectory) {
+    const fs::path dir = scratchDirectory();
+    const fs::path small = dir / "small";
+    test::SmallFilesystem filesystem(small, 64 * 1024);
+    FG_SKIP_UNLESS_MOUNTED(filesystem);
+    const fs::path out = small / "new" / "out";
+    for (const bool exr : {false, true}) {
+        SCOPED_TRACE(exr ? "EXR and PNG" : "PNG only");
+        const CommandResult r = runFluxgraph(
+            dir, renderTooBigFor64KiB({"render", quickstartJob(), "--quiet", "--out", out.string(), "--set",
+                                       exr ? "output.exr=true" : "output.exr=false"}));
+        expectInputError(r);
+        const std::string image = (out / (exr ? "quickstart.exr" : "quickstart.png")).string();
+        EXPECT_EQ(r.err, image + ": cannot write: No space left on device\n");
+        EXPECT_TRUE(listDirectory(small).empty()) << "left behind: " << joined(listDirectory(small));
+    }
+}
+
+// Outputs are committed as a set: a PNG that cannot take its name costs the
+// EXR, the trace and the statistics too.
+TEST(Cli, APngNameTakenByADirectoryLeavesNoOtherOutput) {
+    const fs::path dir = scratchDirectory();
+    const fs::path out = dir / "out";
+    fs::create_directories(out / "quickstart.png");
+    const CommandResult r = runFluxgraph(
+        dir, tinyRender({"render", quickstartJob(), "--quiet", "--out", out.string(), "--profile",
+                         (out / "trace.json").string(), "--stats", (out / "stats.json").string()}));
+    expectInputError(r);
+    EXPECT_EQ(r.err, (out / "quickstart.png").string() + ": cannot write: is a directory\n");
+    EXPECT_EQ(listDirectory(out), std::vector<std::string>{"quickstart.png"});
+}
+
+// The trace is written last; when it does not fit, the images written before
+// it go too, and so does the output directory the run made.
+TEST(Cli, ATraceThatDoesNotFitLeavesNoImagesAndNoNewOutputDirectory) {
+    const fs::path dir = scratchDirectory();
+    const fs::path small = dir / "small";
+    test::SmallFilesystem filesystem(small, 64 * 1024);
+    FG_SKIP_UNLESS_MOUNTED(filesystem);
+    const fs::path trace = small / "trace.json";
+    const CommandResult r = runFluxgraph(dir, renderTooBigFor64KiB({"render", quickstartJob(), "--quiet", "--out",
+                                                                    (dir / "new" / "out").string(), "--profile",
+                                                                    trace.string(), "--stats", "stats.json"}));
+    expectInputError(r);
+    EXPECT_EQ(r.err, trace.string() + ": cannot write: No space left on device\n");
+    EXPECT_FALSE(fs::exists(dir / "new"));
+    EXPECT_FALSE(fs::exists(dir / "stats.json"));
+    EXPECT_TRUE(listDirectory(small).empty()) << "left behind: " << joined(listDirectory(small));
+}
+
+TEST(Cli, AStatsPathThatIsADirectoryRemovesTheNewOutputDirectory) {
+    const fs::path dir = scratchDirectory();
+    const CommandResult r = runFluxgraph(
+        dir, tinyRender({"render", quickstartJob(), "--quiet", "--out", (dir / "new" / "out").string(), "--stats",
+                         dir.string()}));
+    expectInputError(r);
+    EXPECT_NE(r.err.find(dir.string() + ": cannot write statistics: is a directory"), std::string::npos) << r.err;
+    EXPECT_FALSE(fs::exists(dir / "new"));
+    EXPECT_TRUE(filesBelow(dir).empty()) << "left behind: " << joined(filesBelow(dir));
 }
 
 TEST(Cli, ValidateReportsAMissingScene) {
