@@ -4,7 +4,7 @@
 // --jobs N (worker processes) renders the same pixels as one process.
 #include "engine/image/image_io.h"
 
-#include "tests/support/cli_helpers.h"
+#include "tests/support/batch_fixtures.h"
 
 #include <gtest/gtest.h>
 
@@ -35,23 +35,9 @@ using test::writeText;
 
 fs::path scratchDirectory() { return test::scratchDirectory("cli-batch"); }
 
-std::vector<std::string> lines(const fs::path& path) {
-    std::istringstream in(readText(path));
-    std::vector<std::string> out;
-    for (std::string line; std::getline(in, line);) out.push_back(line);
-    return out;
-}
-
-std::string cornellScene() { return (fs::path(FLUXGRAPH_SOURCE_DIR) / "data/cornell-box/cornell-box.toml").string(); }
-
-void writeJobs(const fs::path& dir) {
-    const std::string job = "scene = \"" + cornellScene() + "\"\npipeline = \"pt\"\n";
-    writeText(dir / "jobs/a/pt.toml", job);
-    writeText(dir / "jobs/b/pt.toml", job);
-    writeText(dir / "broken/pt.toml", "scene = \"no-such-scene.toml\"\npipeline = \"pt\"\n");
-}
-
-const char* kTinySet = "set = { \"film.width\" = 16, \"film.height\" = 16, \"passes.pt.spp\" = 1, \"passes.pt.max_depth\" = 3 }\n";
+const auto lines = test::fileLines;
+const auto writeJobs = test::writeBatchJobs;
+const char* const kTinySet = test::kTinyBatchSet;
 
 std::size_t countStatus(const std::vector<std::string>& rows, const std::string& status) {
     return static_cast<std::size_t>(std::count_if(rows.begin(), rows.end(), [&](const std::string& row) {

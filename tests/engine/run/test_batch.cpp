@@ -7,6 +7,7 @@
 #include "engine/core/error.h"
 #include "engine/image/image_io.h"
 #include "passes/passes.h"
+#include "tests/support/batch_fixtures.h"
 
 #include <gtest/gtest.h>
 
@@ -22,38 +23,13 @@ namespace {
 
 namespace fs = std::filesystem;
 
-fs::path scratchDirectory() {
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    const fs::path dir = fs::path(FLUXGRAPH_TEST_TMP) / "batch" / (std::string(info->test_suite_name()) + "." + info->name());
-    fs::remove_all(dir);
-    fs::create_directories(dir);
-    return dir;
-}
+using test::writeText;
+const auto lines = test::fileLines;
+const auto writeJobs = test::writeBatchJobs;
+const char* const kTinySet = test::kTinyBatchSet;
 
-void writeText(const fs::path& path, const std::string& text) {
-    fs::create_directories(path.parent_path());
-    std::ofstream out(path, std::ios::binary);
-    out << text;
-}
-
-std::vector<std::string> lines(const fs::path& path) {
-    std::ifstream in(path);
-    std::vector<std::string> out;
-    for (std::string line; std::getline(in, line);) out.push_back(line);
-    return out;
-}
-
-std::string cornellScene() { return (fs::path(FLUXGRAPH_SOURCE_DIR) / "data/cornell-box/cornell-box.toml").string(); }
-
-// Two path-tracing jobs under jobs/*/pt.toml and one that cannot load its scene.
-void writeJobs(const fs::path& dir) {
-    const std::string job = "scene = \"" + cornellScene() + "\"\npipeline = \"pt\"\n";
-    writeText(dir / "jobs/a/pt.toml", job);
-    writeText(dir / "jobs/b/pt.toml", job);
-    writeText(dir / "broken/pt.toml", "scene = \"no-such-scene.toml\"\npipeline = \"pt\"\n");
-}
-
-const char* kTinySet = "set = { \"film.width\" = 16, \"film.height\" = 16, \"passes.pt.spp\" = 1, \"passes.pt.max_depth\" = 3 }\n";
+fs::path scratchDirectory() { return test::scratchDirectory("batch"); }
+std::string cornellScene() { return test::sourcePath("data/cornell-box/cornell-box.toml"); }
 
 // Globbed jobs plus a 2x2 sweep: 6 runs.
 fs::path writePlan(const fs::path& dir, const std::string& extra = "") {
