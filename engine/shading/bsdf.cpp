@@ -4,10 +4,14 @@
 //    Sec. 14.2), named IOR presets;
 //  - Lambertian diffuse, smooth dielectric, thin dielectric (a slab with
 //    infinitely many inter-reflections summed in closed form), smooth conductor;
-//  - GGX rough conductor and rough dielectric after Walter et al. 2007,
+//  - rough conductor and rough dielectric after Walter et al. 2007,
 //    "Microfacet Models for Refraction through Rough Surfaces" (Eqs. 20-21 for
 //    the BSDF, Eqs. 14-17 for the half-vector Jacobians), with the separable
-//    Smith shadowing G1(wo) G1(wi) and visible-normal sampling (Heitz 2018);
+//    Smith shadowing G1(wo) G1(wi) and visible-normal sampling, templates over
+//    the GGX and Beckmann distributions of microfacet.h so that the choice
+//    costs nothing per evaluation;
+//  - rough plastic: a rough dielectric coating over a Lambertian base
+//    (RoughPlasticBsdf below states the model and its approximation);
 //  - plastic: a smooth dielectric coating over a Lambertian base (the layered
 //    model of Weidlich & Wilkie 2007 in its simplest form, as Mitsuba's
 //    `plastic`), where light entering the coating is reflected diffusely and
@@ -192,10 +196,11 @@ private:
 
 // ---------------------------------------------------------------------------
 
+template <class Distribution>
 class RoughConductorBsdf final : public Bsdf {
 public:
     RoughConductorBsdf(const ConductorIor& ior, float alpha, const Rgb& specularReflectance)
-        : ior_(ior), ggx_(alpha), specularReflectance_(specularReflectance) {}
+        : ior_(ior), distribution_(alpha), specularReflectance_(specularReflectance) {}
 
     std::uint32_t lobes() const override { return BsdfLobe::Reflection | BsdfLobe::Glossy; }
 
@@ -206,7 +211,7 @@ public:
         const Vec3 m = glm::normalize(sum);
         const Rgb fresnel = fresnelConductor(glm::dot(wo, m), ior_.eta, ior_.k);
         // D G F / (4 cos_o cos_i), times cos_i.
-        return specularReflectance_ * fresnel * (ggx_.D(m) * ggx_.G(wo, wi) / (4.0f * wo.z));
+        return specularReflectance_ * fresnel * (distribution_.D(m) * distribution_.G(wo, wi) / (4.0f * wo.z));
     }
 
     float pdf(const Vec3& wo, const Vec3& wi, const Vec2&) const override {
@@ -217,29 +222,29 @@ public:
         const float cosOM = glm::dot(wo, m);
         if (cosOM <= 0.0f) return 0.0f;
         // Jacobian of the reflection mapping: d(omega_m)/d(omega_i) = 1 / (4 |wo.m|).
-        return ggx_.visibleNormalPdf(wo, m) / (4.0f * cosOM);
+        return distribution_.visibleNormalPdf(wo, m) / (4.0f * cosOM);
     }
 
     std::optional<BsdfSample> sample(const Vec3& wo, const Vec2&, float, const Vec2& u,
                                      TransportMode) const override {
         if (wo.z <= 0.0f) return std::nullopt;
-        const Vec3 m = ggx_.sampleVisibleNormal(wo, u);
+        const Vec3 m = distribution_.sampleVisibleNormal(wo, u);
         const float cosOM = glm::dot(wo, m);
         if (cosOM <= 0.0f) return std::nullopt;
         BsdfSample s;
         s.wi = reflect(wo, m);
         if (s.wi.z <= 0.0f) return std::nullopt;
-        s.pdf = ggx_.visibleNormalPdf(wo, m) / (4.0f * cosOM);
+        s.pdf = distribution_.visibleNormalPdf(wo, m) / (4.0f * cosOM);
         if (!(s.pdf > 0.0f)) return std::nullopt;
         // eval / pdf: D and G1(wo) cancel against the visible-normal density.
-        s.weight = specularReflectance_ * fresnelConductor(cosOM, ior_.eta, ior_.k) * ggx_.G1(s.wi);
+        s.weight = specularReflectance_ * fresnelConductor(cosOM, ior_.eta, ior_.k) * distribution_.G1(s.wi);
         s.lobe = BsdfLobe::Reflection | BsdfLobe::Glossy;
         return s;
     }
 
 private:
     ConductorIor ior_;
-    GgxDistribution ggx_;
+    Distribution distribution_;
     Rgb specularReflectance_;
 };
 
@@ -247,9 +252,10 @@ private:
 
 // The interface is symmetric under mirroring z together with inverting eta, so
 // every query is first brought to the configuration with wo above the surface.
+template <class Distribution>
 class RoughDielectricBsdf final : public Bsdf {
 public:
-    RoughDielectricBsdf(float eta, float alpha) : eta_(eta), ggx_(alpha) {}
+    RoughDielectricBsdf(float eta, float alpha) : eta_(eta), distribution_(alpha) {}
 
     std::uint32_t lobes() const override {
         return BsdfLobe::Reflection | BsdfLobe::Transmission | BsdfLobe::Glossy;
@@ -261,7 +267,7 @@ public:
         const Half h = halfVector(q);
         if (!h.valid) return Rgb(0.0f);
         const float fresnel = fresnelDielectric(h.cosOM, q.eta);
-        const float dg = ggx_.D(h.m) * ggx_.G(q.wo, q.wi);
+        const float dg = distribution_.D(h.m) * distribution_.G(q.wo, q.wi);
         if (h.reflection) return Rgb(fresnel * dg / (4.0f * q.wo.z));
         const float denom = h.cosOM + q.eta * h.cosIM;
         // Walter et al. Eq. 21 (the radiance form) times |cos_i|. Its adjoint,
@@ -277,7 +283,7 @@ public:
         const Half h = halfVector(q);
         if (!h.valid) return 0.0f;
         const float fresnel = fresnelDielectric(h.cosOM, q.eta);
-        const float visible = ggx_.visibleNormalPdf(q.wo, h.m);
+        const float visible = distribution_.visibleNormalPdf(q.wo, h.m);
         if (h.reflection) return fresnel * visible / (4.0f * h.cosOM);
         const float denom = h.cosOM + q.eta * h.cosIM;
         return (1.0f - fresnel) * visible * q.eta * q.eta * std::abs(h.cosIM) / (denom * denom);
@@ -290,10 +296,10 @@ public:
         const Vec3 wo = flipped ? flipZ(woIn) : woIn;
         const float eta = flipped ? 1.0f / eta_ : eta_;
 
-        const Vec3 m = ggx_.sampleVisibleNormal(wo, u);
+        const Vec3 m = distribution_.sampleVisibleNormal(wo, u);
         const float cosOM = glm::dot(wo, m);
         if (cosOM <= 0.0f) return std::nullopt;
-        const float visible = ggx_.visibleNormalPdf(wo, m);
+        const float visible = distribution_.visibleNormalPdf(wo, m);
         float cosThetaT = 0.0f;
         const float fresnel = fresnelDielectric(cosOM, eta, &cosThetaT);
 
@@ -302,7 +308,7 @@ public:
             s.wi = reflect(wo, m);
             if (s.wi.z <= 0.0f) return std::nullopt;
             s.pdf = fresnel * visible / (4.0f * cosOM);
-            s.weight = Rgb(ggx_.G1(s.wi));
+            s.weight = Rgb(distribution_.G1(s.wi));
             s.lobe = BsdfLobe::Reflection | BsdfLobe::Glossy;
         } else {
             // Refraction about m; cosThetaT is the (negative) cosine to m.
@@ -313,7 +319,7 @@ public:
             const float denom = cosOM + eta * cosIM;
             s.pdf = (1.0f - fresnel) * visible * eta * eta * std::abs(cosIM) / (denom * denom);
             const float scale = mode == TransportMode::Radiance ? 1.0f / (eta * eta) : 1.0f;
-            s.weight = Rgb(ggx_.G1(s.wi) * scale);
+            s.weight = Rgb(distribution_.G1(s.wi) * scale);
             s.eta = eta;
             s.lobe = BsdfLobe::Transmission | BsdfLobe::Glossy;
         }
@@ -363,7 +369,7 @@ private:
     }
 
     float eta_;
-    GgxDistribution ggx_;
+    Distribution distribution_;
 };
 
 // ---------------------------------------------------------------------------
@@ -446,6 +452,183 @@ private:
     float invEta2_;
     float fdrInternal_;
     bool nonlinear_;
+    float specularSamplingWeight_ = 0.5f;
+};
+
+// ---------------------------------------------------------------------------
+
+// Directional albedo of a rough dielectric interface for light arriving at
+// cos(theta) = mu on the side from which the relative IOR is eta, split into
+// the reflected and the transmitted energy. It is the expectation of the
+// rough dielectric's importance-transport sampling weights over the visible
+// normals, F G1(wr) and (1 - F) G1(wt), evaluated on a stratified midpoint
+// grid of the visible-normal sampling's unit square (deterministic, so every
+// material built with the same parameters gets the same tables).
+struct InterfaceAlbedo {
+    double reflected = 0.0;
+    double transmitted = 0.0;
+};
+
+template <class Distribution>
+InterfaceAlbedo roughInterfaceAlbedo(const Distribution& distribution, float mu, float eta) {
+    constexpr int kStrata = 32;
+    const Vec3 wo(safeSqrt(1.0f - mu * mu), 0.0f, mu);
+    InterfaceAlbedo albedo;
+    for (int i = 0; i < kStrata; ++i) {
+        for (int j = 0; j < kStrata; ++j) {
+            const Vec2 u((static_cast<float>(i) + 0.5f) / kStrata, (static_cast<float>(j) + 0.5f) / kStrata);
+            const Vec3 m = distribution.sampleVisibleNormal(wo, u);
+            const float cosOM = glm::dot(wo, m);
+            if (cosOM <= 0.0f) continue;
+            float cosThetaT = 0.0f;
+            const float fresnel = fresnelDielectric(cosOM, eta, &cosThetaT);
+            const Vec3 reflected = reflect(wo, m);
+            if (reflected.z > 0.0f) albedo.reflected += fresnel * distribution.G1(reflected);
+            if (fresnel < 1.0f) {
+                const Vec3 refracted = glm::normalize(-wo / eta + (cosOM / eta + cosThetaT) * m);
+                if (refracted.z < 0.0f) albedo.transmitted += (1.0f - fresnel) * distribution.G1(refracted);
+            }
+        }
+    }
+    albedo.reflected /= kStrata * kStrata;
+    albedo.transmitted /= kStrata * kStrata;
+    return albedo;
+}
+
+// A rough dielectric coating over a Lambertian base, Mitsuba's `roughplastic`
+// (whose documentation describes the model; it goes back to Kelemen &
+// Szirmay-Kalos 2001, "A Microfacet Based Coupled Specular-Matte BRDF Model
+// with Importance Sampling", and Weidlich & Wilkie 2007). The coating's
+// reflection is the rough conductor's lobe with the dielectric Fresnel term.
+// The diffuse lobe is the smooth plastic's (see PlasticBsdf) with the smooth
+// interface's 1 - F replaced by the rough interface's directional
+// transmittance T(mu) from outside, and the internal Fresnel average Fdr by
+// the rough interface's hemispherical reflectance from inside,
+//   r_int = 2 integral_0^1 R_inside(mu) mu dmu,
+// so that f_d = rho / (1 - r_int) T(cos_o) T(cos_i) / (pi eta^2), or with
+// rho r_int in the denominator when nonlinear.
+// The approximation (named so in the tests that measure it): inside the
+// coating the radiance is taken to be uniform again after every interaction
+// with the rough interface, and light leaving towards wo is weighted with the
+// transmittance T(cos_o) of light arriving from wo (exact for a smooth
+// interface by Snell's law and Fresnel's symmetry, approximate for a rough one).
+// T is tabulated at kTableSize evenly spaced cosines and interpolated linearly.
+template <class Distribution>
+class RoughPlasticBsdf final : public Bsdf {
+public:
+    RoughPlasticBsdf(std::shared_ptr<Texture> diffuseReflectance, float eta, float alpha, bool nonlinear,
+                     const Rgb& specularReflectance)
+        : diffuse_(std::move(diffuseReflectance)),
+          eta_(eta),
+          invEta2_(1.0f / (eta * eta)),
+          distribution_(alpha),
+          nonlinear_(nonlinear),
+          specularReflectance_(specularReflectance) {
+        for (int i = 0; i < kTableSize; ++i) {
+            const float mu = std::max(static_cast<float>(i) / (kTableSize - 1), 1e-4f);
+            externalTransmittance_[static_cast<std::size_t>(i)] =
+                static_cast<float>(roughInterfaceAlbedo(distribution_, mu, eta).transmitted);
+        }
+        constexpr int kInternalSteps = 2 * kTableSize;
+        double internal = 0.0;
+        for (int i = 0; i < kInternalSteps; ++i) {
+            const float mu = (static_cast<float>(i) + 0.5f) / kInternalSteps;
+            internal += roughInterfaceAlbedo(distribution_, mu, 1.0f / eta).reflected * mu;
+        }
+        internalReflectance_ = static_cast<float>(2.0 * internal / kInternalSteps);
+        // Lobe selection balances the mean specular albedo against the mean
+        // diffuse albedo, each scaled by how much light reaches it.
+        const float diffuseMean = std::max(average(diffuse_->mean()), 0.0f);
+        const float specularMean = std::max(average(specularReflectance_), 0.0f);
+        specularSamplingWeight_ =
+            specularMean + diffuseMean > 0.0f ? specularMean / (specularMean + diffuseMean) : 0.5f;
+    }
+
+    std::uint32_t lobes() const override {
+        return BsdfLobe::Reflection | BsdfLobe::Glossy | BsdfLobe::Diffuse;
+    }
+
+    Rgb eval(const Vec3& wo, const Vec3& wi, const Vec2& uv, TransportMode) const override {
+        if (wo.z <= 0.0f || wi.z <= 0.0f) return Rgb(0.0f);
+        Rgb value = diffuseValue(wo, wi, uv) * (kInvPi * wi.z);
+        const Vec3 m = glm::normalize(wo + wi);
+        const float fresnel = fresnelDielectric(glm::dot(wo, m), eta_);
+        // D G F / (4 cos_o cos_i), times cos_i.
+        value += specularReflectance_ *
+                 (fresnel * distribution_.D(m) * distribution_.G(wo, wi) / (4.0f * wo.z));
+        return value;
+    }
+
+    float pdf(const Vec3& wo, const Vec3& wi, const Vec2&) const override {
+        if (wo.z <= 0.0f || wi.z <= 0.0f) return 0.0f;
+        const float pSpecular = specularProbability(wo.z);
+        return pSpecular * specularPdf(wo, wi) + (1.0f - pSpecular) * cosineHemispherePdf(wi.z);
+    }
+
+    std::optional<BsdfSample> sample(const Vec3& wo, const Vec2& uv, float uLobe, const Vec2& u,
+                                     TransportMode mode) const override {
+        if (wo.z <= 0.0f) return std::nullopt;
+        const float pSpecular = specularProbability(wo.z);
+        BsdfSample s;
+        if (uLobe < pSpecular) {
+            const Vec3 m = distribution_.sampleVisibleNormal(wo, u);
+            s.wi = reflect(wo, m);
+            s.lobe = BsdfLobe::Reflection | BsdfLobe::Glossy;
+        } else {
+            s.wi = sampleCosineHemisphere(u);
+            s.lobe = BsdfLobe::Reflection | BsdfLobe::Diffuse;
+        }
+        if (s.wi.z <= 0.0f) return std::nullopt;
+        // Both lobes are smooth, so the direction's density is the mixture's.
+        s.pdf = pSpecular * specularPdf(wo, s.wi) + (1.0f - pSpecular) * cosineHemispherePdf(s.wi.z);
+        if (!(s.pdf > 0.0f)) return std::nullopt;
+        s.weight = eval(wo, s.wi, uv, mode) / s.pdf;
+        return s;
+    }
+
+private:
+    static constexpr int kTableSize = 64;
+
+    float specularPdf(const Vec3& wo, const Vec3& wi) const {
+        const Vec3 m = glm::normalize(wo + wi);
+        const float cosOM = glm::dot(wo, m);
+        if (cosOM <= 0.0f) return 0.0f;
+        return distribution_.visibleNormalPdf(wo, m) / (4.0f * cosOM);
+    }
+
+    float externalTransmittance(float cosTheta) const {
+        const float x = std::clamp(cosTheta, 0.0f, 1.0f) * (kTableSize - 1);
+        const int i = std::min(static_cast<int>(x), kTableSize - 2);
+        const float t = x - static_cast<float>(i);
+        const auto at = [this](int k) { return externalTransmittance_[static_cast<std::size_t>(k)]; };
+        return (1.0f - t) * at(i) + t * at(i + 1);
+    }
+
+    // The share of light the coating reflects, 1 - T, stands in for the
+    // smooth plastic's Fresnel term in the lobe choice.
+    float specularProbability(float cosThetaO) const {
+        const float transmittance = externalTransmittance(cosThetaO);
+        const float specular = (1.0f - transmittance) * specularSamplingWeight_;
+        const float diffuse = transmittance * (1.0f - specularSamplingWeight_);
+        const float total = specular + diffuse;
+        return total > 0.0f ? specular / total : 1.0f;
+    }
+
+    Rgb diffuseValue(const Vec3& wo, const Vec3& wi, const Vec2& uv) const {
+        const Rgb albedo = diffuse_->eval(uv);
+        const Rgb base = nonlinear_ ? albedo / (Rgb(1.0f) - albedo * internalReflectance_)
+                                    : albedo / (1.0f - internalReflectance_);
+        return base * (invEta2_ * externalTransmittance(wo.z) * externalTransmittance(wi.z));
+    }
+
+    std::shared_ptr<Texture> diffuse_;
+    float eta_;
+    float invEta2_;
+    Distribution distribution_;
+    bool nonlinear_;
+    Rgb specularReflectance_;
+    std::array<float, kTableSize> externalTransmittance_{};
+    float internalReflectance_ = 0.0f;
     float specularSamplingWeight_ = 0.5f;
 };
 
@@ -623,16 +806,30 @@ std::shared_ptr<Bsdf> makeConductor(const ConductorIor& ior, const Rgb& specular
     return std::make_shared<ConductorBsdf>(ior, specularReflectance);
 }
 
-std::shared_ptr<Bsdf> makeRoughConductor(const ConductorIor& ior, float alpha, const Rgb& specularReflectance) {
-    return std::make_shared<RoughConductorBsdf>(ior, alpha, specularReflectance);
+std::shared_ptr<Bsdf> makeRoughConductor(const ConductorIor& ior, float alpha, const Rgb& specularReflectance,
+                                         MicrofacetType type) {
+    if (type == MicrofacetType::Beckmann)
+        return std::make_shared<RoughConductorBsdf<BeckmannDistribution>>(ior, alpha, specularReflectance);
+    return std::make_shared<RoughConductorBsdf<GgxDistribution>>(ior, alpha, specularReflectance);
 }
 
-std::shared_ptr<Bsdf> makeRoughDielectric(float eta, float alpha) {
-    return std::make_shared<RoughDielectricBsdf>(eta, alpha);
+std::shared_ptr<Bsdf> makeRoughDielectric(float eta, float alpha, MicrofacetType type) {
+    if (type == MicrofacetType::Beckmann) return std::make_shared<RoughDielectricBsdf<BeckmannDistribution>>(eta, alpha);
+    return std::make_shared<RoughDielectricBsdf<GgxDistribution>>(eta, alpha);
 }
 
 std::shared_ptr<Bsdf> makePlastic(std::shared_ptr<Texture> diffuseReflectance, float eta, bool nonlinear) {
     return std::make_shared<PlasticBsdf>(std::move(diffuseReflectance), eta, nonlinear);
+}
+
+std::shared_ptr<Bsdf> makeRoughPlastic(std::shared_ptr<Texture> diffuseReflectance, float eta, float alpha,
+                                       MicrofacetType type, bool nonlinear, const Rgb& specularReflectance) {
+    if (type == MicrofacetType::Beckmann) {
+        return std::make_shared<RoughPlasticBsdf<BeckmannDistribution>>(std::move(diffuseReflectance), eta, alpha,
+                                                                        nonlinear, specularReflectance);
+    }
+    return std::make_shared<RoughPlasticBsdf<GgxDistribution>>(std::move(diffuseReflectance), eta, alpha, nonlinear,
+                                                               specularReflectance);
 }
 
 std::shared_ptr<Bsdf> makeNull() { return std::make_shared<NullBsdf>(); }

@@ -12,6 +12,7 @@
 #pragma once
 
 #include "engine/core/math.h"
+#include "engine/shading/microfacet.h"
 #include "engine/shading/texture.h"
 
 #include <cstdint>
@@ -87,12 +88,18 @@ std::shared_ptr<Bsdf> makeDielectric(float eta, const Rgb& specularReflectance =
                                      const Rgb& specularTransmittance = Rgb(1.0f));
 std::shared_ptr<Bsdf> makeThinDielectric(float eta);
 std::shared_ptr<Bsdf> makeConductor(const ConductorIor& ior, const Rgb& specularReflectance = Rgb(1.0f));
-// GGX microfacet conductor, alpha = GGX roughness (Mitsuba's `alpha`), sampled
-// with the distribution of visible normals (Heitz 2018).
-std::shared_ptr<Bsdf> makeRoughConductor(const ConductorIor& ior, float alpha, const Rgb& specularReflectance = Rgb(1.0f));
-std::shared_ptr<Bsdf> makeRoughDielectric(float eta, float alpha);
+// Microfacet conductor, alpha = roughness of the GGX or Beckmann distribution
+// (Mitsuba's `alpha`), sampled with the distribution of visible normals.
+std::shared_ptr<Bsdf> makeRoughConductor(const ConductorIor& ior, float alpha, const Rgb& specularReflectance = Rgb(1.0f),
+                                         MicrofacetType type = MicrofacetType::Ggx);
+std::shared_ptr<Bsdf> makeRoughDielectric(float eta, float alpha, MicrofacetType type = MicrofacetType::Ggx);
 // Smooth dielectric coating (IOR eta) over a diffuse base, Mitsuba's `plastic`.
 std::shared_ptr<Bsdf> makePlastic(std::shared_ptr<Texture> diffuseReflectance, float eta, bool nonlinear = false);
+// Rough dielectric coating (IOR eta, roughness alpha) over a diffuse base,
+// Mitsuba's `roughplastic`; specularReflectance scales the coating's reflection.
+std::shared_ptr<Bsdf> makeRoughPlastic(std::shared_ptr<Texture> diffuseReflectance, float eta, float alpha,
+                                       MicrofacetType type, bool nonlinear = false,
+                                       const Rgb& specularReflectance = Rgb(1.0f));
 std::shared_ptr<Bsdf> makeNull();
 // Applies `inner` on both sides by mirroring the frame when wo is on the back.
 std::shared_ptr<Bsdf> makeTwoSided(std::shared_ptr<Bsdf> inner);

@@ -363,6 +363,14 @@ std::vector<NamedBsdf> smoothMaterials() {
         {"plastic nonlinear", makePlastic(constant(0.6f), 1.9f, true)},
         {"two-sided rough", makeTwoSided(makeRoughConductor(*conductorPreset("Ag"), 0.2f))},
         {"two-sided plastic", makeTwoSided(makePlastic(constant(0.4f), 1.5f))},
+        {"beckmann Au 0.05", makeRoughConductor(*conductorPreset("Au"), 0.05f, Rgb(1.0f), MicrofacetType::Beckmann)},
+        {"beckmann Al 0.9", makeRoughConductor(*conductorPreset("Al"), 0.9f, Rgb(1.0f), MicrofacetType::Beckmann)},
+        {"beckmann glass 0.05", makeRoughDielectric(1.5f, 0.05f, MicrofacetType::Beckmann)},
+        {"beckmann water 0.8", makeRoughDielectric(1.333f, 0.8f, MicrofacetType::Beckmann)},
+        {"roughplastic beckmann 0.1",
+         makeRoughPlastic(makeCheckerboardTexture(Rgb(0.8f), Rgb(0.1f, 0.3f, 0.6f)), 1.5f, 0.1f, MicrofacetType::Beckmann)},
+        {"roughplastic ggx 0.6 nonlinear", makeRoughPlastic(constant(0.6f), 1.9f, 0.6f, MicrofacetType::Ggx, true)},
+        {"two-sided roughplastic", makeTwoSided(makeRoughPlastic(constant(0.4f), 1.5f, 0.3f, MicrofacetType::Beckmann))},
     };
 }
 
@@ -449,6 +457,10 @@ TEST(Reciprocity, ReflectionModelsAreSymmetric) {
         {"rough Cr 0.6", makeRoughConductor(*conductorPreset("Cr"), 0.6f)},
         {"plastic", makePlastic(constant(0.6f), 1.5f)},
         {"plastic nonlinear", makePlastic(constant(0.6f), 1.5f, true)},
+        {"beckmann Au 0.2", makeRoughConductor(*conductorPreset("Au"), 0.2f, Rgb(1.0f), MicrofacetType::Beckmann)},
+        {"beckmann Cr 0.6", makeRoughConductor(*conductorPreset("Cr"), 0.6f, Rgb(1.0f), MicrofacetType::Beckmann)},
+        {"roughplastic beckmann", makeRoughPlastic(constant(0.6f), 1.5f, 0.3f, MicrofacetType::Beckmann)},
+        {"roughplastic ggx nonlinear", makeRoughPlastic(constant(0.6f), 1.5f, 0.1f, MicrofacetType::Ggx, true)},
     };
     jobs::Rng rng(12, jobs::streamKey("reciprocity"), 0);
     for (const NamedBsdf& m : materials) {
@@ -466,25 +478,27 @@ TEST(Reciprocity, ReflectionModelsAreSymmetric) {
 
 TEST(Reciprocity, RoughDielectricObeysGeneralisedReciprocityAndAdjoint) {
     const float eta = 1.5f;
-    const std::shared_ptr<Bsdf> glass = makeRoughDielectric(eta, 0.4f);
-    jobs::Rng rng(13, jobs::streamKey("reciprocity-dielectric"), 0);
-    int transmissions = 0;
-    for (int i = 0; i < 5000; ++i) {
-        const Vec3 wo = randomDirection(rng), wi = randomDirection(rng);
-        if (std::abs(wo.z) < 1e-2f || std::abs(wi.z) < 1e-2f) continue;
-        const float etaO = wo.z > 0.0f ? 1.0f : eta, etaI = wi.z > 0.0f ? 1.0f : eta;
-        const float radianceForward = glass->eval(wo, wi, Vec2(0.0f), TransportMode::Radiance).x / std::abs(wi.z);
-        const float radianceBackward = glass->eval(wi, wo, Vec2(0.0f), TransportMode::Radiance).x / std::abs(wo.z);
-        const float importanceForward =
-            glass->eval(wo, wi, Vec2(0.0f), TransportMode::Importance).x / std::abs(wi.z);
-        if (wo.z * wi.z < 0.0f && radianceForward > 0.0f) ++transmissions;
-        // f(wo, wi) / eta_o^2 = f(wi, wo) / eta_i^2 (Veach 1997, Sec. 5.2), radiance form.
-        const float lhs = radianceForward / (etaO * etaO), rhs = radianceBackward / (etaI * etaI);
-        EXPECT_NEAR(lhs, rhs, 1e-4f * std::max(1.0f, lhs));
-        // The importance form is the adjoint of the radiance form.
-        EXPECT_NEAR(importanceForward, radianceBackward, 1e-4f * std::max(1.0f, importanceForward));
+    for (MicrofacetType type : {MicrofacetType::Ggx, MicrofacetType::Beckmann}) {
+        const std::shared_ptr<Bsdf> glass = makeRoughDielectric(eta, 0.4f, type);
+        jobs::Rng rng(13, jobs::streamKey("reciprocity-dielectric"), 0);
+        int transmissions = 0;
+        for (int i = 0; i < 8000; ++i) {
+            const Vec3 wo = randomDirection(rng), wi = randomDirection(rng);
+            if (std::abs(wo.z) < 1e-2f || std::abs(wi.z) < 1e-2f) continue;
+            const float etaO = wo.z > 0.0f ? 1.0f : eta, etaI = wi.z > 0.0f ? 1.0f : eta;
+            const float radianceForward = glass->eval(wo, wi, Vec2(0.0f), TransportMode::Radiance).x / std::abs(wi.z);
+            const float radianceBackward = glass->eval(wi, wo, Vec2(0.0f), TransportMode::Radiance).x / std::abs(wo.z);
+            const float importanceForward =
+                glass->eval(wo, wi, Vec2(0.0f), TransportMode::Importance).x / std::abs(wi.z);
+            if (wo.z * wi.z < 0.0f && radianceForward > 0.0f) ++transmissions;
+            // f(wo, wi) / eta_o^2 = f(wi, wo) / eta_i^2 (Veach 1997, Sec. 5.2), radiance form.
+            const float lhs = radianceForward / (etaO * etaO), rhs = radianceBackward / (etaI * etaI);
+            EXPECT_NEAR(lhs, rhs, 1e-4f * std::max(1.0f, lhs));
+            // The importance form is the adjoint of the radiance form.
+            EXPECT_NEAR(importanceForward, radianceBackward, 1e-4f * std::max(1.0f, importanceForward));
+        }
+        EXPECT_GT(transmissions, 600) << microfacetTypeName(type);
     }
-    EXPECT_GT(transmissions, 500);
 }
 
 // --------------------------------------------------------------------------
@@ -515,6 +529,13 @@ TEST(Energy, EveryMaterialConservesEnergy) {
         {"plastic white", makePlastic(constant(1.0f), 1.5f)},
         {"plastic white nonlinear", makePlastic(constant(1.0f), 1.5f, true)},
         {"plastic high ior", makePlastic(constant(0.9f), 2.2f)},
+        {"beckmann none 0.1", makeRoughConductor(*conductorPreset("none"), 0.1f, Rgb(1.0f), MicrofacetType::Beckmann)},
+        {"beckmann none 1.0", makeRoughConductor(*conductorPreset("none"), 1.0f, Rgb(1.0f), MicrofacetType::Beckmann)},
+        {"beckmann glass 0.1", makeRoughDielectric(1.5f, 0.1f, MicrofacetType::Beckmann)},
+        {"beckmann diamond 0.5", makeRoughDielectric(2.419f, 0.5f, MicrofacetType::Beckmann)},
+        {"roughplastic white beckmann 0.05", makeRoughPlastic(constant(1.0f), 1.5f, 0.05f, MicrofacetType::Beckmann)},
+        {"roughplastic white ggx 0.7", makeRoughPlastic(constant(1.0f), 1.5f, 0.7f, MicrofacetType::Ggx)},
+        {"roughplastic white high ior", makeRoughPlastic(constant(1.0f), 2.2f, 0.4f, MicrofacetType::Beckmann, true)},
         {"null", makeNull()},
         {"two-sided diffuse", makeTwoSided(makeDiffuse(constant(1.0f)))},
     };
@@ -627,6 +648,9 @@ TEST(Energy, SampledAlbedoAgreesWithIntegratedEval) {
         {"rough glass 0.3", makeRoughDielectric(1.5f, 0.3f)},
         {"rough glass 0.6", makeRoughDielectric(1.5f, 0.6f)},
         {"two-sided rough", makeTwoSided(makeRoughConductor(*conductorPreset("Au"), 0.4f))},
+        {"beckmann Cu 0.3", makeRoughConductor(*conductorPreset("Cu"), 0.3f, Rgb(1.0f), MicrofacetType::Beckmann)},
+        {"beckmann glass 0.5", makeRoughDielectric(1.5f, 0.5f, MicrofacetType::Beckmann)},
+        {"roughplastic beckmann 0.4", makeRoughPlastic(constant(0.7f), 1.5f, 0.4f, MicrofacetType::Beckmann, false, Rgb(0.8f))},
     };
     for (const NamedBsdf& m : materials) {
         for (float angle : {15.0f, 60.0f}) {

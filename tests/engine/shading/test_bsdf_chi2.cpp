@@ -10,6 +10,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <functional>
 #include <ostream>
 #include <string>
@@ -97,6 +98,57 @@ std::vector<Chi2Case> chi2Cases() {
     cases.push_back({"PlasticNonlinear_50deg",
                      [] { return makePlastic(makeConstantTexture(Rgb(0.9f, 0.2f, 0.4f)), 1.7f, true); },
                      test::directionFromAngles(50.0f, 200.0f)});
+
+    // Beckmann lobes, and the rough plastic with either distribution. Beckmann's
+    // D vanishes at the horizon, so its transmission density reaches zero
+    // continuously at the cone where GGX's jumps, and any angle will do.
+    // Every roughness meets near-normal, oblique and grazing incidence; the
+    // narrowest lobe, whose cells must be four times finer, only the oblique
+    // one, to keep the suite fast.
+    struct BeckmannCase {
+        float alpha;
+        std::vector<float> conductorAngles, outsideAngles, insideAngles, plasticAngles;
+    };
+    const BeckmannCase beckmannCases[] = {
+        {0.05f, {60.0f}, {60.0f}, {60.0f}, {60.0f}},
+        {0.2f, {5.0f, 60.0f, 85.0f}, {5.0f, 85.0f}, {60.0f}, {5.0f, 60.0f, 85.0f}},
+        {0.5f, {5.0f, 60.0f, 85.0f}, {60.0f}, {5.0f, 85.0f}, {5.0f, 60.0f, 85.0f}},
+        {0.9f, {5.0f, 60.0f, 85.0f}, {85.0f}, {60.0f}, {5.0f, 60.0f, 85.0f}},
+    };
+    for (const BeckmannCase& b : beckmannCases) {
+        const float alpha = b.alpha;
+        const int thetaBins = alpha < 0.1f ? 80 : 20;
+        for (float angle : b.conductorAngles) {
+            cases.push_back({"BeckmannConductor_" + alphaName(alpha) + "_" + angleName(angle),
+                             [alpha] { return makeRoughConductor(gold(), alpha, Rgb(1.0f), MicrofacetType::Beckmann); },
+                             test::directionFromAngles(angle, 35.0f), thetaBins, 2 * thetaBins});
+        }
+        for (bool inside : {false, true}) {
+            for (float angle : inside ? b.insideAngles : b.outsideAngles) {
+                Vec3 wo = test::directionFromAngles(angle, -60.0f);
+                if (inside) wo.z = -wo.z;
+                const int bins = std::max(thetaBins, 40);
+                cases.push_back({"BeckmannDielectric_" + alphaName(alpha) + "_" + angleName(angle) +
+                                     (inside ? "_inside" : "_outside"),
+                                 [alpha] { return makeRoughDielectric(1.5f, alpha, MicrofacetType::Beckmann); }, wo,
+                                 bins, 2 * bins});
+            }
+        }
+        for (float angle : b.plasticAngles) {
+            cases.push_back({"RoughPlasticBeckmann_" + alphaName(alpha) + "_" + angleName(angle),
+                             [alpha] {
+                                 return makeRoughPlastic(makeConstantTexture(Rgb(0.5f)), 1.5f, alpha,
+                                                         MicrofacetType::Beckmann);
+                             },
+                             test::directionFromAngles(angle, 100.0f), thetaBins, 2 * thetaBins});
+        }
+    }
+    cases.push_back({"RoughPlasticGgx_alpha30_45deg",
+                     [] {
+                         return makeRoughPlastic(makeConstantTexture(Rgb(0.8f, 0.2f, 0.4f)), 1.6f, 0.3f,
+                                                 MicrofacetType::Ggx, true, Rgb(0.7f));
+                     },
+                     test::directionFromAngles(45.0f, 10.0f)});
 
     Vec3 back = test::directionFromAngles(40.0f, 70.0f);
     back.z = -back.z;
