@@ -343,6 +343,14 @@ private:
         return alpha;
     }
 
+    // GGX by default, which is what every rough material meant before the key existed.
+    MicrofacetType readDistribution(Fields& f) {
+        const std::string name = f.string("distribution").value_or("ggx");
+        const std::optional<MicrofacetType> type = microfacetTypeFromName(name);
+        if (!type) f.fail("distribution", "unknown distribution '" + name + "' (expected ggx or beckmann)");
+        return *type;
+    }
+
     ConductorIor readConductorIor(Fields& f) {
         const bool hasPreset = f.has("material");
         const bool hasEta = f.has("eta"), hasK = f.has("k");
@@ -390,14 +398,24 @@ private:
         } else if (type == "roughconductor") {
             const ConductorIor ior = readConductorIor(f);
             const float alpha = readAlpha(f);
-            bsdf = makeRoughConductor(ior, alpha, readSpecular(f, "specular_reflectance"));
+            const Rgb specular = readSpecular(f, "specular_reflectance");
+            bsdf = makeRoughConductor(ior, alpha, specular, readDistribution(f));
         } else if (type == "roughdielectric") {
             const float eta = relativeIor(f);
-            bsdf = makeRoughDielectric(eta, readAlpha(f));
+            const float alpha = readAlpha(f);
+            bsdf = makeRoughDielectric(eta, alpha, readDistribution(f));
         } else if (type == "plastic") {
             auto reflectance = readTexture(f, "reflectance", Rgb(0.5f));
             const float eta = relativeIor(f);
             bsdf = makePlastic(std::move(reflectance), eta, f.boolean("nonlinear", false));
+        } else if (type == "roughplastic") {
+            auto reflectance = readTexture(f, "reflectance", Rgb(0.5f));
+            const float eta = relativeIor(f);
+            const float alpha = readAlpha(f);
+            const MicrofacetType distribution = readDistribution(f);
+            const Rgb specular = readSpecular(f, "specular_reflectance");
+            bsdf = makeRoughPlastic(std::move(reflectance), eta, alpha, distribution, f.boolean("nonlinear", false),
+                                    specular);
         } else if (type == "null") {
             bsdf = makeNull();
         } else if (type == "twosided") {
@@ -408,7 +426,7 @@ private:
         } else {
             f.fail("type", "unknown material type '" + type +
                                "' (expected diffuse, dielectric, thindielectric, conductor, roughconductor, "
-                               "roughdielectric, plastic, null or twosided)");
+                               "roughdielectric, plastic, roughplastic, null or twosided)");
         }
         materialIndex_[name] = static_cast<int>(scene_.bsdfs.size());
         scene_.bsdfs.push_back(std::move(bsdf));

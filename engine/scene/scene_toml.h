@@ -38,10 +38,13 @@
 //          "conductor"         material = preset ("Au", "Ag", "Al", "Cu", "Cr", or "none" for an
 //                              ideal mirror; the default) or eta = rgb and k = rgb;
 //                              specular_reflectance = rgb in [0, 1] (default 1)
-//          "roughconductor"    as conductor, plus alpha = GGX roughness > 0 (default 0.1)
-//          "roughdielectric"   ior, exterior_ior, alpha (default 0.1)
+//          "roughconductor"    as conductor, plus alpha = roughness > 0 (default 0.1) and
+//                              distribution = "ggx" (default) or "beckmann"
+//          "roughdielectric"   ior, exterior_ior, alpha (default 0.1), distribution
 //          "plastic"           reflectance = texture (diffuse base, default 0.5), ior (default 1.5),
 //                              exterior_ior, nonlinear = bool (default false)
+//          "roughplastic"      as plastic, plus alpha (default 0.1), distribution, and
+//                              specular_reflectance = rgb in [0, 1] (coating, default 1)
 //          "null"              index-matched boundary (for media); no parameters
 //          "twosided"          inner = "name" of a material defined above this one
 //   texture: rgb in [0, 1]

@@ -1199,9 +1199,17 @@ private:
         return interior / exterior;
     }
 
-    float readAlpha(Props& p) {
-        std::string distribution = p.string("distribution").value_or("beckmann");
-        if (distribution != "ggx" && distribution != "beckmann") {
+    struct Roughness {
+        float alpha;
+        MicrofacetType type;
+    };
+
+    // Mitsuba's roughness parameters; sample_visible chooses only the sampling
+    // strategy (fluxgraph always samples visible normals), so it is read and ignored.
+    Roughness readRoughness(Props& p) {
+        const std::string distribution = p.string("distribution").value_or("beckmann");
+        const std::optional<MicrofacetType> type = microfacetTypeFromName(distribution);
+        if (!type) {
             p.fail(*p.valueNode("distribution"), "distribution " + inQuotes(distribution) + " is not supported (ggx, beckmann)");
         }
         p.accept("sample_visible", {"boolean"});
@@ -1217,7 +1225,7 @@ private:
             alpha = p.number("alpha", 0.1f);
         }
         if (!(alpha > 0.0f && alpha <= 4.0f)) p.fail("alpha must lie in (0, 4]");
-        return alpha;
+        return {alpha, *type};
     }
 
     Rgb specular(Props& p, std::string_view key) { return p.colour(key, ColourUse::Reflectance).value_or(Rgb(1.0f)); }
@@ -1269,10 +1277,10 @@ private:
         }
         if (type == "roughdielectric") {
             const float eta = relativeIor(p, 1.5046f);
-            const float alpha = readAlpha(p);
+            const Roughness roughness = readRoughness(p);
             requireUnitSpecular(p, "specular_reflectance");
             requireUnitSpecular(p, "specular_transmittance");
-            return makeRoughDielectric(eta, alpha);
+            return makeRoughDielectric(eta, roughness.alpha, roughness.type);
         }
         if (type == "conductor") {
             const ConductorIor ior = readConductor(p);
@@ -1280,14 +1288,22 @@ private:
         }
         if (type == "roughconductor") {
             const ConductorIor ior = readConductor(p);
-            const float alpha = readAlpha(p);
-            return makeRoughConductor(ior, alpha, specular(p, "specular_reflectance"));
+            const Roughness roughness = readRoughness(p);
+            return makeRoughConductor(ior, roughness.alpha, specular(p, "specular_reflectance"), roughness.type);
         }
         if (type == "plastic") {
             auto diffuse = textureParam(p, "diffuse_reflectance", Rgb(0.5f));
             const float eta = relativeIor(p, 1.49f);  // polypropylene
             requireUnitSpecular(p, "specular_reflectance");
             return makePlastic(std::move(diffuse), eta, p.boolean("nonlinear", false));
+        }
+        if (type == "roughplastic") {
+            auto diffuse = textureParam(p, "diffuse_reflectance", Rgb(0.5f));
+            const float eta = relativeIor(p, 1.49f);  // polypropylene
+            const Roughness roughness = readRoughness(p);
+            const Rgb specularReflectance = specular(p, "specular_reflectance");
+            return makeRoughPlastic(std::move(diffuse), eta, roughness.alpha, roughness.type,
+                                    p.boolean("nonlinear", false), specularReflectance);
         }
         if (type == "null") return makeNull();
         if (type == "twosided") {
@@ -1299,7 +1315,7 @@ private:
             return makeTwoSided(scene_.bsdfs[static_cast<std::size_t>(bsdfIndex(*inner[0]->node))]);
         }
         p.fail("unknown bsdf type (supported: diffuse, dielectric, thindielectric, roughdielectric, conductor, roughconductor, "
-               "plastic, null, twosided)");
+               "plastic, roughplastic, null, twosided)");
     }
 
     // A reflectance that may be a texture: a constant value, or a nested / referenced <texture>.

@@ -85,9 +85,11 @@
 //   roughconductor   conductor's parameters plus alpha / alpha_u = alpha_v, distribution
 //   plastic          diffuse_reflectance (texture, 0.5), int_ior (1.49), ext_ior ("air"),
 //                    nonlinear (false); specular_reflectance only 1
+//   roughplastic     plastic's parameters plus alpha / alpha_u = alpha_v, distribution;
+//                    specular_reflectance (1)
 //   null, twosided (one nested bsdf)
-//   distribution: ggx, or beckmann (Mitsuba's default), which is rendered as GGX with the
-//   same alpha -- fluxgraph has only GGX; the highlights' shapes differ slightly.
+//   distribution: beckmann (Mitsuba's default) or ggx. Beckmann's Smith masking is the
+//   exact one, where Mitsuba uses Walter's rational fit (within 0.35 %).
 //   sample_visible is accepted, no effect (sampling strategy only).
 // Textures
 //   bitmap        filename, filter_type bilinear (0.x: ewa and trilinear are read as

@@ -3,6 +3,7 @@
 #include "engine/core/error.h"
 #include "engine/accel/ray_query.h"
 #include "engine/scene/scene_loader.h"
+#include "engine/shading/bsdf.h"
 
 #include <gtest/gtest.h>
 
@@ -479,6 +480,79 @@ TEST(SceneToml, NonsenseValuesAreErrors) {
     expectErrorAt(bodyError("\n[[light]]\ntype = \"spot\"\nposition = [0, 1, 0]\ntarget = [0, 0, 0]\nintensity = 1\n"
                             "cutoff_angle = 20\nbeam_width = 30\n"),
                   kHeaderLines + 8, "beam_width");
+}
+
+// The key picks the microfacet distribution: the material must evaluate like
+// the one built directly with that distribution, and unlike the other one.
+TEST(SceneToml, RoughMaterialsTakeADistribution) {
+    const Scene scene = parse(R"(
+[[material]]
+name = "default"
+type = "roughconductor"
+material = "Au"
+alpha = 0.3
+
+[[material]]
+name = "beckmann metal"
+type = "roughconductor"
+material = "Au"
+alpha = 0.3
+distribution = "beckmann"
+
+[[material]]
+name = "beckmann glass"
+type = "roughdielectric"
+ior = 1.5
+alpha = 0.3
+distribution = "beckmann"
+
+[[material]]
+name = "coated"
+type = "roughplastic"
+reflectance = [0.2, 0.4, 0.6]
+ior = 1.5
+alpha = 0.3
+distribution = "beckmann"
+nonlinear = true
+specular_reflectance = 0.5
+
+[[material]]
+name = "ggx coated"
+type = "roughplastic"
+alpha = 0.3
+)");
+    ASSERT_EQ(scene.bsdfs.size(), 6u);
+    const ConductorIor gold = *conductorPreset("Au");
+    const Vec3 wo = glm::normalize(Vec3(0.3f, 0.1f, 0.9f)), wi = glm::normalize(Vec3(-0.5f, 0.2f, 0.6f));
+    const Vec3 below(wi.x, wi.y, -wi.z);
+    const auto value = [&](const Bsdf& b, const Vec3& to) { return b.eval(wo, to, Vec2(0.5f), TransportMode::Radiance); };
+    const struct {
+        std::shared_ptr<Bsdf> loaded, expected, other;
+        Vec3 to;
+    } cases[] = {
+        {scene.bsdfs[1], makeRoughConductor(gold, 0.3f), makeRoughConductor(gold, 0.3f, Rgb(1.0f), MicrofacetType::Beckmann),
+         wi},
+        {scene.bsdfs[2], makeRoughConductor(gold, 0.3f, Rgb(1.0f), MicrofacetType::Beckmann), makeRoughConductor(gold, 0.3f),
+         wi},
+        {scene.bsdfs[3], makeRoughDielectric(1.5f, 0.3f, MicrofacetType::Beckmann), makeRoughDielectric(1.5f, 0.3f), below},
+        {scene.bsdfs[4],
+         makeRoughPlastic(makeConstantTexture(Rgb(0.2f, 0.4f, 0.6f)), 1.5f, 0.3f, MicrofacetType::Beckmann, true, Rgb(0.5f)),
+         makeRoughPlastic(makeConstantTexture(Rgb(0.2f, 0.4f, 0.6f)), 1.5f, 0.3f, MicrofacetType::Ggx, true, Rgb(0.5f)), wi},
+        {scene.bsdfs[5], makeRoughPlastic(makeConstantTexture(Rgb(0.5f)), 1.5f, 0.3f, MicrofacetType::Ggx),
+         makeRoughPlastic(makeConstantTexture(Rgb(0.5f)), 1.5f, 0.3f, MicrofacetType::Beckmann), wi},
+    };
+    for (const auto& c : cases) {
+        EXPECT_EQ(value(*c.loaded, c.to), value(*c.expected, c.to));
+        EXPECT_NE(value(*c.loaded, c.to), value(*c.other, c.to));
+    }
+    expectErrorAt(bodyError("\n[[material]]\nname = \"r\"\ntype = \"roughconductor\"\ndistribution = \"phong\"\n"),
+                  kHeaderLines + 5, "unknown distribution 'phong'");
+    expectErrorAt(bodyError("\n[[material]]\nname = \"p\"\ntype = \"roughplastic\"\nalpha = -1\n"), kHeaderLines + 5,
+                  "alpha");
+    expectErrorAt(bodyError("\n[[material]]\nname = \"p\"\ntype = \"roughplastic\"\nspecular_reflectance = 2\n"),
+                  kHeaderLines + 5, "specular_reflectance");
+    expectErrorAt(bodyError("\n[[material]]\nname = \"p\"\ntype = \"plastic\"\ndistribution = \"ggx\"\n"),
+                  kHeaderLines + 5, "distribution");
 }
 
 TEST(SceneToml, WrongTypesAndMissingKeysAreErrors) {

@@ -647,7 +647,7 @@ TEST(SceneXml, MaterialsAndTextures) {
     expectNear(diffuseAlbedo(scene, 8), Rgb(0.5f), 1e-4f, "flat spectrum");
     expectNear(diffuseAlbedo(scene, 9), Rgb(0.2158605f), 1e-4f, "sRGB 128 decoded");
 
-    // Beckmann (Mitsuba's default distribution) is rendered as GGX; other models are errors.
+    // Distributions other than Beckmann (the default) and GGX are errors.
     const std::string phong = sceneText(
         "    <bsdf type=\"roughconductor\" id=\"p\">\n        <string name=\"distribution\" value=\"phong\"/>\n    </bsdf>\n");
     expectErrorAt(dir, phong, "phong", "bsdf 'roughconductor'", "phong.xml");
@@ -661,6 +661,63 @@ TEST(SceneXml, MaterialsAndTextures) {
     const std::string unknownIor = sceneText(
         "    <bsdf type=\"dielectric\" id=\"d\">\n        <string name=\"int_ior\" value=\"unobtainium\"/>\n    </bsdf>\n");
     expectErrorAt(dir, unknownIor, "unobtainium", "bsdf 'dielectric'", "ior.xml");
+}
+
+// distribution selects the microfacet model, Beckmann by default as in
+// Mitsuba; roughplastic reads Mitsuba's parameters and defaults.
+TEST(SceneXml, RoughBsdfsTakeTheirDistribution) {
+    const fs::path dir = scratchDir();
+    const std::string text = sceneText(R"(    <bsdf type="roughconductor" id="default"><string name="material" value="Au"/>
+        <float name="alpha" value="0.3"/></bsdf>
+    <bsdf type="roughconductor" id="ggx"><string name="material" value="Au"/>
+        <float name="alpha" value="0.3"/><string name="distribution" value="ggx"/></bsdf>
+    <bsdf type="roughdielectric" id="glass"><float name="alpha" value="0.3"/><float name="int_ior" value="1.5"/>
+        <float name="ext_ior" value="1"/></bsdf>
+    <bsdf type="roughplastic" id="coated"><rgb name="diffuse_reflectance" value="0.2, 0.4, 0.6"/>
+        <float name="alpha" value="0.2"/><string name="int_ior" value="bk7"/><float name="ext_ior" value="1"/>
+        <boolean name="nonlinear" value="true"/><spectrum name="specular_reflectance" value="0.5"/>
+        <boolean name="sample_visible" value="false"/></bsdf>
+    <bsdf type="roughplastic" id="plain"><float name="ext_ior" value="1"/><string name="distribution" value="ggx"/></bsdf>
+    <shape type="rectangle"><ref id="default"/></shape>
+    <shape type="rectangle"><ref id="ggx"/></shape>
+    <shape type="rectangle"><ref id="glass"/></shape>
+    <shape type="rectangle"><ref id="coated"/></shape>
+    <shape type="rectangle"><ref id="plain"/></shape>
+)");
+    const Scene scene = loadXmlScene(writeFile(dir / "scene.xml", text).string());
+    ASSERT_EQ(scene.shapes.size(), 5u);
+    const auto bsdfOf = [&](std::size_t shape) { return scene.bsdfs[static_cast<std::size_t>(scene.shapes[shape].bsdf)]; };
+    const ConductorIor gold = *conductorPreset("Au");
+    const Vec3 wo = glm::normalize(Vec3(0.3f, 0.1f, 0.9f)), wi = glm::normalize(Vec3(-0.5f, 0.2f, 0.6f));
+    const Vec3 below(wi.x, wi.y, -wi.z);
+    const auto value = [&](const Bsdf& b, const Vec3& to) { return b.eval(wo, to, Vec2(0.5f), TransportMode::Radiance); };
+    const auto diffuse = [](float r, float g, float b) { return makeConstantTexture(Rgb(r, g, b)); };
+    const struct {
+        std::shared_ptr<Bsdf> loaded, expected, other;
+        Vec3 to;
+    } cases[] = {
+        {bsdfOf(0), makeRoughConductor(gold, 0.3f, Rgb(1.0f), MicrofacetType::Beckmann), makeRoughConductor(gold, 0.3f), wi},
+        {bsdfOf(1), makeRoughConductor(gold, 0.3f), makeRoughConductor(gold, 0.3f, Rgb(1.0f), MicrofacetType::Beckmann), wi},
+        {bsdfOf(2), makeRoughDielectric(1.5f, 0.3f, MicrofacetType::Beckmann), makeRoughDielectric(1.5f, 0.3f), below},
+        {bsdfOf(3),
+         makeRoughPlastic(diffuse(0.2f, 0.4f, 0.6f), 1.5046f, 0.2f, MicrofacetType::Beckmann, true, Rgb(0.5f)),
+         makeRoughPlastic(diffuse(0.2f, 0.4f, 0.6f), 1.5046f, 0.2f, MicrofacetType::Beckmann, false, Rgb(0.5f)), wi},
+        // Mitsuba's defaults: diffuse 0.5, polypropylene (1.49), alpha 0.1.
+        {bsdfOf(4), makeRoughPlastic(diffuse(0.5f, 0.5f, 0.5f), 1.49f, 0.1f, MicrofacetType::Ggx),
+         makeRoughPlastic(diffuse(0.5f, 0.5f, 0.5f), 1.49f, 0.1f, MicrofacetType::Beckmann), wi},
+    };
+    for (std::size_t i = 0; i < std::size(cases); ++i) {
+        const Rgb loaded = value(*cases[i].loaded, cases[i].to), expected = value(*cases[i].expected, cases[i].to);
+        expectNear(loaded, expected, 1e-6f * std::max(1.0f, expected.x), "shape " + std::to_string(i));
+        EXPECT_NE(loaded, value(*cases[i].other, cases[i].to)) << "shape " << i;
+    }
+
+    const std::string unknown = sceneText(
+        "    <bsdf type=\"roughplastic\" id=\"p\">\n        <string name=\"distribution\" value=\"blinn\"/>\n    </bsdf>\n");
+    expectErrorAt(dir, unknown, "blinn", "bsdf 'roughplastic'", "blinn.xml");
+    const std::string rough = sceneText(
+        "    <bsdf type=\"roughplastic\" id=\"p\">\n        <float name=\"alpha\" value=\"-2\"/>\n    </bsdf>\n");
+    expectErrorAt(dir, rough, "roughplastic", "alpha", "alpha.xml");
 }
 
 TEST(SceneXml, EmittersAndMedia) {
