@@ -26,6 +26,8 @@
 
 #include <array>
 #include <complex>
+#include <map>
+#include <mutex>
 #include <utility>
 
 namespace fg {
@@ -495,6 +497,47 @@ InterfaceAlbedo roughInterfaceAlbedo(const Distribution& distribution, float mu,
     return albedo;
 }
 
+// What the rough plastic needs to know about its coating: the directional
+// transmittance from outside at kSize evenly spaced cosines (interpolated
+// linearly) and the hemispherical reflectance from inside.
+struct RoughCoatingTables {
+    static constexpr int kSize = 64;
+    std::array<float, kSize> externalTransmittance{};
+    float internalReflectance = 0.0f;
+};
+
+template <class Distribution>
+RoughCoatingTables computeCoatingTables(float alpha, float eta) {
+    const Distribution distribution(alpha);
+    RoughCoatingTables tables;
+    for (int i = 0; i < RoughCoatingTables::kSize; ++i) {
+        const float mu = std::max(static_cast<float>(i) / (RoughCoatingTables::kSize - 1), 1e-4f);
+        tables.externalTransmittance[static_cast<std::size_t>(i)] =
+            static_cast<float>(roughInterfaceAlbedo(distribution, mu, eta).transmitted);
+    }
+    constexpr int kInternalSteps = 2 * RoughCoatingTables::kSize;
+    double internal = 0.0;
+    for (int i = 0; i < kInternalSteps; ++i) {
+        const float mu = (static_cast<float>(i) + 0.5f) / kInternalSteps;
+        internal += roughInterfaceAlbedo(distribution, mu, 1.0f / eta).reflected * mu;
+    }
+    tables.internalReflectance = static_cast<float>(2.0 * internal / kInternalSteps);
+    return tables;
+}
+
+// Scenes use many rough plastics with the same coating and different colours;
+// the tables (tens of milliseconds each for Beckmann) are computed once per
+// coating and shared.
+template <class Distribution>
+std::shared_ptr<const RoughCoatingTables> coatingTables(float alpha, float eta) {
+    static std::mutex mutex;
+    static std::map<std::pair<float, float>, std::shared_ptr<const RoughCoatingTables>> cache;
+    const std::lock_guard<std::mutex> lock(mutex);
+    std::shared_ptr<const RoughCoatingTables>& entry = cache[{alpha, eta}];
+    if (!entry) entry = std::make_shared<const RoughCoatingTables>(computeCoatingTables<Distribution>(alpha, eta));
+    return entry;
+}
+
 // A rough dielectric coating over a Lambertian base, Mitsuba's `roughplastic`
 // (whose documentation describes the model; it goes back to Kelemen &
 // Szirmay-Kalos 2001, "A Microfacet Based Coupled Specular-Matte BRDF Model
@@ -512,7 +555,6 @@ InterfaceAlbedo roughInterfaceAlbedo(const Distribution& distribution, float mu,
 // with the rough interface, and light leaving towards wo is weighted with the
 // transmittance T(cos_o) of light arriving from wo (exact for a smooth
 // interface by Snell's law and Fresnel's symmetry, approximate for a rough one).
-// T is tabulated at kTableSize evenly spaced cosines and interpolated linearly.
 template <class Distribution>
 class RoughPlasticBsdf final : public Bsdf {
 public:
@@ -523,19 +565,8 @@ public:
           invEta2_(1.0f / (eta * eta)),
           distribution_(alpha),
           nonlinear_(nonlinear),
-          specularReflectance_(specularReflectance) {
-        for (int i = 0; i < kTableSize; ++i) {
-            const float mu = std::max(static_cast<float>(i) / (kTableSize - 1), 1e-4f);
-            externalTransmittance_[static_cast<std::size_t>(i)] =
-                static_cast<float>(roughInterfaceAlbedo(distribution_, mu, eta).transmitted);
-        }
-        constexpr int kInternalSteps = 2 * kTableSize;
-        double internal = 0.0;
-        for (int i = 0; i < kInternalSteps; ++i) {
-            const float mu = (static_cast<float>(i) + 0.5f) / kInternalSteps;
-            internal += roughInterfaceAlbedo(distribution_, mu, 1.0f / eta).reflected * mu;
-        }
-        internalReflectance_ = static_cast<float>(2.0 * internal / kInternalSteps);
+          specularReflectance_(specularReflectance),
+          tables_(coatingTables<Distribution>(distribution_.alpha(), eta)) {
         // Lobe selection balances the mean specular albedo against the mean
         // diffuse albedo, each scaled by how much light reaches it.
         const float diffuseMean = std::max(average(diffuse_->mean()), 0.0f);
@@ -587,8 +618,6 @@ public:
     }
 
 private:
-    static constexpr int kTableSize = 64;
-
     float specularPdf(const Vec3& wo, const Vec3& wi) const {
         const Vec3 m = glm::normalize(wo + wi);
         const float cosOM = glm::dot(wo, m);
@@ -597,10 +626,11 @@ private:
     }
 
     float externalTransmittance(float cosTheta) const {
-        const float x = std::clamp(cosTheta, 0.0f, 1.0f) * (kTableSize - 1);
-        const int i = std::min(static_cast<int>(x), kTableSize - 2);
+        constexpr int kSize = RoughCoatingTables::kSize;
+        const float x = std::clamp(cosTheta, 0.0f, 1.0f) * (kSize - 1);
+        const int i = std::min(static_cast<int>(x), kSize - 2);
         const float t = x - static_cast<float>(i);
-        const auto at = [this](int k) { return externalTransmittance_[static_cast<std::size_t>(k)]; };
+        const auto at = [this](int k) { return tables_->externalTransmittance[static_cast<std::size_t>(k)]; };
         return (1.0f - t) * at(i) + t * at(i + 1);
     }
 
@@ -616,8 +646,8 @@ private:
 
     Rgb diffuseValue(const Vec3& wo, const Vec3& wi, const Vec2& uv) const {
         const Rgb albedo = diffuse_->eval(uv);
-        const Rgb base = nonlinear_ ? albedo / (Rgb(1.0f) - albedo * internalReflectance_)
-                                    : albedo / (1.0f - internalReflectance_);
+        const float internal = tables_->internalReflectance;
+        const Rgb base = nonlinear_ ? albedo / (Rgb(1.0f) - albedo * internal) : albedo / (1.0f - internal);
         return base * (invEta2_ * externalTransmittance(wo.z) * externalTransmittance(wi.z));
     }
 
@@ -627,8 +657,7 @@ private:
     Distribution distribution_;
     bool nonlinear_;
     Rgb specularReflectance_;
-    std::array<float, kTableSize> externalTransmittance_{};
-    float internalReflectance_ = 0.0f;
+    std::shared_ptr<const RoughCoatingTables> tables_;
     float specularSamplingWeight_ = 0.5f;
 };
 
