@@ -116,7 +116,8 @@ double sampleVisibleSlope(double u, double w) {
         const double derivative = (1.0 - w * x) * std::exp(-x * x);
         double next = derivative > 0.0 ? x - f / derivative : 0.5 * (lo + hi);
         if (!(next > lo && next < hi)) next = 0.5 * (lo + hi);
-        if (std::abs(next - x) <= 1e-9 * (1.0 + std::abs(x))) return next;
+        // Well below single precision, which is what the normal is returned in.
+        if (std::abs(next - x) <= 1e-8 * (1.0 + std::abs(x))) return next;
         x = next;
     }
     return x;
@@ -146,6 +147,10 @@ float BeckmannDistribution::lambda(const Vec3& w) const {
     if (s == 0.0) return 0.0f;
     if (c == 0.0) return kInfinity;
     const double a = c / (static_cast<double>(alpha_) * s);
+    // Lambda decays like exp(-a^2) / (4 sqrt(pi) a^3): below 3e-10 from a = 4
+    // on, where G1 rounds to 1 in single precision, so the common case of a
+    // direction well above a smooth surface skips erfc.
+    if (a >= 4.0) return 0.0f;
     const double value = 0.5 * (std::exp(-a * a) / (a * kSqrtPi) - std::erfc(a));
     return static_cast<float>(std::max(value, 0.0));
 }
