@@ -433,11 +433,11 @@ public:
         // hold the photons of the paths traced, renormalised to that count; the
         // batches already handed over keep the planned count as their divisor
         // (emitted), which a reader that stops early rescales.
-        bool anyStreamed = false, allSatisfied = true;
+        bool anyStreamed = false, allSatisfied = true, interrupted = false;
         const auto handOverMap = [&]<class Map>(const char* slot, std::shared_ptr<Map>& batch, Map*& map) {
             if (!batch) return;
             anyStreamed = true;
-            if (!batch->photons.empty()) {
+            if (!batch->photons.empty() || interrupted) {
                 const auto next = std::make_shared<Map>();
                 next->emitted = batch->emitted;
                 if constexpr (std::is_same_v<Map, PhotonMap>) next->hasDifferentials = batch->hasDifferentials;
@@ -522,6 +522,17 @@ public:
                 ctx.addCounter("stopped_by_readers", 1);
                 break;
             }
+            ctx.completedUnit();
+            // Interrupted: stored maps are renormalised below to the paths traced;
+            // streamed ones end with a batch (empty) whose `emitted` is that count,
+            // from which their readers rescale what they took. A volume-photon
+            // target runs to its end (the count is the point of it).
+            if (!targetMode && batchStart < settings.photons && ctx.stopRequested()) {
+                ctx.keptPartial(ctx.instanceName() + ": " + std::to_string(batchStart) + " of " +
+                                std::to_string(settings.photons) + " photon paths");
+                interrupted = true;
+                break;
+            }
             ctx.reportProgress(targetMode ? static_cast<double>(storedVolume) /
                                                 static_cast<double>(settings.volumeTarget)
                                           : static_cast<double>(batchStart) / static_cast<double>(settings.photons));
@@ -596,7 +607,35 @@ PassRegistration photonPass() {
                              std::to_string(pf.params.getInt("volume_photons")) + " needs store = \"volume\" or \"all\"");
         }
     };
-    return {spec, [] { return std::make_unique<PhotonPass>(); }, preflight};
+    // Stored maps: at least one photon per path for every map kept (a path
+    // stores one per non-specular event; one is the lower bound); a streamed
+    // map holds one batch. Plus one batch of per-chunk records while tracing.
+    const auto memory = [](const PreflightContext& pf) {
+        constexpr std::uint64_t kSurfacePhoton = 5 * sizeof(Vec3) + sizeof(Rgb) + sizeof(std::uint8_t);
+        constexpr std::uint64_t kVolumePhoton = 2 * sizeof(Vec3) + sizeof(Rgb) + sizeof(std::uint8_t);
+        const auto photons = static_cast<std::uint64_t>(pf.params.getInt("photons"));
+        const auto batch = std::min(photons, static_cast<std::uint64_t>(pf.params.getInt("batch_size")));
+        const std::string& store = pf.params.getString("store");
+        MemoryEstimate estimate;
+        std::uint64_t storedPhotons = 0;
+        const auto map = [&](const char* slot, bool kept, std::uint64_t bytesEach) {
+            if (!kept) return;
+            const bool streamed = pf.outputStreamed && pf.outputStreamed(slot);
+            estimate.bytes = addBytes(estimate.bytes, multiplyBytes(streamed ? batch : photons, bytesEach));
+            if (!streamed) storedPhotons = addBytes(storedPhotons, photons);
+        };
+        map("caustic_photons", store == "caustic" || store == "surface" || store == "all", kSurfacePhoton);
+        map("global_photons", store == "global" || store == "surface" || store == "all", kSurfacePhoton);
+        map("volume_photons", store == "volume" || store == "all", kVolumePhoton);
+        estimate.bytes = addBytes(estimate.bytes, multiplyBytes(batch, kSurfacePhoton));
+        estimate.what = std::to_string(photons) + " photon paths, at least one " + std::to_string(kSurfacePhoton) +
+                        "-byte photon per path and stored map";
+        if (storedPhotons > 0)
+            estimate.hint = "lower `photons`, or use a pipeline whose readers take batches with stream_batches = true "
+                            "(pds, lt: one batch of batch_size paths is held)";
+        return estimate;
+    };
+    return {spec, [] { return std::make_unique<PhotonPass>(); }, preflight, memory};
 }
 
 }  // namespace fg

@@ -85,6 +85,8 @@ public:
     void consumeBatch(PassContext& ctx, const std::string& slot) override {
         if (slot != "caustic_photons" && slot != "global_photons") return;
         const PhotonMap& map = ctx.input<PhotonMap>(slot);
+        if (plannedPaths_ == 0) plannedPaths_ = map.emitted;
+        tracedPaths_ = map.emitted;
         if (map.photons.empty()) return;
         prepare(ctx);
         const Scene& scene = ctx.scene();
@@ -174,7 +176,13 @@ public:
             total.occluded += part.occluded;
             total.outsideView += part.outsideView;
         }
-        image.addToPixels(total.pixels, 1.0f);
+        // Batches streamed before an interrupt carry powers for the planned
+        // count of paths; fewer were traced (the last, empty batch says how many).
+        const float plannedPerTraced = tracedPaths_ > 0 && tracedPaths_ < plannedPaths_
+                                       ? static_cast<float>(static_cast<double>(plannedPaths_) /
+                                                            static_cast<double>(tracedPaths_))
+                                       : 1.0f;
+        image.addToPixels(total.pixels, plannedPerTraced);
         ctx.addCounter("connected_photons", total.connected);
         ctx.addCounter("occluded_photons", total.occluded);
         ctx.addCounter("photons_outside_view", total.outsideView);
@@ -207,6 +215,9 @@ private:
     float rasterPerImagePlane_ = 0.0f;
     float filterIntegral_ = 1.0f;
     std::vector<ConnectAccumulator> blocks_;
+    // The photon paths the powers of the first and of the last batch were
+    // divided by: they differ when an interrupt cut the photon pass short.
+    std::uint64_t plannedPaths_ = 0, tracedPaths_ = 0;
 };
 
 }  // namespace
@@ -228,7 +239,13 @@ PassRegistration lightTracePass() {
                              "transmittance); render it with pt");
         }
     };
-    return {spec, [] { return std::make_unique<LightTracePass>(); }, preflight};
+    // The film and the summed image; the per-block accumulators stay within kAccumulatorBudget.
+    const auto memory = [](const PreflightContext& pf) {
+        const std::uint64_t pixels = static_cast<std::uint64_t>(pf.film.width) * static_cast<std::uint64_t>(pf.film.height);
+        return MemoryEstimate{addBytes(filmBytes(pf.film), multiplyBytes(pixels, sizeof(Rgb))),
+                              "film " + std::to_string(pf.film.width) + " x " + std::to_string(pf.film.height), {}};
+    };
+    return {spec, [] { return std::make_unique<LightTracePass>(); }, preflight, memory};
 }
 
 }  // namespace fg
