@@ -310,6 +310,9 @@ RenderOutcome renderWith(const Job& job, const RenderOptions& options, const Pre
     recorder.take();
     pauseForTest("start");
     outcome.run = execute(plan, scene, rays, runOptions);
+    // All the work is done: from here on an interrupt keeps it (also in a
+    // pipeline whose passes report no units of their own).
+    noteCompletedUnit();
     recorder.setEnabled(false);
     if (options.showProgress) bar.finish();
 

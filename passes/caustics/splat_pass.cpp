@@ -297,7 +297,18 @@ PassRegistration splatPass() {
                              "differentials = true in the photon pass");
         }
     };
-    return {spec, [] { return std::make_unique<PhotonSplatPass>(); }, preflight};
+    // The film, the summed image and the per-block accumulators (as many as
+    // fit kAccumulatorBudget, at least one, at most 64).
+    const auto memory = [](const PreflightContext& pf) {
+        const std::uint64_t image =
+            multiplyBytes(static_cast<std::uint64_t>(pf.film.width) * static_cast<std::uint64_t>(pf.film.height), sizeof(Rgb));
+        const std::uint64_t blocks = std::clamp<std::uint64_t>(kAccumulatorBudget / std::max<std::uint64_t>(image, 1), 1, 64);
+        return MemoryEstimate{addBytes(addBytes(filmBytes(pf.film), image), multiplyBytes(image, blocks)),
+                              "film " + std::to_string(pf.film.width) + " x " + std::to_string(pf.film.height) + " and " +
+                                  std::to_string(blocks) + " splat accumulators",
+                              {}};
+    };
+    return {spec, [] { return std::make_unique<PhotonSplatPass>(); }, preflight, memory};
 }
 
 }  // namespace fg

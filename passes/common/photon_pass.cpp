@@ -607,32 +607,37 @@ PassRegistration photonPass() {
                              std::to_string(pf.params.getInt("volume_photons")) + " needs store = \"volume\" or \"all\"");
         }
     };
-    // Stored maps: at least one photon per path for every map kept (a path
-    // stores one per non-specular event; one is the lower bound); a streamed
-    // map holds one batch. Plus one batch of per-chunk records while tracing.
+    // How many photons a path stores cannot be known before tracing: a caustic
+    // map holds only paths that met a specular surface first, an open scene's
+    // paths escape. So the estimate counts what is certain or typical: a
+    // volume map with a volume_photons target holds exactly that many; a
+    // global map one photon per path (the Cornell box stores 2.3; an open
+    // scene fewer); a caustic map nothing. A streamed map holds one batch,
+    // and tracing holds one batch of records.
     const auto memory = [](const PreflightContext& pf) {
         constexpr std::uint64_t kSurfacePhoton = 5 * sizeof(Vec3) + sizeof(Rgb) + sizeof(std::uint8_t);
         constexpr std::uint64_t kVolumePhoton = 2 * sizeof(Vec3) + sizeof(Rgb) + sizeof(std::uint8_t);
         const auto photons = static_cast<std::uint64_t>(pf.params.getInt("photons"));
+        const auto volumeTarget = static_cast<std::uint64_t>(pf.params.getInt("volume_photons"));
         const auto batch = std::min(photons, static_cast<std::uint64_t>(pf.params.getInt("batch_size")));
         const std::string& store = pf.params.getString("store");
+        const auto streamed = [&](const char* slot) { return pf.outputStreamed && pf.outputStreamed(slot); };
         MemoryEstimate estimate;
-        std::uint64_t storedPhotons = 0;
-        const auto map = [&](const char* slot, bool kept, std::uint64_t bytesEach) {
-            if (!kept) return;
-            const bool streamed = pf.outputStreamed && pf.outputStreamed(slot);
-            estimate.bytes = addBytes(estimate.bytes, multiplyBytes(streamed ? batch : photons, bytesEach));
-            if (!streamed) storedPhotons = addBytes(storedPhotons, photons);
-        };
-        map("caustic_photons", store == "caustic" || store == "surface" || store == "all", kSurfacePhoton);
-        map("global_photons", store == "global" || store == "surface" || store == "all", kSurfacePhoton);
-        map("volume_photons", store == "volume" || store == "all", kVolumePhoton);
-        estimate.bytes = addBytes(estimate.bytes, multiplyBytes(batch, kSurfacePhoton));
-        estimate.what = std::to_string(photons) + " photon paths, at least one " + std::to_string(kSurfacePhoton) +
-                        "-byte photon per path and stored map";
-        if (storedPhotons > 0)
+        estimate.bytes = multiplyBytes(batch, kSurfacePhoton);
+        estimate.what = "one batch of " + std::to_string(batch) + " paths";
+        const bool global = (store == "global" || store == "surface" || store == "all") &&
+                            !pf.params.getBool("caustic_only_paths") && volumeTarget == 0;
+        if (global && !streamed("global_photons")) {
+            estimate.bytes = addBytes(estimate.bytes, multiplyBytes(photons, kSurfacePhoton));
+            estimate.what = std::to_string(photons) + " photon paths, one " + std::to_string(kSurfacePhoton) +
+                            "-byte global photon per path assumed";
             estimate.hint = "lower `photons`, or use a pipeline whose readers take batches with stream_batches = true "
                             "(pds, lt: one batch of batch_size paths is held)";
+        }
+        if (volumeTarget > 0 && (store == "volume" || store == "all")) {
+            estimate.bytes = addBytes(estimate.bytes, multiplyBytes(volumeTarget, kVolumePhoton));
+            estimate.what += ", " + std::to_string(volumeTarget) + " volume photons";
+        }
         return estimate;
     };
     return {spec, [] { return std::make_unique<PhotonPass>(); }, preflight, memory};

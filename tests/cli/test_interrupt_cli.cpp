@@ -230,7 +230,7 @@ TEST(MemoryCli, ValidateRefusesATrillionPhotonsAndPointsToStreaming) {
 TEST(MemoryCli, ARenderUnderASmallAddressSpaceLimitNamesThePassAndWritesNothing) {
     const fs::path dir = scratchDirectory();
     const CommandResult r = test::runFluxgraphWith(
-        dir, {"render", sourcePath("data/jobs/cornell-spm.toml"), "--out", "out", "--set", "passes.photon.photons=20000000"},
+        dir, {"render", sourcePath("data/jobs/cornell-spm.toml"), "--out", "out", "--set", "passes.photon.photons=40000000"},
         {{}, kTwoGiB});
     EXPECT_EQ(r.exitCode, 2) << r.err;
     EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
