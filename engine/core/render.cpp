@@ -16,6 +16,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <iomanip>
 #include <map>
 #include <mutex>
@@ -146,11 +147,12 @@ ExecutionPlan planWithSceneHints(const Job& job, const Scene& scene, FilmSetting
     return ExecutionPlan::build(job.pipeline, params, job.path, registry.passes, job.bufferFiles);
 }
 
-// The whole job's estimate is the sum over every live pass instance, as if
-// every buffer lived from the first pass to the last. Buffers freed after
-// their last reader make the real peak lower; the sum is the simple bound,
-// and refusing a job that would just have fitted costs a minute, while one
-// that does not fit costs the machine (swapping, the OOM killer).
+// The whole job's estimate is the sum over the live pass instances (two
+// iterations of a repeat block), as if every buffer lived from the first pass
+// to the last. Buffers freed after their last reader make the real peak
+// lower; the sum is simple and errs towards refusing, and refusing a job that
+// would just have fitted costs a minute, while one that does not fit costs
+// the machine (swapping, the OOM killer).
 void checkMemory(const std::vector<PassMemory>& estimates, std::uint64_t available, const std::string& limitedBy) {
     std::uint64_t total = 0;
     const PassMemory* largest = nullptr;
@@ -168,14 +170,15 @@ void checkMemory(const std::vector<PassMemory>& estimates, std::uint64_t availab
 }
 
 // Every live pass checks the scene and its parameters before any work.
-void runPreflights(const ExecutionPlan& plan, const Scene& scene, const FilmSettings& film) {
+namespace {
+
+// Calls `visit` with every live pass and the context its preflight and memory
+// estimate see.
+void forEachLivePass(const ExecutionPlan& plan, const Scene& scene, const FilmSettings& film,
+                     const std::function<void(const PlannedPass&, const PreflightContext&)>& visit) {
     const auto& passes = plan.passes();
-    std::set<std::string> checked;  // a block pass is checked once, not once per iteration
-    std::vector<PassMemory> estimates;
     for (const PlannedPass& p : passes) {
         if (p.culled) continue;
-        const bool firstOfItsName = checked.insert(p.paramsKey).second;
-        if (!p.registration->preflight && !p.registration->memory) continue;
         const auto producerOf = [&](const std::string& slot) -> const PlannedPass* {
             const auto it = p.node.inputBindings.find(slot);
             if (it == p.node.inputBindings.end() || it->second.empty()) return nullptr;
@@ -199,11 +202,33 @@ void runPreflights(const ExecutionPlan& plan, const Scene& scene, const FilmSett
                 const auto it = p.node.outputBindings.find(slot);
                 return it != p.node.outputBindings.end() && !it->second.empty() && plan.streamed(it->second);
             }};
-        if (p.registration->preflight && firstOfItsName) p.registration->preflight(context);
-        // Every iteration of a block allocates its own buffers.
-        if (p.registration->memory) estimates.push_back({p.node.instance, p.source, p.registration->memory(context)});
+        visit(p, context);
     }
-    if (const auto available = availableMemory()) checkMemory(estimates, available->bytes, available->limitedBy);
+}
+
+}  // namespace
+
+std::vector<PassMemory> estimateMemory(const ExecutionPlan& plan, const Scene& scene, const FilmSettings& film) {
+    std::vector<PassMemory> estimates;
+    std::map<std::string, int> iterationsCounted;
+    forEachLivePass(plan, scene, film, [&](const PlannedPass& p, const PreflightContext& context) {
+        // Iteration i + 1 of a block starts once all of iteration i is done,
+        // and what it does not carry on is freed: at most two iterations'
+        // buffers (the running one's and those carried from the one before)
+        // are alive at once.
+        if (p.registration->memory && ++iterationsCounted[p.paramsKey] <= 2)
+            estimates.push_back({p.node.instance, p.source, p.registration->memory(context)});
+    });
+    return estimates;
+}
+
+void runPreflights(const ExecutionPlan& plan, const Scene& scene, const FilmSettings& film) {
+    std::set<std::string> checked;  // a block pass is checked once, not once per iteration
+    forEachLivePass(plan, scene, film, [&](const PlannedPass& p, const PreflightContext& context) {
+        if (p.registration->preflight && checked.insert(p.paramsKey).second) p.registration->preflight(context);
+    });
+    if (const auto available = availableMemory())
+        checkMemory(estimateMemory(plan, scene, film), available->bytes, available->limitedBy);
 }
 
 // Imported buffers are loaded (and checked) before any work.

@@ -54,6 +54,8 @@ struct PassMemory {
     MemoryEstimate estimate;
 };
 void checkMemory(const std::vector<PassMemory>& estimates, std::uint64_t available, const std::string& limitedBy);
+// Every live pass's estimate, of a repeat block's passes two iterations.
+std::vector<PassMemory> estimateMemory(const ExecutionPlan& plan, const Scene& scene, const FilmSettings& film);
 // Loads (and checks) the plan's imported buffers. Throws InputError.
 std::map<std::string, BufferHandle> loadImports(const ExecutionPlan& plan);
 // Throws InputError unless a file (`what`: "profile", ...) can be written at `path`.

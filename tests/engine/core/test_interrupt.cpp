@@ -12,6 +12,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <filesystem>
 #include <fstream>
 #include <new>
@@ -182,6 +183,35 @@ TEST(MemoryCheck, NamesThePassThatNeedsTheMostAndBothFigures) {
                   "job.toml:9: pass 'photon' needs about 7.0 GiB (1000000 photon paths), the job about 7.0 GiB in all, "
                   "but only 2.0 GiB is available (RLIMIT_AS); lower `photons`");
     }
+}
+
+// Estimates come from the pass's declared function with the job's film; a
+// block pass counts for two iterations however many the block has.
+TEST(MemoryCheck, EstimatesUseTheFilmAndCountTwoIterationsOfABlock) {
+    PassRegistration pass = lambdaPass({"film", "", {}, {{"sum", "Tally", ""}}, {}, {}, {}},
+                                       [](PassContext& ctx) { ctx.createOutput<Tally>("sum"); });
+    pass.memory = [](const PreflightContext& pf) { return MemoryEstimate{filmBytes(pf.film), "film", {}}; };
+    Pipeline pipeline;
+    pipeline.name = "estimates";
+    RepeatBlock block;
+    block.name = "again";
+    block.count = 10;
+    block.nodes = {node("inner", "film")};
+    pipeline.blocks = {block};
+    pipeline.nodes = {node("outer", "film", {}, {{"sum", "outer_sum"}})};
+    pipeline.results = {"sum", "outer_sum"};
+    const ExecutionPlan plan = ExecutionPlan::build(pipeline, {}, "test", {pass});
+    FilmSettings film;
+    film.width = 100;
+    film.height = 10;
+    const std::vector<PassMemory> estimates = estimateMemory(plan, Scene{}, film);
+    std::vector<std::string> instances;
+    for (const PassMemory& e : estimates) {
+        instances.push_back(e.instance);
+        EXPECT_EQ(e.estimate.bytes, 1000u * 16u) << e.instance;
+    }
+    std::sort(instances.begin(), instances.end());
+    EXPECT_EQ(instances, (std::vector<std::string>{"again[0].inner", "again[1].inner", "outer"}));
 }
 
 TEST(MemoryCheck, SaturatesInsteadOfWrappingAround) {
