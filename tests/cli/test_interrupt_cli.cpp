@@ -158,6 +158,29 @@ TEST(InterruptCli, AnInterruptedPhotonPassIsRenormalisedToThePathsTraced) {
     EXPECT_NEAR(meanPartial / meanFull, 1.0, 0.1) << meanPartial << " vs " << meanFull;
 }
 
+// Each iteration of progressive-pt is two units (pt's one sample pass, then
+// the finished iteration): after the fourth the block stops at 2 iterations.
+TEST(InterruptCli, ARepeatBlockKeepsTheIterationsItFinished) {
+    const fs::path dir = scratchDirectory();
+    const CommandResult r = signalAtPauses(
+        dir,
+        {"render", sourcePath("data/jobs/progressive-pt.toml"), "--out", "out", "-q", "--set", "film.width=16", "--set",
+         "film.height=16"},
+        {{"unit:4", SIGINT}});
+    ASSERT_EQ(r.exitCode, 130) << r.err;
+    EXPECT_NE(r.err.find("kept progressive: 2 of 64 iterations"), std::string::npos) << r.err;
+    EXPECT_EQ(filesUnder(dir), (std::vector<std::string>{"out", "out/progressive-pt.exr", "out/progressive-pt.png"}));
+    ImageChannels image;
+    const auto metadata = metadataOf(dir / "out/progressive-pt.exr", &image);
+    EXPECT_EQ(metadata.at("partial"), "true");
+    EXPECT_EQ(metadata.at("completed"), "progressive: 2 of 64 iterations");
+    EXPECT_EQ(metadata.at("iterations"), "progressive=2");
+    const std::vector<float>* samples = channel(image, "samples");
+    ASSERT_NE(samples, nullptr);
+    EXPECT_TRUE(std::all_of(samples->begin(), samples->end(), [](float s) { return s == 32.0f; }))
+        << "two iterations of 16 samples per pixel";
+}
+
 TEST(InterruptCli, DuringTheWritePhaseTheCompleteOutputsAreKept) {
     const fs::path dir = scratchDirectory();
     const CommandResult r = signalAtPauses(dir, sixteenSamplePasses({"-q"}), {{"write", SIGINT}});
