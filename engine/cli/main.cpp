@@ -6,6 +6,7 @@
 #include "engine/cli/scale.h"
 #include "engine/cli/replay.h"
 #include "engine/core/error.h"
+#include "engine/core/interrupt.h"
 #include "engine/core/job.h"
 #include "engine/core/pass.h"
 #include "engine/core/render.h"
@@ -13,13 +14,52 @@
 
 #include <CLI/CLI.hpp>
 
+#include <csignal>
 #include <cstdio>
 #include <iostream>
+#include <new>
 #include <unistd.h>
 
 namespace {
 
 constexpr int kInputErrorExit = 2;
+constexpr int kInterruptedExit = 128 + SIGINT;
+
+// Ctrl-C on a render (README, "Interrupts"): the first SIGINT, once a unit of
+// work is done, asks the passes to stop at their next unit boundary and the
+// render writes what it has; before that, or the second time, the process
+// quits at once. SIGTERM and SIGHUP always quit. Quitting removes the output
+// temporaries and the directories made for them, and writes nothing.
+extern "C" void onInterruptSignal(int signal) {
+    if (!fg::stopRequested() && fg::completedUnits() > 0) {
+        fg::requestStop();
+        return;
+    }
+    const char* message = fg::stopRequested() ? "fluxgraph: interrupted again: quit, nothing more written\n"
+                                              : "fluxgraph: interrupted before any unit of work was done: nothing written\n";
+    if (!fg::deferQuitIfCommitting(signal, message)) fg::quitAfterSignal(signal, message);
+}
+
+extern "C" void onQuitSignal(int signal) {
+    const char* message = signal == SIGTERM ? "fluxgraph: terminated (SIGTERM): nothing written\n"
+                                            : "fluxgraph: hung up (SIGHUP): nothing written\n";
+    if (!fg::deferQuitIfCommitting(signal, message)) fg::quitAfterSignal(signal, message);
+}
+
+void installRenderSignalHandlers() {
+    struct sigaction action {};
+    sigemptyset(&action.sa_mask);
+    // One handler at a time: a second signal waits for the first to finish.
+    sigaddset(&action.sa_mask, SIGINT);
+    sigaddset(&action.sa_mask, SIGTERM);
+    sigaddset(&action.sa_mask, SIGHUP);
+    action.sa_flags = SA_RESTART;
+    action.sa_handler = onInterruptSignal;
+    ::sigaction(SIGINT, &action, nullptr);
+    action.sa_handler = onQuitSignal;
+    ::sigaction(SIGTERM, &action, nullptr);
+    ::sigaction(SIGHUP, &action, nullptr);
+}
 
 void printPasses() {
     for (const fg::PassRegistration& r : fg::installedRegistry().passes) {
@@ -185,15 +225,27 @@ int main(int argc, char** argv) {
         options.profilePath = profilePath;
         options.statsPath = statsPath;
         options.commandLine = shellCommandLine(argc, argv);
+        installRenderSignalHandlers();
         const fg::RenderOutcome outcome = fg::renderJob(job, options);
         if (!quiet) {
             std::cout << fg::formatPassTable(outcome);
             for (const std::string& f : outcome.files) std::cout << "wrote " << f << "\n";
         }
-        return 0;
+        if (!fg::stopRequested()) return 0;
+        std::string kept;
+        for (const std::string& part : outcome.run.partial) kept += (kept.empty() ? "" : "; ") + part;
+        if (kept.empty())
+            std::cerr << "fluxgraph: interrupted after the work was done: the outputs are complete\n";
+        else
+            std::cerr << "fluxgraph: interrupted: kept " << kept << " (written with fluxgraph:partial = true)\n";
+        return kInterruptedExit;
     } catch (const fg::InputError& e) {
         // Messages quote keys, values and paths from the input, which may hold any bytes.
         std::cerr << fg::printableMessage(e.what()) << "\n";
+        return kInputErrorExit;
+    } catch (const std::bad_alloc&) {
+        // Passes name themselves (the scheduler); this is loading, building or writing.
+        std::cerr << "fluxgraph: ran out of memory outside the passes (scene, acceleration structure or outputs)\n";
         return kInputErrorExit;
     } catch (const std::exception& e) {
         std::cerr << "fluxgraph: internal error: " << fg::printableMessage(e.what()) << "\n";

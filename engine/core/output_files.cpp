@@ -134,9 +134,15 @@ void atomicRename(const std::string& from, const std::string& to) {
 OutputCommit::~OutputCommit() {
     if (committed_) return;
     std::error_code ignored;
-    for (const Staged& s : staged_) fs::remove(s.temporaryPath, ignored);
+    for (const Staged& s : staged_) {
+        fs::remove(s.temporaryPath, ignored);
+        unregisterCleanupPath(s.temporaryPath);
+    }
     // Deepest first; a directory something else has written into stays.
-    for (auto it = createdDirectories_.rbegin(); it != createdDirectories_.rend(); ++it) fs::remove(*it, ignored);
+    for (auto it = createdDirectories_.rbegin(); it != createdDirectories_.rend(); ++it) {
+        fs::remove(*it, ignored);
+        unregisterCleanupPath(it->string());
+    }
 }
 
 void OutputCommit::createDirectories(const std::string& directory) {
@@ -151,6 +157,7 @@ void OutputCommit::createDirectories(const std::string& directory) {
         const bool created = fs::create_directory(*it, ec);
         if (ec) break;
         if (created) {
+            registerCreatedDirectory(it->string());
             const std::lock_guard lock(mutex_);
             createdDirectories_.push_back(*it);
         }
@@ -160,6 +167,8 @@ void OutputCommit::createDirectories(const std::string& directory) {
 
 std::string OutputCommit::stage(const std::string& finalPath) {
     std::string temporary = temporaryPathFor(finalPath);
+    // Registered before anything is written, so a signal never finds an unlisted temporary.
+    registerTemporaryFile(temporary);
     const std::lock_guard lock(mutex_);
     staged_.push_back({finalPath, temporary});
     return temporary;
@@ -167,6 +176,12 @@ std::string OutputCommit::stage(const std::string& finalPath) {
 
 void OutputCommit::commit() {
     const std::lock_guard lock(mutex_);
+    pauseForTest("write");
+    // A quitting signal waits for the renames (see interrupt.h).
+    enterCommitSection();
+    struct LeaveCommit {
+        ~LeaveCommit() { leaveCommitSection(); }
+    } leaveCommit;
     std::error_code ec;
     // A directory under a final name is the likely failure; finding it first
     // means no rename has to be undone.
@@ -180,11 +195,16 @@ void OutputCommit::commit() {
         }
     }
     committed_ = true;
+    for (const Staged& s : staged_) unregisterCleanupPath(s.temporaryPath);
+    for (const fs::path& directory : createdDirectories_) unregisterCleanupPath(directory.string());
 }
 
 void OutputCommit::rollBack(std::size_t renamedCount) noexcept {
     std::error_code ignored;
-    for (std::size_t i = 0; i < renamedCount; ++i) fs::remove(staged_[i].finalPath, ignored);
+    for (std::size_t i = 0; i < renamedCount; ++i) {
+        fs::remove(staged_[i].finalPath, ignored);
+        unregisterCleanupPath(staged_[i].temporaryPath);
+    }
     // The remaining temporaries and created directories go in the destructor.
     staged_.erase(staged_.begin(), staged_.begin() + static_cast<std::ptrdiff_t>(renamedCount));
 }

@@ -12,6 +12,8 @@
 // final names.
 #pragma once
 
+#include "engine/core/interrupt.h"
+
 #include <filesystem>
 #include <functional>
 #include <mutex>
@@ -41,14 +43,17 @@ void atomicRename(const std::string& from, const std::string& to);
 template <class Writer>
 void writeAtomically(const std::string& path, Writer&& writer) {
     const std::string temporary = temporaryPathFor(path);
+    registerTemporaryFile(temporary);
     try {
         writer(temporary);
         atomicRename(temporary, path);
     } catch (...) {
         std::error_code ignored;
         std::filesystem::remove(temporary, ignored);
+        unregisterCleanupPath(temporary);
         throw;
     }
+    unregisterCleanupPath(temporary);
 }
 
 // The outputs of one run, all or none. stage() hands out the temporary to

@@ -3,6 +3,7 @@
 // without pulling in every registered pass.
 #include "engine/core/pass.h"
 
+#include "engine/core/interrupt.h"
 #include "jobs/random.h"
 
 #include <algorithm>
@@ -91,6 +92,10 @@ bool PassContext::emitErased(const std::string& slot, std::shared_ptr<void> batc
     if (!batchSink_) throw std::logic_error("pass '" + instance_ + "' emitted a batch, but nothing reads its batches");
     return batchSink_(slot, std::move(batch), bytes);
 }
+
+bool PassContext::stopRequested() const { return stoppable_ && fg::stopRequested(); }
+
+void PassContext::completedUnit() const { noteCompletedUnit(); }
 
 std::uint64_t PassContext::streamKey() const { return jobs::streamKey(instance_); }
 

@@ -6,6 +6,7 @@
 // wire passes by buffer names.
 #pragma once
 
+#include "engine/core/memory.h"
 #include "engine/image/film.h"
 
 #include <algorithm>
@@ -116,6 +117,9 @@ struct PreflightContext {
     // the slot is unbound, imported from a file or its producer is not a pass.
     std::function<const PassParams*(const std::string& slot)> producerParams;
     std::function<std::string(const std::string& slot)> producerPass;
+    FilmSettings film{};  // the job's film, as the render will make it
+    // Whether an output slot of this pass is handed over batch by batch (never stored whole).
+    std::function<bool(const std::string& slot)> outputStreamed;
 };
 
 // Everything a running pass may touch: the scene (read-only), its parameters,
@@ -214,6 +218,19 @@ public:
     void reportProgress(double fraction) const;
     void setProgressSink(std::function<void(const std::string&, double)> sink) { progress_ = std::move(sink); }
 
+    // Interrupts (engine/core/interrupt.h). A pass that works in units (sample
+    // passes, photon batches) calls completedUnit() after each and, before
+    // starting the next, stops if stopRequested(); it then records what it
+    // kept with keptPartial ("pt: 37 of 256 samples per pixel"), and its
+    // outputs must be a correct estimate from the units done (normalised by
+    // what was actually done). Passes inside a repeat block never see a stop
+    // request: the block stops after the running iteration instead.
+    bool stopRequested() const;
+    void completedUnit() const;
+    void keptPartial(std::string what) { partial_ = std::move(what); }
+    const std::string& partial() const { return partial_; }
+    void setStoppable(bool stoppable) { stoppable_ = stoppable; }
+
     // Raises a condition the pass declared in PassSpec::signals (pass thread only).
     void signal(const std::string& name);
     bool signalled(const std::string& name) const {
@@ -241,6 +258,8 @@ private:
     int iteration_ = -1;
     std::vector<std::string> satisfied_;
     std::vector<std::string> signals_, declaredSignals_;
+    bool stoppable_ = true;
+    std::string partial_;
 };
 
 class Pass {
@@ -261,6 +280,9 @@ struct PassRegistration {
     std::function<std::unique_ptr<Pass>()> create;
     // Checks before any work (scene, parameters); empty = nothing to check.
     std::function<void(const PreflightContext&)> preflight;
+    // The bytes of the buffers the pass will allocate, from its parameters, the
+    // film and the scene (engine/core/memory.h); empty = nothing worth counting.
+    std::function<MemoryEstimate(const PreflightContext&)> memory;
 };
 
 // A pass instance in a pipeline: buffers are bound by name; by default a slot

@@ -5,6 +5,7 @@
 
 #include "engine/core/codec.h"
 #include "engine/core/error.h"
+#include "engine/core/interrupt.h"
 #include "engine/core/output_files.h"
 #include "engine/image/image_io.h"
 #include "engine/accel/ray_query.h"
@@ -15,6 +16,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <iomanip>
 #include <map>
 #include <mutex>
@@ -33,6 +35,7 @@ namespace fs = std::filesystem;
 // ACLs, read-only mounts).
 bool canCreateFileIn(const fs::path& dir) {
     const fs::path probe = dir / (".fluxgraph-write-test-" + std::to_string(::getpid()));
+    registerTemporaryFile(probe.string());
     bool written = false;
     {
         std::ofstream out(probe);
@@ -40,6 +43,7 @@ bool canCreateFileIn(const fs::path& dir) {
     }
     std::error_code ignored;
     fs::remove(probe, ignored);
+    unregisterCleanupPath(probe.string());
     return written;
 }
 
@@ -143,12 +147,38 @@ ExecutionPlan planWithSceneHints(const Job& job, const Scene& scene, FilmSetting
     return ExecutionPlan::build(job.pipeline, params, job.path, registry.passes, job.bufferFiles);
 }
 
+// The whole job's estimate is the sum over the live pass instances (two
+// iterations of a repeat block), as if every buffer lived from the first pass
+// to the last. Buffers freed after their last reader make the real peak
+// lower; the sum is simple and errs towards refusing, and refusing a job that
+// would just have fitted costs a minute, while one that does not fit costs
+// the machine (swapping, the OOM killer).
+void checkMemory(const std::vector<PassMemory>& estimates, std::uint64_t available, const std::string& limitedBy) {
+    std::uint64_t total = 0;
+    const PassMemory* largest = nullptr;
+    for (const PassMemory& e : estimates) {
+        total = addBytes(total, e.estimate.bytes);
+        if (!largest || e.estimate.bytes > largest->estimate.bytes) largest = &e;
+    }
+    if (!largest || total <= available) return;
+    std::string message = largest->source + ": pass '" + largest->instance + "' needs about " +
+                          describeBytes(largest->estimate.bytes) + " (" + largest->estimate.what + ")";
+    if (total != largest->estimate.bytes) message += ", the job about " + describeBytes(total) + " in all";
+    message += ", but only " + describeBytes(available) + " is available (" + limitedBy + ")";
+    if (!largest->estimate.hint.empty()) message += "; " + largest->estimate.hint;
+    throw InputError(message);
+}
+
 // Every live pass checks the scene and its parameters before any work.
-void runPreflights(const ExecutionPlan& plan, const Scene& scene) {
+namespace {
+
+// Calls `visit` with every live pass and the context its preflight and memory
+// estimate see.
+void forEachLivePass(const ExecutionPlan& plan, const Scene& scene, const FilmSettings& film,
+                     const std::function<void(const PlannedPass&, const PreflightContext&)>& visit) {
     const auto& passes = plan.passes();
-    std::set<std::string> checked;  // a block pass is checked once, not once per iteration
     for (const PlannedPass& p : passes) {
-        if (p.culled || !p.registration->preflight || !checked.insert(p.paramsKey).second) continue;
+        if (p.culled) continue;
         const auto producerOf = [&](const std::string& slot) -> const PlannedPass* {
             const auto it = p.node.inputBindings.find(slot);
             if (it == p.node.inputBindings.end() || it->second.empty()) return nullptr;
@@ -166,9 +196,39 @@ void runPreflights(const ExecutionPlan& plan, const Scene& scene) {
             [&](const std::string& slot) -> std::string {
                 const PlannedPass* producer = producerOf(slot);
                 return producer ? producer->node.pass : std::string();
+            },
+            film,
+            [&](const std::string& slot) {
+                const auto it = p.node.outputBindings.find(slot);
+                return it != p.node.outputBindings.end() && !it->second.empty() && plan.streamed(it->second);
             }};
-        p.registration->preflight(context);
+        visit(p, context);
     }
+}
+
+}  // namespace
+
+std::vector<PassMemory> estimateMemory(const ExecutionPlan& plan, const Scene& scene, const FilmSettings& film) {
+    std::vector<PassMemory> estimates;
+    std::map<std::string, int> iterationsCounted;
+    forEachLivePass(plan, scene, film, [&](const PlannedPass& p, const PreflightContext& context) {
+        // Iteration i + 1 of a block starts once all of iteration i is done,
+        // and what it does not carry on is freed: at most two iterations'
+        // buffers (the running one's and those carried from the one before)
+        // are alive at once.
+        if (p.registration->memory && ++iterationsCounted[p.paramsKey] <= 2)
+            estimates.push_back({p.node.instance, p.source, p.registration->memory(context)});
+    });
+    return estimates;
+}
+
+void runPreflights(const ExecutionPlan& plan, const Scene& scene, const FilmSettings& film) {
+    std::set<std::string> checked;  // a block pass is checked once, not once per iteration
+    forEachLivePass(plan, scene, film, [&](const PlannedPass& p, const PreflightContext& context) {
+        if (p.registration->preflight && checked.insert(p.paramsKey).second) p.registration->preflight(context);
+    });
+    if (const auto available = availableMemory())
+        checkMemory(estimateMemory(plan, scene, film), available->bytes, available->limitedBy);
 }
 
 // Imported buffers are loaded (and checked) before any work.
@@ -212,9 +272,9 @@ std::string jsonEscape(const std::string& s) {
 ExecutionPlan validateJob(const Job& job, const Registry& registry) {
     ExecutionPlan::build(job.pipeline, job.params, job.path, registry.passes, job.bufferFiles);
     const Scene scene = loadScene(job.scenePath, job.sceneDefines);
-    FilmSettings film = job.film;
+    FilmSettings film = jobFilm(job, scene);
     ExecutionPlan plan = planWithSceneHints(job, scene, film, registry);
-    runPreflights(plan, scene);
+    runPreflights(plan, scene, film);
     for (const auto& [version, typeAndPath] : plan.imports()) {
         const BufferFileInfo info = readBufferInfo(typeAndPath.second);
         if (info.type != typeAndPath.first)
@@ -248,7 +308,7 @@ RenderOutcome renderWith(const Job& job, const RenderOptions& options, const Pre
 
     FilmSettings film = jobFilm(job, scene);
     const ExecutionPlan plan = planWithSceneHints(job, scene, film, registry);
-    runPreflights(plan, scene);
+    runPreflights(plan, scene, film);
     std::map<std::string, BufferHandle> imported = loadImports(plan);
     for (const auto& [version, path] : plan.saves()) ensureWritableFilePath(path, "saved buffer");
     const jobs::ThreadLimit threadLimit(job.threads);
@@ -273,7 +333,11 @@ RenderOutcome renderWith(const Job& job, const RenderOptions& options, const Pre
     auto& recorder = jobs::TraceRecorder::instance();
     recorder.setEnabled(!options.profilePath.empty());
     recorder.take();
+    pauseForTest("start");
     outcome.run = execute(plan, scene, rays, runOptions);
+    // All the work is done: from here on an interrupt keeps it (also in a
+    // pipeline whose passes report no units of their own).
+    noteCompletedUnit();
     recorder.setEnabled(false);
     if (options.showProgress) bar.finish();
 
@@ -305,6 +369,13 @@ RenderOutcome renderWith(const Job& job, const RenderOptions& options, const Pre
     for (const auto& [name, value] : job.sceneDefines) defines += (defines.empty() ? "" : " ") + name + "=" + value;
     if (!defines.empty()) metadata.emplace_back("scene_defines", defines);
     if (!options.commandLine.empty()) metadata.emplace_back("command", options.commandLine);
+    // An interrupted render keeps what was done; the file says so, and how much.
+    if (!outcome.run.partial.empty()) {
+        std::string completed;
+        for (const std::string& part : outcome.run.partial) completed += (completed.empty() ? "" : "; ") + part;
+        metadata.emplace_back("partial", "true");
+        metadata.emplace_back("completed", completed);
+    }
 
     for (const std::string& result : job.pipeline.results) {
         const BufferHandle& handle = outcome.run.results.at(result);

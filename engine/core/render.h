@@ -43,8 +43,19 @@ FilmSettings jobFilm(const Job& job, const Scene& scene);
 // The job's plan with the scene's rendering hints applied where the job is
 // silent (parameters that declare a hint; the film filter, in `film`).
 ExecutionPlan planWithSceneHints(const Job& job, const Scene& scene, FilmSettings& film, const Registry& registry);
-// Every live pass checks the scene and its parameters. Throws InputError.
-void runPreflights(const ExecutionPlan& plan, const Scene& scene);
+// Every live pass checks the scene and its parameters, then the memory the
+// passes estimate they will allocate is compared with what is available.
+// Throws InputError.
+void runPreflights(const ExecutionPlan& plan, const Scene& scene, const FilmSettings& film);
+// The memory check alone, against `available` bytes (limited by `limitedBy`);
+// `estimates` pairs each pass instance (and its source) with its estimate.
+struct PassMemory {
+    std::string instance, source;
+    MemoryEstimate estimate;
+};
+void checkMemory(const std::vector<PassMemory>& estimates, std::uint64_t available, const std::string& limitedBy);
+// Every live pass's estimate, of a repeat block's passes two iterations.
+std::vector<PassMemory> estimateMemory(const ExecutionPlan& plan, const Scene& scene, const FilmSettings& film);
 // Loads (and checks) the plan's imported buffers. Throws InputError.
 std::map<std::string, BufferHandle> loadImports(const ExecutionPlan& plan);
 // Throws InputError unless a file (`what`: "profile", ...) can be written at `path`.

@@ -4,6 +4,7 @@
 #include "engine/core/scheduler.h"
 
 #include "engine/core/error.h"
+#include "engine/core/interrupt.h"
 #include "jobs/parallel.h"
 
 #include <algorithm>
@@ -768,9 +769,17 @@ struct PassRun {
     std::int64_t batches = 0;
 };
 
+// A failed allocation inside a pass is the job asking for more than the
+// machine has (preflight estimates only what it can foresee): the user's
+// problem to fix, so an InputError naming the pass, not an internal error.
 template <class Body>
 void timed(PassRun& run, const std::string& label, Body&& body) {
-    timePass(run.timing, label, body);
+    try {
+        timePass(run.timing, label, body);
+    } catch (const std::bad_alloc&) {
+        throw InputError("pass '" + label +
+                         "' ran out of memory; lower its sizes (film, photons, batch_size, wave_size) or free memory");
+    }
 }
 
 }  // namespace
@@ -821,10 +830,21 @@ RunResult execute(const ExecutionPlan& plan, const Scene& scene, const RayQuery*
         std::atomic<std::int64_t> startNs{-1};
         std::unique_ptr<std::once_flag[]> decided;
         std::once_flag aliased;
+        std::atomic<bool> interrupted{false};
+        // Live passes of each iteration not yet finished: an iteration is a unit of work.
+        std::unique_ptr<std::atomic<int>[]> unfinished;
     };
     std::vector<BlockState> blockStates(plan.blocks().size());
-    for (std::size_t b = 0; b < plan.blocks().size(); ++b)
-        blockStates[b].decided = std::make_unique<std::once_flag[]>(static_cast<std::size_t>(plan.blocks()[b].count));
+    for (std::size_t b = 0; b < plan.blocks().size(); ++b) {
+        const PlannedBlock& block = plan.blocks()[b];
+        blockStates[b].decided = std::make_unique<std::once_flag[]>(static_cast<std::size_t>(block.count));
+        blockStates[b].unfinished = std::make_unique<std::atomic<int>[]>(static_cast<std::size_t>(block.count));
+        for (std::size_t it = 0; it < block.iterationPasses.size(); ++it) {
+            int live = 0;
+            for (int member : block.iterationPasses[it]) live += passes[static_cast<std::size_t>(member)].culled ? 0 : 1;
+            blockStates[b].unfinished[it].store(live);
+        }
+    }
     const std::int64_t runStart = jobs::wallNanos();
     // Whether pass i belongs to an iteration the block no longer runs. The first
     // time that is so, every later iteration's outputs take the versions of the
@@ -839,8 +859,11 @@ RunResult execute(const ExecutionPlan& plan, const Scene& scene, const RayQuery*
             state.startNs.compare_exchange_strong(unset, jobs::wallNanos());
             return false;
         }
-        if (!block.canExitEarly()) return false;
         std::call_once(state.decided[static_cast<std::size_t>(p.iteration)], [&] {
+            if (stopRequested() && p.iteration <= state.stopAfter.load()) {
+                state.stopAfter.store(std::min(state.stopAfter.load(), p.iteration - 1));
+                state.interrupted = true;
+            }
             if (block.seconds > 0.0 && p.iteration <= state.stopAfter.load() &&
                 1e-9 * static_cast<double>(jobs::wallNanos() - state.startNs.load()) >= block.seconds)
                 state.stopAfter.store(std::min(state.stopAfter.load(), p.iteration - 1));
@@ -900,6 +923,7 @@ RunResult execute(const ExecutionPlan& plan, const Scene& scene, const RayQuery*
         run.ctx = std::make_unique<PassContext>(scene, rays, options.film, options.seed, pass.params, run.inputs,
                                                 run.outputs, pass.node.instance);
         run.ctx->setIteration(pass.iteration);
+        run.ctx->setStoppable(pass.block < 0);
         run.ctx->setDeclaredSignals(pass.registration->spec.signals);
         if (options.progress) run.ctx->setProgressSink(options.progress);
         run.timing.work.label = pass.node.instance;
@@ -953,6 +977,7 @@ RunResult execute(const ExecutionPlan& plan, const Scene& scene, const RayQuery*
         s.counters = run.ctx->counters();
         s.batchesEmitted = run.batches;
         s.outputBytes = run.largestBatchBytes;
+        s.partial = run.ctx->partial();
         for (const auto& [slot, handle] : run.outputs) {
             if (std::find(pass.streamedOutputs.begin(), pass.streamedOutputs.end(), slot) != pass.streamedOutputs.end())
                 continue;
@@ -971,6 +996,9 @@ RunResult execute(const ExecutionPlan& plan, const Scene& scene, const RayQuery*
         }
         run.ctx.reset();
         run.instance.reset();
+        if (pass.block >= 0 &&
+            --blockStates[static_cast<std::size_t>(pass.block)].unfinished[static_cast<std::size_t>(pass.iteration)] == 0)
+            noteCompletedUnit();
         if (options.save) {
             for (const auto& [slot, handle] : run.outputs) {
                 const auto saved = plan.saves().find(pass.node.outputBindings.at(slot));
@@ -1056,9 +1084,14 @@ RunResult execute(const ExecutionPlan& plan, const Scene& scene, const RayQuery*
         if (ran[static_cast<std::size_t>(i)]) result.stats.push_back(stats[static_cast<std::size_t>(i)]);
     for (std::size_t b = 0; b < plan.blocks().size(); ++b) {
         const int stopAfter = blockStates[b].stopAfter.load();
-        result.iterations[plan.blocks()[b].name] =
-            stopAfter == std::numeric_limits<int>::max() ? plan.blocks()[b].count : stopAfter + 1;
+        const int iterations = stopAfter == std::numeric_limits<int>::max() ? plan.blocks()[b].count : stopAfter + 1;
+        result.iterations[plan.blocks()[b].name] = iterations;
+        if (blockStates[b].interrupted)
+            result.partial.push_back(plan.blocks()[b].name + ": " + std::to_string(iterations) + " of " +
+                                     std::to_string(plan.blocks()[b].count) + " iterations");
     }
+    for (const PassStats& s : result.stats)
+        if (!s.partial.empty()) result.partial.push_back(s.partial);
     for (const std::string& r : plan.pipeline().results) result.results[r] = buffers.at(plan.finalVersion(r));
     return result;
 }

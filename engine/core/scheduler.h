@@ -70,7 +70,10 @@ struct PlannedBlock {
     std::string untilInstance, untilSignal;  // empty: no condition
     double seconds = 0.0;
     std::vector<std::vector<int>> iterationPasses;  // pass indices of each iteration
-    bool canExitEarly() const { return !untilSignal.empty() || seconds > 0.0; }
+    // Every block may end before its count: besides `until` and `seconds`, an
+    // interrupt (engine/core/interrupt.h) ends it after the running iteration.
+    // So iteration i + 1 always waits for all of iteration i.
+    bool canExitEarly() const { return true; }
 };
 
 class ExecutionPlan {
@@ -130,6 +133,7 @@ struct PassStats {
     std::size_t outputBytes = 0;  // of streamed outputs: the largest batch
     std::int64_t batchesEmitted = 0;
     std::map<std::string, std::int64_t> counters;
+    std::string partial;  // what the pass kept when an interrupt stopped it early; empty otherwise
 };
 
 // Time booked to one pass instance, possibly in several pieces (the batches it
@@ -162,6 +166,10 @@ struct RunResult {
     std::map<std::string, BufferHandle> results;  // the pipeline's result buffers, by name
     std::vector<PassStats> stats;                 // in topological order; skipped iterations left out
     std::map<std::string, int> iterations;        // repeat block -> iterations run
+    // What was kept of work an interrupt cut short, one entry per pass or block
+    // ("pt: 37 of 256 samples per pixel", "refine: 3 of 10 iterations"); empty
+    // when everything ran to its end.
+    std::vector<std::string> partial;
     double wallSeconds = 0.0;
 };
 

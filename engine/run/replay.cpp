@@ -144,7 +144,7 @@ ReplayResult replayPass(const Job& job, const ReplayOptions& options, const Regi
     const Scene scene = loadScene(job.scenePath, job.sceneDefines);
     FilmSettings film = jobFilm(job, scene);
     const ExecutionPlan plan = planWithSceneHints(job, scene, film, registry);
-    runPreflights(plan, scene);
+    runPreflights(plan, scene, film);
     const PlannedPass& target = findInstance(plan, options.instance, job.path);
     const PassSpec& spec = target.registration->spec;
     std::map<std::string, BufferHandle> imported = loadInputs ? std::map<std::string, BufferHandle>{} : loadImports(plan);

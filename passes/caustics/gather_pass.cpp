@@ -144,6 +144,16 @@ ParamSpec kGlobalParam() {
             "nearest global photons per estimate; the k-th one's distance is the bandwidth h"};
 }
 
+// One film per radiance layer; the estimates are written straight into them.
+std::function<MemoryEstimate(const PreflightContext&)> layerFilms(int layers) {
+    return [layers](const PreflightContext& pf) {
+        return MemoryEstimate{multiplyBytes(filmBytes(pf.film), static_cast<std::uint64_t>(layers)),
+                              std::to_string(layers) + " film(s) " + std::to_string(pf.film.width) + " x " +
+                                  std::to_string(pf.film.height),
+                              {}};
+    };
+}
+
 }  // namespace
 
 PassRegistration gatherPass() {
@@ -168,7 +178,7 @@ PassRegistration gatherPass() {
         kGlobalParam(),
         maxRadiusParam(),
     };
-    return {spec, [] { return std::make_unique<PhotonGatherPass>(true); }};
+    return {spec, [] { return std::make_unique<PhotonGatherPass>(true); }, {}, layerFilms(2)};
 }
 
 PassRegistration gatherGlobalPass() {
@@ -183,7 +193,7 @@ PassRegistration gatherGlobalPass() {
     };
     spec.outputs = {{"global", "Film", "global photon estimates alone (a film from black)"}};
     spec.params = {kGlobalParam(), maxRadiusParam()};
-    return {spec, [] { return std::make_unique<PhotonGatherPass>(false); }};
+    return {spec, [] { return std::make_unique<PhotonGatherPass>(false); }, {}, layerFilms(1)};
 }
 
 }  // namespace fg

@@ -120,6 +120,8 @@ public:
     void consumeBatch(PassContext& ctx, const std::string& slot) override {
         if (slot != "caustic_photons") return;
         const PhotonMap& caustics = ctx.input<PhotonMap>("caustic_photons");
+        if (plannedPaths_ == 0) plannedPaths_ = caustics.emitted;
+        tracedPaths_ = caustics.emitted;
         if (caustics.photons.empty()) return;
         if (!caustics.hasDifferentials) {
             throw InputError("pass '" + ctx.instanceName() +
@@ -210,7 +212,15 @@ public:
             total.deposits += part.deposits;
             total.candidates += part.candidates;
         }
-        image.addToPixels(total.pixels, 1.0f);
+        // Batches streamed before an interrupt carry powers for the planned
+        // count of paths; fewer were traced (the last, empty batch says how many).
+        // Their footprints stay those of the planned count (Eqs. 5-6 scale them
+        // by 1 / sqrt(N)): the estimate is consistent, just smoothed more.
+        const float plannedPerTraced = tracedPaths_ > 0 && tracedPaths_ < plannedPaths_
+                                       ? static_cast<float>(static_cast<double>(plannedPaths_) /
+                                                            static_cast<double>(tracedPaths_))
+                                       : 1.0f;
+        image.addToPixels(total.pixels, plannedPerTraced);
         ctx.addCounter("splatted_photons", total.splatted);
         ctx.addCounter("collapsed_footprints", total.collapsed);
         ctx.addCounter("vertex_deposits", total.deposits);
@@ -253,6 +263,9 @@ private:
     }
 
     std::vector<SplatAccumulator> blocks_;
+    // The photon paths the powers of the first and of the last batch were
+    // divided by: they differ when an interrupt cut the photon pass short.
+    std::uint64_t plannedPaths_ = 0, tracedPaths_ = 0;
     std::vector<SplatTarget> targets_;
 };
 
@@ -284,7 +297,18 @@ PassRegistration splatPass() {
                              "differentials = true in the photon pass");
         }
     };
-    return {spec, [] { return std::make_unique<PhotonSplatPass>(); }, preflight};
+    // The film, the summed image and the per-block accumulators (as many as
+    // fit kAccumulatorBudget, at least one, at most 64).
+    const auto memory = [](const PreflightContext& pf) {
+        const std::uint64_t image =
+            multiplyBytes(static_cast<std::uint64_t>(pf.film.width) * static_cast<std::uint64_t>(pf.film.height), sizeof(Rgb));
+        const std::uint64_t blocks = std::clamp<std::uint64_t>(kAccumulatorBudget / std::max<std::uint64_t>(image, 1), 1, 64);
+        return MemoryEstimate{addBytes(addBytes(filmBytes(pf.film), image), multiplyBytes(image, blocks)),
+                              "film " + std::to_string(pf.film.width) + " x " + std::to_string(pf.film.height) + " and " +
+                                  std::to_string(blocks) + " splat accumulators",
+                              {}};
+    };
+    return {spec, [] { return std::make_unique<PhotonSplatPass>(); }, preflight, memory};
 }
 
 }  // namespace fg

@@ -98,7 +98,11 @@ PassRegistration compositePass() {
         {"layer_channels", ParamType::Bool, false, 0, 0, {},
          "also write each layer's radiance as AOVs <layer>.R, <layer>.G, <layer>.B, to look at one term alone"},
     };
-    return {spec, [] { return std::make_unique<CompositePass>(); }};
+    const auto memory = [](const PreflightContext& pf) {
+        return MemoryEstimate{filmBytes(pf.film),
+                              "film " + std::to_string(pf.film.width) + " x " + std::to_string(pf.film.height), {}};
+    };
+    return {spec, [] { return std::make_unique<CompositePass>(); }, {}, memory};
 }
 
 }  // namespace fg

@@ -180,7 +180,20 @@ PassRegistration eyePass() {
                                  "this scene with the bre (volumetric photon mapping) or pt pipeline");
         }
     };
-    return {spec, [] { return std::make_unique<EyePass>(); }, preflight};
+    // The direct-light film and one eye vertex per camera sample (an upper
+    // bound: samples that leave the scene store none).
+    const auto memory = [](const PreflightContext& pf) {
+        const auto spp = static_cast<std::uint64_t>(pf.params.getInt("spp"));
+        const std::uint64_t pixels = static_cast<std::uint64_t>(pf.film.width) * static_cast<std::uint64_t>(pf.film.height);
+        constexpr std::uint64_t kBytesPerVertex = 4 * sizeof(Vec3) + sizeof(std::uint32_t) + sizeof(Vec2) + sizeof(Rgb) +
+                                                  sizeof(std::uint32_t);
+        MemoryEstimate estimate;
+        estimate.bytes = addBytes(filmBytes(pf.film), multiplyBytes(multiplyBytes(pixels, spp), kBytesPerVertex));
+        estimate.what = "film " + std::to_string(pf.film.width) + " x " + std::to_string(pf.film.height) + " and " +
+                        std::to_string(spp) + " eye vertices per pixel";
+        return estimate;
+    };
+    return {spec, [] { return std::make_unique<EyePass>(); }, preflight, memory};
 }
 
 }  // namespace fg

@@ -81,7 +81,13 @@ PassRegistration filmNoisePass() {
          "batches before the estimate is trusted (the variance of fewer is itself too noisy)"},
     };
     spec.signals = {"converged"};
-    return {spec, [] { return std::make_unique<FilmNoisePass>(); }};
+    // Per pixel: the previous sums and weights and two running moments.
+    const auto memory = [](const PreflightContext& pf) {
+        const std::uint64_t pixels = static_cast<std::uint64_t>(pf.film.width) * static_cast<std::uint64_t>(pf.film.height);
+        return MemoryEstimate{multiplyBytes(pixels, sizeof(Rgb) + sizeof(float) + 2 * sizeof(double)),
+                              "noise statistics of " + std::to_string(pixels) + " pixels", {}};
+    };
+    return {spec, [] { return std::make_unique<FilmNoisePass>(); }, {}, memory};
 }
 
 }  // namespace fg

@@ -433,11 +433,11 @@ public:
         // hold the photons of the paths traced, renormalised to that count; the
         // batches already handed over keep the planned count as their divisor
         // (emitted), which a reader that stops early rescales.
-        bool anyStreamed = false, allSatisfied = true;
+        bool anyStreamed = false, allSatisfied = true, interrupted = false;
         const auto handOverMap = [&]<class Map>(const char* slot, std::shared_ptr<Map>& batch, Map*& map) {
             if (!batch) return;
             anyStreamed = true;
-            if (!batch->photons.empty()) {
+            if (!batch->photons.empty() || interrupted) {
                 const auto next = std::make_shared<Map>();
                 next->emitted = batch->emitted;
                 if constexpr (std::is_same_v<Map, PhotonMap>) next->hasDifferentials = batch->hasDifferentials;
@@ -522,6 +522,17 @@ public:
                 ctx.addCounter("stopped_by_readers", 1);
                 break;
             }
+            ctx.completedUnit();
+            // Interrupted: stored maps are renormalised below to the paths traced;
+            // streamed ones end with a batch (empty) whose `emitted` is that count,
+            // from which their readers rescale what they took. A volume-photon
+            // target runs to its end (the count is the point of it).
+            if (!targetMode && batchStart < settings.photons && ctx.stopRequested()) {
+                ctx.keptPartial(ctx.instanceName() + ": " + std::to_string(batchStart) + " of " +
+                                std::to_string(settings.photons) + " photon paths");
+                interrupted = true;
+                break;
+            }
             ctx.reportProgress(targetMode ? static_cast<double>(storedVolume) /
                                                 static_cast<double>(settings.volumeTarget)
                                           : static_cast<double>(batchStart) / static_cast<double>(settings.photons));
@@ -596,7 +607,40 @@ PassRegistration photonPass() {
                              std::to_string(pf.params.getInt("volume_photons")) + " needs store = \"volume\" or \"all\"");
         }
     };
-    return {spec, [] { return std::make_unique<PhotonPass>(); }, preflight};
+    // How many photons a path stores cannot be known before tracing: a caustic
+    // map holds only paths that met a specular surface first, an open scene's
+    // paths escape. So the estimate counts what is certain or typical: a
+    // volume map with a volume_photons target holds exactly that many; a
+    // global map one photon per path (the Cornell box stores 2.3; an open
+    // scene fewer); a caustic map nothing. A streamed map holds one batch,
+    // and tracing holds one batch of records.
+    const auto memory = [](const PreflightContext& pf) {
+        constexpr std::uint64_t kSurfacePhoton = 5 * sizeof(Vec3) + sizeof(Rgb) + sizeof(std::uint8_t);
+        constexpr std::uint64_t kVolumePhoton = 2 * sizeof(Vec3) + sizeof(Rgb) + sizeof(std::uint8_t);
+        const auto photons = static_cast<std::uint64_t>(pf.params.getInt("photons"));
+        const auto volumeTarget = static_cast<std::uint64_t>(pf.params.getInt("volume_photons"));
+        const auto batch = std::min(photons, static_cast<std::uint64_t>(pf.params.getInt("batch_size")));
+        const std::string& store = pf.params.getString("store");
+        const auto streamed = [&](const char* slot) { return pf.outputStreamed && pf.outputStreamed(slot); };
+        MemoryEstimate estimate;
+        estimate.bytes = multiplyBytes(batch, kSurfacePhoton);
+        estimate.what = "one batch of " + std::to_string(batch) + " paths";
+        const bool global = (store == "global" || store == "surface" || store == "all") &&
+                            !pf.params.getBool("caustic_only_paths") && volumeTarget == 0;
+        if (global && !streamed("global_photons")) {
+            estimate.bytes = addBytes(estimate.bytes, multiplyBytes(photons, kSurfacePhoton));
+            estimate.what = std::to_string(photons) + " photon paths, one " + std::to_string(kSurfacePhoton) +
+                            "-byte global photon per path assumed";
+            estimate.hint = "lower `photons`, or use a pipeline whose readers take batches with stream_batches = true "
+                            "(pds, lt: one batch of batch_size paths is held)";
+        }
+        if (volumeTarget > 0 && (store == "volume" || store == "all")) {
+            estimate.bytes = addBytes(estimate.bytes, multiplyBytes(volumeTarget, kVolumePhoton));
+            estimate.what += ", " + std::to_string(volumeTarget) + " volume photons";
+        }
+        return estimate;
+    };
+    return {spec, [] { return std::make_unique<PhotonPass>(); }, preflight, memory};
 }
 
 }  // namespace fg

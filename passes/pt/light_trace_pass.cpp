@@ -85,6 +85,8 @@ public:
     void consumeBatch(PassContext& ctx, const std::string& slot) override {
         if (slot != "caustic_photons" && slot != "global_photons") return;
         const PhotonMap& map = ctx.input<PhotonMap>(slot);
+        if (plannedPaths_ == 0) plannedPaths_ = map.emitted;
+        tracedPaths_ = map.emitted;
         if (map.photons.empty()) return;
         prepare(ctx);
         const Scene& scene = ctx.scene();
@@ -174,7 +176,13 @@ public:
             total.occluded += part.occluded;
             total.outsideView += part.outsideView;
         }
-        image.addToPixels(total.pixels, 1.0f);
+        // Batches streamed before an interrupt carry powers for the planned
+        // count of paths; fewer were traced (the last, empty batch says how many).
+        const float plannedPerTraced = tracedPaths_ > 0 && tracedPaths_ < plannedPaths_
+                                       ? static_cast<float>(static_cast<double>(plannedPaths_) /
+                                                            static_cast<double>(tracedPaths_))
+                                       : 1.0f;
+        image.addToPixels(total.pixels, plannedPerTraced);
         ctx.addCounter("connected_photons", total.connected);
         ctx.addCounter("occluded_photons", total.occluded);
         ctx.addCounter("photons_outside_view", total.outsideView);
@@ -207,6 +215,9 @@ private:
     float rasterPerImagePlane_ = 0.0f;
     float filterIntegral_ = 1.0f;
     std::vector<ConnectAccumulator> blocks_;
+    // The photon paths the powers of the first and of the last batch were
+    // divided by: they differ when an interrupt cut the photon pass short.
+    std::uint64_t plannedPaths_ = 0, tracedPaths_ = 0;
 };
 
 }  // namespace
@@ -228,7 +239,18 @@ PassRegistration lightTracePass() {
                              "transmittance); render it with pt");
         }
     };
-    return {spec, [] { return std::make_unique<LightTracePass>(); }, preflight};
+    // The film, the summed image and the per-block accumulators (as many as
+    // fit kAccumulatorBudget, at least one, at most 64).
+    const auto memory = [](const PreflightContext& pf) {
+        const std::uint64_t image =
+            multiplyBytes(static_cast<std::uint64_t>(pf.film.width) * static_cast<std::uint64_t>(pf.film.height), sizeof(Rgb));
+        const std::uint64_t blocks = std::clamp<std::uint64_t>(kAccumulatorBudget / std::max<std::uint64_t>(image, 1), 1, 64);
+        return MemoryEstimate{addBytes(addBytes(filmBytes(pf.film), image), multiplyBytes(image, blocks)),
+                              "film " + std::to_string(pf.film.width) + " x " + std::to_string(pf.film.height) + " and " +
+                                  std::to_string(blocks) + " connection accumulators",
+                              {}};
+    };
+    return {spec, [] { return std::make_unique<LightTracePass>(); }, preflight, memory};
 }
 
 }  // namespace fg

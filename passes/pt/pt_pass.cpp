@@ -72,12 +72,28 @@ private:
     std::int64_t start_;
 };
 
-// Traces the wave of samples [firstSample, firstSample + count) in SoA stages.
+// Samples [firstSample, firstSample + samples) of each pixel in [firstPixel,
+// firstPixel + pixels), stored pixel by pixel. Sample s of pixel p draws from
+// the stream keyed by p * spp + s whatever the grouping, so a pixel's samples
+// are the same however the render is cut into waves and sample passes.
+struct SampleRange {
+    std::size_t firstPixel = 0;
+    std::size_t pixels = 0;
+    std::uint64_t firstSample = 0;
+    std::size_t samples = 1;
+    std::size_t count() const { return pixels * samples; }
+    std::uint32_t pixel(std::size_t i) const { return static_cast<std::uint32_t>(firstPixel + i / samples); }
+    std::uint64_t key(std::size_t i, std::uint64_t spp) const {
+        return static_cast<std::uint64_t>(pixel(i)) * spp + firstSample + i % samples;
+    }
+};
+
+// Traces the samples of `range` in SoA stages.
 // Returns the number of path segments traced (closest-hit queries).
 std::int64_t traceWave(const PathTracerScene& pts, const Camera& camera, std::uint64_t seed, std::uint64_t stream,
-                       const Settings& settings,
-                       std::uint64_t firstSample, std::size_t count, PathBuffer& paths) {
+                       const Settings& settings, const SampleRange& range, PathBuffer& paths) {
     std::int64_t segments = 0;
+    const std::size_t count = range.count();
     paths.resize(count);
     auto rays = paths.column<PathRay>();
     auto hits = paths.column<PathHit>();
@@ -96,9 +112,8 @@ std::int64_t traceWave(const PathTracerScene& pts, const Camera& camera, std::ui
     jobs::parallelForChunks(count, kGrain, [&](jobs::IndexRange r) {
         ChunkClock clock(timeNs, std::span<const std::uint32_t>(active).subspan(r.begin, r.size()));
         for (std::size_t i = r.begin; i != r.end; ++i) {
-            const std::uint64_t sample = firstSample + i;
-            const auto pixel = static_cast<std::uint32_t>(sample / static_cast<std::uint64_t>(settings.spp));
-            rngs[i] = jobs::Rng(seed, stream, sample);
+            const std::uint32_t pixel = range.pixel(i);
+            rngs[i] = jobs::Rng(seed, stream, range.key(i, static_cast<std::uint64_t>(settings.spp)));
             const Vec2 jitter = rngs[i].uniform2();
             raster[i] = Vec2(static_cast<float>(pixel % static_cast<std::uint32_t>(camera.width)),
                              static_cast<float>(pixel / static_cast<std::uint32_t>(camera.width))) + jitter;
@@ -150,25 +165,23 @@ std::int64_t traceWave(const PathTracerScene& pts, const Camera& camera, std::ui
 }
 
 std::int64_t traceTile(const PathTracerScene& pts, const Camera& camera, std::uint64_t seed, std::uint64_t stream,
-                       const Settings& settings,
-                       std::uint64_t firstSample, std::size_t count, PathBuffer& paths) {
+                       const Settings& settings, const SampleRange& range, PathBuffer& paths) {
     std::atomic<std::int64_t> segments{0};
-    paths.resize(count);
+    paths.resize(range.count());
     auto radiance = paths.column<PathRadiance>();
     auto raster = paths.column<PathRaster>();
     auto timeNs = paths.column<PathTimeNs>();
-    const auto spp = static_cast<std::uint64_t>(settings.spp);
+    const std::size_t samples = range.samples;
     // One chunk = whole pixels, so each pixel's samples run back to back.
-    const std::size_t pixelGrain = std::max<std::size_t>(1, kGrain / spp);
-    jobs::parallelForChunks(count / spp, pixelGrain, [&](jobs::IndexRange pixels) {
+    const std::size_t pixelGrain = std::max<std::size_t>(1, kGrain / samples);
+    jobs::parallelForChunks(range.pixels, pixelGrain, [&](jobs::IndexRange pixels) {
         std::int64_t chunkSegments = 0;
         for (std::size_t localPixel = pixels.begin; localPixel != pixels.end; ++localPixel) {
             const std::int64_t start = jobs::wallNanos();
-            for (std::uint64_t s = 0; s < spp; ++s) {
-                const std::size_t i = localPixel * spp + s;
-                const std::uint64_t sample = firstSample + i;
-                const auto pixel = static_cast<std::uint32_t>(sample / spp);
-                jobs::Rng rng(seed, stream, sample);
+            for (std::size_t s = 0; s < samples; ++s) {
+                const std::size_t i = localPixel * samples + s;
+                const std::uint32_t pixel = range.pixel(i);
+                jobs::Rng rng(seed, stream, range.key(i, static_cast<std::uint64_t>(settings.spp)));
                 const Vec2 jitter = rng.uniform2();
                 raster[i] = Vec2(static_cast<float>(pixel % static_cast<std::uint32_t>(camera.width)),
                                  static_cast<float>(pixel / static_cast<std::uint32_t>(camera.width))) + jitter;
@@ -186,8 +199,8 @@ std::int64_t traceTile(const PathTracerScene& pts, const Camera& camera, std::ui
                 }
                 radiance[i] = L;
             }
-            const float perSample = static_cast<float>(jobs::wallNanos() - start) / static_cast<float>(spp);
-            for (std::uint64_t s = 0; s < spp; ++s) timeNs[localPixel * spp + s] = perSample;
+            const float perSample = static_cast<float>(jobs::wallNanos() - start) / static_cast<float>(samples);
+            for (std::size_t s = 0; s < samples; ++s) timeNs[localPixel * samples + s] = perSample;
         }
         segments += chunkSegments;
     });
@@ -229,34 +242,66 @@ public:
         std::vector<float>& sampleAov = film.aov("samples");
         const std::size_t pixelCount = film.pixelCount();
         const auto spp = static_cast<std::size_t>(settings.spp);
-        // Waves hold whole pixels so that each film round has every sample of its pixels.
-        const std::size_t pixelsPerWave = std::max<std::size_t>(1, settings.waveSize / spp);
+        // Sample passes: each gives every pixel the same number of further
+        // samples, so the film after any of them is a complete (if noisier)
+        // image, normalised by its weights; they are the units an interrupt
+        // stops at. A pass is about one wave (all samples at once when the
+        // whole image fits in a wave, as small renders do).
+        const std::size_t passSamples = std::clamp<std::size_t>(settings.waveSize / pixelCount, 1, spp);
+        // Waves hold whole pixels so that each film round has every sample of its pixels in the pass.
+        const std::size_t pixelsPerWave = std::max<std::size_t>(1, settings.waveSize / passSamples);
 
         PathBuffer paths;
-        for (std::size_t firstPixel = 0; firstPixel < pixelCount; firstPixel += pixelsPerWave) {
-            const std::size_t pixels = std::min(pixelsPerWave, pixelCount - firstPixel);
-            const std::uint64_t firstSample = static_cast<std::uint64_t>(firstPixel) * spp;
-            const std::int64_t segments =
-                settings.wavefront ? traceWave(pts, camera, ctx.seed(), ctx.streamKey(), settings, firstSample, pixels * spp, paths)
-                                   : traceTile(pts, camera, ctx.seed(), ctx.streamKey(), settings, firstSample, pixels * spp, paths);
-            ctx.addCounter("path_segments", segments);
-            // A non-finite sample would poison every pixel its filter reaches.
-            for (Rgb& L : paths.column<PathRadiance>())
-                if (!isFinite(L)) L = Rgb(0.0f);
-            film.addRound({firstPixel, pixels, settings.spp, paths.column<PathRaster>(),
-                           paths.column<PathRadiance>()});
-            const auto times = paths.column<PathTimeNs>();
-            for (std::size_t px = 0; px < pixels; ++px) {
-                float sum = 0.0f;
-                for (std::size_t s = 0; s < spp; ++s) sum += times[px * spp + s];
-                timeAov[firstPixel + px] += sum;
-                sampleAov[firstPixel + px] += static_cast<float>(spp);
+        for (std::size_t passStart = 0; passStart < spp; passStart += passSamples) {
+            const std::size_t samples = std::min(passSamples, spp - passStart);
+            for (std::size_t firstPixel = 0; firstPixel < pixelCount; firstPixel += pixelsPerWave) {
+                const SampleRange range{firstPixel, std::min(pixelsPerWave, pixelCount - firstPixel), passStart, samples};
+                const std::int64_t segments =
+                    settings.wavefront ? traceWave(pts, camera, ctx.seed(), ctx.streamKey(), settings, range, paths)
+                                       : traceTile(pts, camera, ctx.seed(), ctx.streamKey(), settings, range, paths);
+                ctx.addCounter("path_segments", segments);
+                // A non-finite sample would poison every pixel its filter reaches.
+                for (Rgb& L : paths.column<PathRadiance>())
+                    if (!isFinite(L)) L = Rgb(0.0f);
+                film.addRound({firstPixel, range.pixels, static_cast<int>(samples), paths.column<PathRaster>(),
+                               paths.column<PathRadiance>()});
+                const auto times = paths.column<PathTimeNs>();
+                for (std::size_t px = 0; px < range.pixels; ++px) {
+                    float sum = 0.0f;
+                    for (std::size_t s = 0; s < samples; ++s) sum += times[px * samples + s];
+                    timeAov[firstPixel + px] += sum;
+                    sampleAov[firstPixel + px] += static_cast<float>(samples);
+                }
+                ctx.addItems(static_cast<std::int64_t>(range.count()));
+                ctx.reportProgress((static_cast<double>(passStart) * static_cast<double>(pixelCount) +
+                                    static_cast<double>((firstPixel + range.pixels) * samples)) /
+                                   (static_cast<double>(pixelCount) * static_cast<double>(spp)));
             }
-            ctx.addItems(static_cast<std::int64_t>(pixels * spp));
-            ctx.reportProgress(static_cast<double>(firstPixel + pixels) / static_cast<double>(pixelCount));
+            ctx.completedUnit();
+            const std::size_t done = passStart + samples;
+            if (done < spp && ctx.stopRequested()) {
+                ctx.keptPartial(ctx.instanceName() + ": " + std::to_string(done) + " of " + std::to_string(spp) +
+                                " samples per pixel");
+                break;
+            }
         }
     }
 };
+
+// The film (sums and the time_ns and samples AOVs) and one wave of paths.
+MemoryEstimate pathTracerMemory(const PreflightContext& pf) {
+    const auto spp = static_cast<std::uint64_t>(pf.params.getInt("spp"));
+    const std::uint64_t pixels = static_cast<std::uint64_t>(pf.film.width) * static_cast<std::uint64_t>(pf.film.height);
+    const std::uint64_t wave = std::min(multiplyBytes(pixels, spp), static_cast<std::uint64_t>(pf.params.getInt("wave_size")));
+    constexpr std::uint64_t kBytesPerPath = sizeof(Ray) + sizeof(Hit) + 2 * sizeof(Rgb) + sizeof(PathHistory) +
+                                            sizeof(jobs::Rng) + sizeof(ShadowRequest) + sizeof(Vec2) + sizeof(float) +
+                                            sizeof(std::uint32_t) + sizeof(std::uint8_t);  // + active, alive
+    MemoryEstimate estimate;
+    estimate.bytes = addBytes(filmBytes(pf.film, 2), multiplyBytes(wave, kBytesPerPath));
+    estimate.what = "film " + std::to_string(pf.film.width) + " x " + std::to_string(pf.film.height) + " and " +
+                    std::to_string(wave) + " paths in flight";
+    return estimate;
+}
 
 }  // namespace
 
@@ -281,7 +326,7 @@ PassRegistration pathTracerPass() {
         {"wave_size", ParamType::Int, std::int64_t{1 << 18}, 1, 1 << 26, {},
          "paths in flight per wave (memory vs. parallelism)"},
     };
-    return {spec, [] { return std::make_unique<PathTracerPass>(); }};
+    return {spec, [] { return std::make_unique<PathTracerPass>(); }, {}, pathTracerMemory};
 }
 
 }  // namespace fg

@@ -191,7 +191,11 @@ PassRegistration beamQueryPass() {
         {"kernel", ParamType::String, std::string("silverman"), 0, 0, {"silverman", "uniform"},
          "normalised 2D kernel K_i: silverman = 3/pi (1 - d^2/r^2)^2 / r^2, uniform = 1 / (pi r^2)"},
     };
-    return {spec, [] { return std::make_unique<BeamQueryPass>(); }};
+    const auto memory = [](const PreflightContext& pf) {
+        return MemoryEstimate{filmBytes(pf.film),
+                              "film " + std::to_string(pf.film.width) + " x " + std::to_string(pf.film.height), {}};
+    };
+    return {spec, [] { return std::make_unique<BeamQueryPass>(); }, {}, memory};
 }
 
 }  // namespace fg

@@ -227,7 +227,22 @@ PassRegistration volumeEyePass() {
         {"max_specular_depth", ParamType::Int, std::int64_t{16}, 0, 4096, {},
          "specular bounces followed before a camera path is given up (0: only directly seen surfaces)"},
     };
-    return {spec, [] { return std::make_unique<VolumeEyePass>(); }};
+    // The direct-light film, and per camera sample at most one eye vertex and one
+    // camera segment.
+    const auto memory = [](const PreflightContext& pf) {
+        const auto spp = static_cast<std::uint64_t>(pf.params.getInt("spp"));
+        const std::uint64_t samples =
+            multiplyBytes(static_cast<std::uint64_t>(pf.film.width) * static_cast<std::uint64_t>(pf.film.height), spp);
+        constexpr std::uint64_t kVertexBytes = 4 * sizeof(Vec3) + sizeof(std::uint32_t) + sizeof(Vec2) + sizeof(Rgb) +
+                                               sizeof(std::uint32_t);
+        constexpr std::uint64_t kSegmentBytes = 2 * sizeof(Vec3) + 2 * sizeof(float) + sizeof(std::int32_t) +
+                                                sizeof(std::uint32_t) + sizeof(Rgb);
+        return MemoryEstimate{addBytes(filmBytes(pf.film), multiplyBytes(samples, kVertexBytes + kSegmentBytes)),
+                              "film " + std::to_string(pf.film.width) + " x " + std::to_string(pf.film.height) + " and " +
+                                  std::to_string(spp) + " eye vertices and segments per pixel",
+                              {}};
+    };
+    return {spec, [] { return std::make_unique<VolumeEyePass>(); }, {}, memory};
 }
 
 }  // namespace fg
