@@ -652,7 +652,9 @@ Vec3 Props::readVec3(const Node& node, float fallbackComponent, const std::strin
 }
 
 // Spectrum values: one number (grey) or "wavelength:value" pairs with increasing wavelengths.
-Rgb readSpectrum(const Node& node, const std::string& what, bool* converted) {
+// On an emitter (`emission`), spectra convert as Mitsuba 3's RGB mode converts
+// them (spectrum.h): no white balance, and a single value is not grey.
+Rgb readSpectrum(const Node& node, const std::string& what, bool emission, bool* converted) {
     checkAttributes(node, {"name", "value", "filename", "intent"}, what);
     if (node.attribute("filename")) fail(node, what + ": spectra from files are not supported; give value=\"...\"");
     const std::string& text = requireAttribute(node, "value", what);
@@ -662,6 +664,10 @@ Rgb readSpectrum(const Node& node, const std::string& what, bool* converted) {
         if (!v) {
             fail(node, what + ": spectrum " + inQuotes(text) +
                            " must be one number or wavelength:value pairs (e.g. \"400:0.2, 700:0.8\")");
+        }
+        if (emission) {
+            *converted = *v >= 0.0;  // a negative value is reported as such, not clamped
+            return uniformEmissionToRgb(static_cast<float>(*v));
         }
         return Rgb(static_cast<float>(*v));
     }
@@ -680,7 +686,7 @@ Rgb readSpectrum(const Node& node, const std::string& what, bool* converted) {
     }
     if (samples.size() < 2) fail(node, what + ": a sampled spectrum needs at least two wavelength:value pairs");
     *converted = true;
-    return spectrumToRgb(samples);
+    return emission ? emissionSpectrumToRgb(samples) : spectrumToRgb(samples);
 }
 
 std::optional<Rgb> Props::colour(std::string_view name, ColourUse use) {
@@ -718,7 +724,7 @@ std::optional<Rgb> Props::colour(std::string_view name, ColourUse use) {
             c = Rgb(srgbToLinear(c.x), srgbToLinear(c.y), srgbToLinear(c.z));
         }
     } else if (n.tag == "spectrum") {
-        c = readSpectrum(n, context, &converted);
+        c = readSpectrum(n, context, kind_ == "emitter", &converted);
     } else {
         fail(n, param + " must be a colour (<rgb>, <srgb>, <spectrum> or <float>), not <" + n.tag + ">");
     }

@@ -37,7 +37,9 @@
 //   <spectrum value="0.5"> (grey) or value="400:0.1, 500:0.7, ..." (converted to
 //   linear sRGB by engine/scene/spectrum.h: white-balanced so that a flat spectrum is grey;
 //   reflectances are clamped to [0, 1] and other quantities to >= 0 afterwards, as
-//   Mitsuba clamps out-of-gamut conversions). An <integer> is accepted where a float is.
+//   Mitsuba clamps out-of-gamut conversions). On an emitter both convert as Mitsuba 3's
+//   RGB mode does: no white balance, and value="v" is v * sRGB(XYZ = 1, 1, 1), not grey.
+//   An <integer> is accepted where a float is.
 //
 // Sensor (exactly one)
 //   perspective   fov (default: focal_length) + fov_axis x|y|diagonal|smaller|larger
