@@ -987,14 +987,26 @@ private:
 
     // ---- integrator, sensor, film -------------------------------------------------
 
+    // Mitsuba's max_depth counts the vertices of a path, the camera's included:
+    // 1 shows emitters only, 2 is direct light, -1 is unlimited. fluxgraph's
+    // max_depth counts scattering events (surface or medium), so it is one less;
+    // -1 stays unlimited. Mitsuba's `direct` integrator has no max_depth and
+    // renders exactly what max_depth = 2 renders.
     void readIntegrator(const Node& node) {
         checkAttributes(node, {"type", "id", "name"});
-        // Only the depth is read; the job file chooses the algorithm.
+        // Only the depth is read; the job file chooses the algorithm. Wrapping
+        // integrators (moment, aov) pass it on from the one they wrap.
+        const Node* depthOwner = nullptr;
         const Node* depth = nullptr;
         std::vector<const Node*> stack = {&node};
         while (!stack.empty() && !depth) {
             const Node* n = stack.back();
             stack.pop_back();
+            const std::string* type = n->attribute("type");
+            if (type && (*type == "direct" || *type == "direct_projective")) {
+                depthOwner = n;
+                break;
+            }
             for (const Node& child : n->children) {
                 if (child.tag == "integer" && child.attribute("name") && *child.attribute("name") == "max_depth") {
                     depth = &child;
@@ -1004,12 +1016,22 @@ private:
             for (auto it = n->children.rbegin(); it != n->children.rend(); ++it)
                 if (it->tag == "integrator") stack.push_back(&*it);
         }
+        if (depthOwner) {
+            scene_.hints.maxDepth = 1;
+            return;
+        }
         if (!depth) return;
         checkAttributes(*depth, {"name", "value"});
         const std::string& text = requireAttribute(*depth, "value");
         const std::optional<long long> v = parseInteger(text);
         if (!v || *v < -1 || *v > 100000) fail(*depth, "integrator max_depth " + inQuotes(text) + " must be an integer >= -1");
-        scene_.hints.maxDepth = static_cast<int>(*v);
+        if (*v == 0 || *v == 1) {
+            fail(*depth, "integrator max_depth " + inQuotes(text) +
+                             " is not supported: Mitsuba's max_depth counts the camera vertex, so " +
+                             (*v == 0 ? "0 renders nothing" : "1 shows only emitters seen directly") +
+                             "; fluxgraph renders at least one scattering event (max_depth >= 2)");
+        }
+        scene_.hints.maxDepth = *v < 0 ? -1 : static_cast<int>(*v) - 1;
     }
 
     void readSensor(const Node& node) {

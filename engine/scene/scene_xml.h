@@ -60,8 +60,11 @@
 //                 exposure, key, burn. crop_* only when it is the full frame.
 //   sampler       any of Mitsuba's samplers: sample_count -> Scene::hints.samplesPerPixel;
 //                 accepted, no effect: seed, jitter, scramble, dimension.
-//   <integrator>  only max_depth is read (-> hints.maxDepth; found also inside nested
-//                 integrators); the job file chooses the rendering pipeline.
+//   <integrator>  only the depth is read (-> hints.maxDepth; found also inside nested
+//                 integrators such as moment); the job file chooses the rendering pipeline.
+//                 Mitsuba's max_depth counts path vertices with the camera's (2 = direct
+//                 light), fluxgraph's counts scattering events: hints.maxDepth = max_depth - 1,
+//                 -1 stays unlimited, 0 and 1 are errors; type direct gives 1.
 //
 // Shapes
 //   obj, ply      filename; face_normals (false: vertex normals from the file, else

@@ -133,7 +133,7 @@ TEST(SceneXml, MitsubaCornellBoxFilesLoad) {
         EXPECT_NEAR(scene.camera.nearClip, 10.0f, 1e-6f);
         EXPECT_NEAR(scene.camera.farClip, 2800.0f, 1e-3f);
         EXPECT_EQ(scene.hints.samplesPerPixel, c.spp);
-        EXPECT_EQ(scene.hints.maxDepth, 6);
+        EXPECT_EQ(scene.hints.maxDepth, 5);  // Mitsuba's 6 path vertices: 5 scattering events
         EXPECT_EQ(scene.hints.filter, c.filter);
         // The luminaire sits 0.5 below the ceiling (y = 548.8).
         const auto& luminaire = std::get<TriangleMesh>(scene.shapes[0].geometry);
@@ -166,9 +166,9 @@ TEST(SceneXml, DefinesOverrideDefaults) {
     EXPECT_EQ(scene.hints.samplesPerPixel, 16);
     EXPECT_EQ(scene.camera.width, 48);
     EXPECT_EQ(scene.camera.height, 48);
-    EXPECT_EQ(scene.hints.maxDepth, 6);  // its default stays
+    EXPECT_EQ(scene.hints.maxDepth, 5);  // its default (Mitsuba's 6) stays
     // Through the generic loader too.
-    EXPECT_EQ(loadScene(path, {{"max_depth", "3"}}).hints.maxDepth, 3);
+    EXPECT_EQ(loadScene(path, {{"max_depth", "3"}}).hints.maxDepth, 2);
     // A define the scene does not know is a typo, not something to ignore.
     const std::string message = loadError(path, {{"sample_count", "4"}}).what();
     EXPECT_TRUE(contains(message, "sample_count")) << message;
@@ -740,7 +740,7 @@ TEST(SceneXml, Mitsuba06NamesAndDefaults) {
 </scene>
 )";
     const Scene scene = loadXmlScene(writeFile(dir / "old.xml", text).string());
-    EXPECT_EQ(scene.hints.maxDepth, 5);
+    EXPECT_EQ(scene.hints.maxDepth, 4);  // 0.x counts path vertices as Mitsuba 3 does
     EXPECT_EQ(scene.hints.samplesPerPixel, 64);
     EXPECT_NEAR(scene.camera.fovYDegrees, 30.0f, 1e-5f);
     EXPECT_NEAR(scene.camera.nearClip, 0.5f, 1e-6f);
