@@ -193,7 +193,8 @@ int main(int argc, char** argv) {
         return 0;
     } catch (const fg::InputError& e) {
         // Messages quote keys, values and paths from the input, which may hold any bytes.
-        std::cerr << fg::printableMessage(e.what()) << "\n";
+        if (e.problems().empty()) std::cerr << fg::printableMessage(e.what()) << "\n";
+        for (const std::string& problem : e.problems()) std::cerr << fg::printableMessage(problem) << "\n";
         return kInputErrorExit;
     } catch (const std::exception& e) {
         std::cerr << "fluxgraph: internal error: " << fg::printableMessage(e.what()) << "\n";

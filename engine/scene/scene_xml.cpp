@@ -858,35 +858,62 @@ class SceneBuilder {
 public:
     SceneBuilder(Scene& scene, const FileResolver& resolver) : scene_(scene), resolver_(resolver) {}
 
+    // Every top-level element is read even when an earlier one has a problem,
+    // so that one load reports all of a scene's problems (up to kMaxProblems),
+    // each as its own "file:line: plugin 'type': message" line.
     void build(const Node& root) {
         collectIds(root);
         bool sawSensor = false, sawIntegrator = false;
         for (const Node& child : root.children) {
-            const std::string& tag = child.tag;
-            if (tag == "sensor") {
-                if (sawSensor) fail(child, "more than one <sensor>; fluxgraph renders one camera");
-                sawSensor = true;
-                readSensor(child);
-            } else if (tag == "integrator") {
-                if (sawIntegrator) fail(child, "more than one <integrator>");
-                sawIntegrator = true;
-                readIntegrator(child);
-            } else if (tag == "shape") {
-                readShape(child);
-            } else if (tag == "emitter") {
-                readTopLevelEmitter(child);
-            } else if (tag == "bsdf" || tag == "texture" || tag == "medium" || tag == "phase") {
-                if (!child.attribute("id")) {
-                    fail(child, "a top-level <" + tag + "> needs an id (shapes refer to it with <ref id=\"...\"/>)");
-                }
-                buildObject(child);
-            } else if (kValueTags.count(tag) || tag == "ref") {
-                fail(child, "<" + tag + "> is not allowed at the top level of a scene");
-            } else {
-                fail(child, "unknown element <" + tag + ">");
+            try {
+                readTopLevel(child, sawSensor, sawIntegrator);
+            } catch (const InputError& e) {
+                record(e);
             }
         }
-        if (!sawSensor) throw InputError(root.file->path, root.line, "the scene has no <sensor>");
+        if (!sawSensor) record(InputError(root.file->path, root.line, "the scene has no <sensor>"));
+        if (problems_.size() == 1) throw firstProblem_.value();
+        if (!problems_.empty()) throw InputError(problems_);
+    }
+
+    static constexpr std::size_t kMaxProblems = 50;
+
+    void record(const InputError& e) {
+        // A broken shared object (a bsdf with an id) is met again by every shape that uses it.
+        const std::string message = e.what();
+        if (std::find(problems_.begin(), problems_.end(), message) != problems_.end()) return;
+        if (!firstProblem_) firstProblem_ = e;
+        problems_.push_back(message);
+        if (problems_.size() == kMaxProblems) {
+            problems_.push_back("(stopped after " + std::to_string(kMaxProblems) + " problems)");
+            throw InputError(problems_);
+        }
+    }
+
+    void readTopLevel(const Node& child, bool& sawSensor, bool& sawIntegrator) {
+        const std::string& tag = child.tag;
+        if (tag == "sensor") {
+            if (sawSensor) fail(child, "more than one <sensor>; fluxgraph renders one camera");
+            sawSensor = true;
+            readSensor(child);
+        } else if (tag == "integrator") {
+            if (sawIntegrator) fail(child, "more than one <integrator>");
+            sawIntegrator = true;
+            readIntegrator(child);
+        } else if (tag == "shape") {
+            readShape(child);
+        } else if (tag == "emitter") {
+            readTopLevelEmitter(child);
+        } else if (tag == "bsdf" || tag == "texture" || tag == "medium" || tag == "phase") {
+            if (!child.attribute("id")) {
+                fail(child, "a top-level <" + tag + "> needs an id (shapes refer to it with <ref id=\"...\"/>)");
+            }
+            buildObject(child);
+        } else if (kValueTags.count(tag) || tag == "ref") {
+            fail(child, "<" + tag + "> is not allowed at the top level of a scene");
+        } else {
+            fail(child, "unknown element <" + tag + ">");
+        }
     }
 
     // Children of a plugin element, with <ref>s resolved.
@@ -1628,6 +1655,8 @@ private:
     std::unordered_map<const Node*, Rgb> areaRadiance_;
     std::set<const Node*> building_;
     int defaultBsdf_ = -1;
+    std::vector<std::string> problems_;
+    std::optional<InputError> firstProblem_;
 };
 
 Props::Props(SceneBuilder& builder, const Node& node, std::string kind) : node_(node), kind_(std::move(kind)) {

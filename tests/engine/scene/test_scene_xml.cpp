@@ -883,3 +883,56 @@ TEST(SceneXml, RenderHintsFillUnsetPassParameters) {
 
 }  // namespace
 }  // namespace fg
+
+namespace fg {
+namespace {
+
+// Every problem of a scene is reported by one load, each on its own line with
+// its file:line and plugin; a broken shared object is reported once.
+TEST(SceneXml, ReportsEveryProblemAtOnce) {
+    const fs::path dir = scratchDir();
+    const std::string text = sceneText(R"(    <bsdf type="diffuse" id="shared"><float name="roughness" value="1"/></bsdf>
+    <shape type="sphere"><ref id="shared"/></shape>
+    <shape type="sphere"><ref id="shared"/></shape>
+    <shape type="hyperboloid"/>
+    <emitter type="point"><rgb name="intensity" value="-1"/></emitter>
+    <emitter type="constant"><rgb name="radiance" value="1"/></emitter>
+    <texture type="bitmap" id="unused"/>
+)");
+    const fs::path path = writeFile(dir / "scene.xml", text);
+    const InputError error = loadError(path);
+    const std::vector<std::string>& problems = error.problems();
+    ASSERT_EQ(problems.size(), 4u) << error.what();
+    const std::string file = path.string() + ":";
+    EXPECT_TRUE(contains(problems[0], file + std::to_string(lineOf(text, "roughness")) + ": bsdf 'diffuse'")) << problems[0];
+    EXPECT_TRUE(contains(problems[1], file + std::to_string(lineOf(text, "hyperboloid")) + ": shape 'hyperboloid'")) << problems[1];
+    EXPECT_TRUE(contains(problems[2], file + std::to_string(lineOf(text, "\"-1\"")) + ": emitter 'point'")) << problems[2];
+    EXPECT_TRUE(contains(problems[3], file + std::to_string(lineOf(text, "<texture")) + ": texture 'bitmap'")) << problems[3];
+    // what() holds the same lines.
+    const std::string all = error.what();
+    EXPECT_EQ(std::count(all.begin(), all.end(), '\n'), 3);
+}
+
+// One problem keeps the single-error form (file and line of the element).
+TEST(SceneXml, OneProblemIsOneError) {
+    const fs::path dir = scratchDir();
+    const std::string text = sceneText("    <shape type=\"hyperboloid\"/>\n");
+    const fs::path path = writeFile(dir / "scene.xml", text);
+    const InputError error = loadError(path);
+    EXPECT_TRUE(error.problems().empty());
+    EXPECT_EQ(error.line(), lineOf(text, "hyperboloid"));
+}
+
+// A scene with more problems than anyone reads stops at a cap, saying so.
+TEST(SceneXml, ProblemReportIsCapped) {
+    const fs::path dir = scratchDir();
+    std::string body;
+    for (int i = 0; i < 80; ++i) body += "    <shape type=\"hyperboloid" + std::to_string(i) + "\"/>\n";
+    const fs::path path = writeFile(dir / "scene.xml", sceneText(body));
+    const InputError error = loadError(path);
+    ASSERT_EQ(error.problems().size(), 51u);
+    EXPECT_TRUE(contains(error.problems().back(), "stopped after 50 problems")) << error.problems().back();
+}
+
+}  // namespace
+}  // namespace fg
