@@ -10,6 +10,8 @@
 // type or parameter, a malformed or out-of-range value, a missing file or id,
 // a parameter value it does not implement -- is an fg::InputError
 // "file:LINE: <plugin> '<type>': message" naming the element's file and line.
+// Every top-level element is read, so one load reports all such problems (up
+// to 50), one line each (InputError::problems).
 // Nothing is silently dropped; the exceptions, which do not change what a
 // pinhole path tracer computes, are listed as "accepted, no effect" below.
 //
@@ -83,7 +85,8 @@
 //   diffuse          reflectance (texture, 0.5)
 //   dielectric       int_ior ("bk7"), ext_ior ("air"), numbers or Mitsuba's names;
 //                    specular_reflectance, specular_transmittance (1)
-//   thindielectric   int_ior, ext_ior
+//   thindielectric   int_ior, ext_ior; its straight-through transmission is a null event, as
+//                    in Mitsuba 3 (no depth; shadow rays pass with its transmittance)
 //   roughdielectric  int_ior, ext_ior, alpha (0.1) or alpha_u = alpha_v, distribution
 //   conductor        material (preset: Au, Ag, Al, Cu, Cr, none) or eta + k; ext_eta;
 //                    specular_reflectance
@@ -107,7 +110,8 @@
 //                 beam_width (3/4 cutoff_angle)
 //   directional   direction or to_world (+z); irradiance (1)
 //   constant      radiance (1)
-//   envmap        filename, scale (1), to_world (rotation only)
+//   envmap        filename, scale (1), to_world (rotation only); looked up as Mitsuba 3 does
+//                 (rows on the corners, v (height - 1); engine/shading/light.cpp)
 //
 // Media
 //   homogeneous   sigma_t (1) + albedo (0.75), or sigma_s + sigma_a (0.x scenes must give
