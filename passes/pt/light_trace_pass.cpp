@@ -22,7 +22,9 @@
 // radiance averaged over the pixel).
 //
 // Visibility and the surface's BSDF come from a ray from the camera towards
-// x_p: the photon is seen only if that ray's first hit lies at x_p. Photons
+// x_p: the photon is seen only if that ray's first hit lies at x_p, or if the
+// surfaces before it have null events (null boundaries, thindielectric), whose
+// transmittance then scales the contribution. Photons
 // the camera sees only through specular surfaces (L ... D S+ E) cannot be
 // connected and are missing from the image, as is emission seen directly; the
 // image holds exactly the light of the photon maps it is given (all surface
