@@ -171,7 +171,9 @@ bool advancePathAtSurface(const PathTracerScene& pts, const PathLimits& limits, 
     // crosses a null boundary, and only a real event counts and scatters.
     std::optional<BsdfSample> chosen;
     if (bsdf->hasNullLobe()) {
-        chosen = bsdf->sample(wo, sp.uv, s.rng.uniform(), s.rng.uniform2(), TransportMode::Radiance);
+        const float uLobe = s.rng.uniform();  // drawn in a fixed order, not as call arguments
+        const Vec2 uDir = s.rng.uniform2();
+        chosen = bsdf->sample(wo, sp.uv, uLobe, uDir, TransportMode::Radiance);
         if (!chosen || chosen->pdf <= 0.0f || isBlack(chosen->weight)) return false;
         if (chosen->lobe & BsdfLobe::Null) {
             beta *= chosen->weight;
