@@ -241,7 +241,8 @@ int main(int argc, char** argv) {
         return kInterruptedExit;
     } catch (const fg::InputError& e) {
         // Messages quote keys, values and paths from the input, which may hold any bytes.
-        std::cerr << fg::printableMessage(e.what()) << "\n";
+        if (e.problems().empty()) std::cerr << fg::printableMessage(e.what()) << "\n";
+        for (const std::string& problem : e.problems()) std::cerr << fg::printableMessage(problem) << "\n";
         return kInputErrorExit;
     } catch (const std::bad_alloc&) {
         // Passes name themselves (the scheduler); this is loading, building or writing.

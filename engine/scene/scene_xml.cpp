@@ -652,7 +652,9 @@ Vec3 Props::readVec3(const Node& node, float fallbackComponent, const std::strin
 }
 
 // Spectrum values: one number (grey) or "wavelength:value" pairs with increasing wavelengths.
-Rgb readSpectrum(const Node& node, const std::string& what, bool* converted) {
+// On an emitter (`emission`), spectra convert as Mitsuba 3's RGB mode converts
+// them (spectrum.h): no white balance, and a single value is not grey.
+Rgb readSpectrum(const Node& node, const std::string& what, bool emission, bool* converted) {
     checkAttributes(node, {"name", "value", "filename", "intent"}, what);
     if (node.attribute("filename")) fail(node, what + ": spectra from files are not supported; give value=\"...\"");
     const std::string& text = requireAttribute(node, "value", what);
@@ -662,6 +664,10 @@ Rgb readSpectrum(const Node& node, const std::string& what, bool* converted) {
         if (!v) {
             fail(node, what + ": spectrum " + inQuotes(text) +
                            " must be one number or wavelength:value pairs (e.g. \"400:0.2, 700:0.8\")");
+        }
+        if (emission) {
+            *converted = *v >= 0.0;  // a negative value is reported as such, not clamped
+            return uniformEmissionToRgb(static_cast<float>(*v));
         }
         return Rgb(static_cast<float>(*v));
     }
@@ -680,7 +686,7 @@ Rgb readSpectrum(const Node& node, const std::string& what, bool* converted) {
     }
     if (samples.size() < 2) fail(node, what + ": a sampled spectrum needs at least two wavelength:value pairs");
     *converted = true;
-    return spectrumToRgb(samples);
+    return emission ? emissionSpectrumToRgb(samples) : spectrumToRgb(samples);
 }
 
 std::optional<Rgb> Props::colour(std::string_view name, ColourUse use) {
@@ -718,7 +724,7 @@ std::optional<Rgb> Props::colour(std::string_view name, ColourUse use) {
             c = Rgb(srgbToLinear(c.x), srgbToLinear(c.y), srgbToLinear(c.z));
         }
     } else if (n.tag == "spectrum") {
-        c = readSpectrum(n, context, &converted);
+        c = readSpectrum(n, context, kind_ == "emitter", &converted);
     } else {
         fail(n, param + " must be a colour (<rgb>, <srgb>, <spectrum> or <float>), not <" + n.tag + ">");
     }
@@ -852,35 +858,62 @@ class SceneBuilder {
 public:
     SceneBuilder(Scene& scene, const FileResolver& resolver) : scene_(scene), resolver_(resolver) {}
 
+    // Every top-level element is read even when an earlier one has a problem,
+    // so that one load reports all of a scene's problems (up to kMaxProblems),
+    // each as its own "file:line: plugin 'type': message" line.
     void build(const Node& root) {
         collectIds(root);
         bool sawSensor = false, sawIntegrator = false;
         for (const Node& child : root.children) {
-            const std::string& tag = child.tag;
-            if (tag == "sensor") {
-                if (sawSensor) fail(child, "more than one <sensor>; fluxgraph renders one camera");
-                sawSensor = true;
-                readSensor(child);
-            } else if (tag == "integrator") {
-                if (sawIntegrator) fail(child, "more than one <integrator>");
-                sawIntegrator = true;
-                readIntegrator(child);
-            } else if (tag == "shape") {
-                readShape(child);
-            } else if (tag == "emitter") {
-                readTopLevelEmitter(child);
-            } else if (tag == "bsdf" || tag == "texture" || tag == "medium" || tag == "phase") {
-                if (!child.attribute("id")) {
-                    fail(child, "a top-level <" + tag + "> needs an id (shapes refer to it with <ref id=\"...\"/>)");
-                }
-                buildObject(child);
-            } else if (kValueTags.count(tag) || tag == "ref") {
-                fail(child, "<" + tag + "> is not allowed at the top level of a scene");
-            } else {
-                fail(child, "unknown element <" + tag + ">");
+            try {
+                readTopLevel(child, sawSensor, sawIntegrator);
+            } catch (const InputError& e) {
+                record(e);
             }
         }
-        if (!sawSensor) throw InputError(root.file->path, root.line, "the scene has no <sensor>");
+        if (!sawSensor) record(InputError(root.file->path, root.line, "the scene has no <sensor>"));
+        if (problems_.size() == 1) throw firstProblem_.value();
+        if (!problems_.empty()) throw InputError(problems_);
+    }
+
+    static constexpr std::size_t kMaxProblems = 50;
+
+    void record(const InputError& e) {
+        // A broken shared object (a bsdf with an id) is met again by every shape that uses it.
+        const std::string message = e.what();
+        if (std::find(problems_.begin(), problems_.end(), message) != problems_.end()) return;
+        if (!firstProblem_) firstProblem_ = e;
+        problems_.push_back(message);
+        if (problems_.size() == kMaxProblems) {
+            problems_.push_back("(stopped after " + std::to_string(kMaxProblems) + " problems)");
+            throw InputError(problems_);
+        }
+    }
+
+    void readTopLevel(const Node& child, bool& sawSensor, bool& sawIntegrator) {
+        const std::string& tag = child.tag;
+        if (tag == "sensor") {
+            if (sawSensor) fail(child, "more than one <sensor>; fluxgraph renders one camera");
+            sawSensor = true;
+            readSensor(child);
+        } else if (tag == "integrator") {
+            if (sawIntegrator) fail(child, "more than one <integrator>");
+            sawIntegrator = true;
+            readIntegrator(child);
+        } else if (tag == "shape") {
+            readShape(child);
+        } else if (tag == "emitter") {
+            readTopLevelEmitter(child);
+        } else if (tag == "bsdf" || tag == "texture" || tag == "medium" || tag == "phase") {
+            if (!child.attribute("id")) {
+                fail(child, "a top-level <" + tag + "> needs an id (shapes refer to it with <ref id=\"...\"/>)");
+            }
+            buildObject(child);
+        } else if (kValueTags.count(tag) || tag == "ref") {
+            fail(child, "<" + tag + "> is not allowed at the top level of a scene");
+        } else {
+            fail(child, "unknown element <" + tag + ">");
+        }
     }
 
     // Children of a plugin element, with <ref>s resolved.
@@ -981,14 +1014,26 @@ private:
 
     // ---- integrator, sensor, film -------------------------------------------------
 
+    // Mitsuba's max_depth counts the vertices of a path, the camera's included:
+    // 1 shows emitters only, 2 is direct light, -1 is unlimited. fluxgraph's
+    // max_depth counts scattering events (surface or medium), so it is one less;
+    // -1 stays unlimited. Mitsuba's `direct` integrator has no max_depth and
+    // renders exactly what max_depth = 2 renders.
     void readIntegrator(const Node& node) {
         checkAttributes(node, {"type", "id", "name"});
-        // Only the depth is read; the job file chooses the algorithm.
+        // Only the depth is read; the job file chooses the algorithm. Wrapping
+        // integrators (moment, aov) pass it on from the one they wrap.
+        const Node* depthOwner = nullptr;
         const Node* depth = nullptr;
         std::vector<const Node*> stack = {&node};
         while (!stack.empty() && !depth) {
             const Node* n = stack.back();
             stack.pop_back();
+            const std::string* type = n->attribute("type");
+            if (type && (*type == "direct" || *type == "direct_projective")) {
+                depthOwner = n;
+                break;
+            }
             for (const Node& child : n->children) {
                 if (child.tag == "integer" && child.attribute("name") && *child.attribute("name") == "max_depth") {
                     depth = &child;
@@ -998,12 +1043,22 @@ private:
             for (auto it = n->children.rbegin(); it != n->children.rend(); ++it)
                 if (it->tag == "integrator") stack.push_back(&*it);
         }
+        if (depthOwner) {
+            scene_.hints.maxDepth = 1;
+            return;
+        }
         if (!depth) return;
         checkAttributes(*depth, {"name", "value"});
         const std::string& text = requireAttribute(*depth, "value");
         const std::optional<long long> v = parseInteger(text);
         if (!v || *v < -1 || *v > 100000) fail(*depth, "integrator max_depth " + inQuotes(text) + " must be an integer >= -1");
-        scene_.hints.maxDepth = static_cast<int>(*v);
+        if (*v == 0 || *v == 1) {
+            fail(*depth, "integrator max_depth " + inQuotes(text) +
+                             " is not supported: Mitsuba's max_depth counts the camera vertex, so " +
+                             (*v == 0 ? "0 renders nothing" : "1 shows only emitters seen directly") +
+                             "; fluxgraph renders at least one scattering event (max_depth >= 2)");
+        }
+        scene_.hints.maxDepth = *v < 0 ? -1 : static_cast<int>(*v) - 1;
     }
 
     void readSensor(const Node& node) {
@@ -1616,6 +1671,8 @@ private:
     std::unordered_map<const Node*, Rgb> areaRadiance_;
     std::set<const Node*> building_;
     int defaultBsdf_ = -1;
+    std::vector<std::string> problems_;
+    std::optional<InputError> firstProblem_;
 };
 
 Props::Props(SceneBuilder& builder, const Node& node, std::string kind) : node_(node), kind_(std::move(kind)) {

@@ -10,6 +10,8 @@
 // type or parameter, a malformed or out-of-range value, a missing file or id,
 // a parameter value it does not implement -- is an fg::InputError
 // "file:LINE: <plugin> '<type>': message" naming the element's file and line.
+// Every top-level element is read, so one load reports all such problems (up
+// to 50), one line each (InputError::problems).
 // Nothing is silently dropped; the exceptions, which do not change what a
 // pinhole path tracer computes, are listed as "accepted, no effect" below.
 //
@@ -37,7 +39,9 @@
 //   <spectrum value="0.5"> (grey) or value="400:0.1, 500:0.7, ..." (converted to
 //   linear sRGB by engine/scene/spectrum.h: white-balanced so that a flat spectrum is grey;
 //   reflectances are clamped to [0, 1] and other quantities to >= 0 afterwards, as
-//   Mitsuba clamps out-of-gamut conversions). An <integer> is accepted where a float is.
+//   Mitsuba clamps out-of-gamut conversions). On an emitter both convert as Mitsuba 3's
+//   RGB mode does: no white balance, and value="v" is v * sRGB(XYZ = 1, 1, 1), not grey.
+//   An <integer> is accepted where a float is.
 //
 // Sensor (exactly one)
 //   perspective   fov (default: focal_length) + fov_axis x|y|diagonal|smaller|larger
@@ -58,8 +62,11 @@
 //                 exposure, key, burn. crop_* only when it is the full frame.
 //   sampler       any of Mitsuba's samplers: sample_count -> Scene::hints.samplesPerPixel;
 //                 accepted, no effect: seed, jitter, scramble, dimension.
-//   <integrator>  only max_depth is read (-> hints.maxDepth; found also inside nested
-//                 integrators); the job file chooses the rendering pipeline.
+//   <integrator>  only the depth is read (-> hints.maxDepth; found also inside nested
+//                 integrators such as moment); the job file chooses the rendering pipeline.
+//                 Mitsuba's max_depth counts path vertices with the camera's (2 = direct
+//                 light), fluxgraph's counts scattering events: hints.maxDepth = max_depth - 1,
+//                 -1 stays unlimited, 0 and 1 are errors; type direct gives 1.
 //
 // Shapes
 //   obj, ply      filename; face_normals (false: vertex normals from the file, else
@@ -78,7 +85,8 @@
 //   diffuse          reflectance (texture, 0.5)
 //   dielectric       int_ior ("bk7"), ext_ior ("air"), numbers or Mitsuba's names;
 //                    specular_reflectance, specular_transmittance (1)
-//   thindielectric   int_ior, ext_ior
+//   thindielectric   int_ior, ext_ior; its straight-through transmission is a null event, as
+//                    in Mitsuba 3 (no depth; shadow rays pass with its transmittance)
 //   roughdielectric  int_ior, ext_ior, alpha (0.1) or alpha_u = alpha_v, distribution
 //   conductor        material (preset: Au, Ag, Al, Cu, Cr, none) or eta + k; ext_eta;
 //                    specular_reflectance
@@ -104,7 +112,8 @@
 //                 beam_width (3/4 cutoff_angle)
 //   directional   direction or to_world (+z); irradiance (1)
 //   constant      radiance (1)
-//   envmap        filename, scale (1), to_world (rotation only)
+//   envmap        filename, scale (1), to_world (rotation only); looked up as Mitsuba 3 does
+//                 (rows on the corners, v (height - 1); engine/shading/light.cpp)
 //
 // Media
 //   homogeneous   sigma_t (1) + albedo (0.75), or sigma_s + sigma_a (0.x scenes must give

@@ -106,4 +106,8 @@ Rgb spectrumToRgb(std::span<const SpectrumSample> samples) {
     return xyzToLinearSrgb(spectrumToXyz(samples)) / equalEnergyWhiteSrgb();
 }
 
+Rgb emissionSpectrumToRgb(std::span<const SpectrumSample> samples) { return xyzToLinearSrgb(spectrumToXyz(samples)); }
+
+Rgb uniformEmissionToRgb(float value) { return value * xyzToLinearSrgb(Vec3(1.0f)); }
+
 }  // namespace fg

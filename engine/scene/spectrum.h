@@ -11,11 +11,12 @@
 // that white so that a constant spectrum 1 maps to (1, 1, 1) (a von Kries
 // adaptation from E to the working space's white). Reflectances so stay within
 // [0, 1] for any spectrum within [0, 1], and a grey spectrum stays grey.
-// Emission spectra go through the same conversion: radiance keeps its
-// luminance scale and a flat emitter is white.
 //
-// Mitsuba's own RGB conversion (spectrum_list_to_srgb) skips that last
-// division; multiply by equalEnergyWhiteSrgb() to compare with its numbers.
+// Emission spectra are converted as Mitsuba 3's RGB variants convert them, so
+// that an emitter renders as it does there: the tristimulus values go to
+// linear sRGB without that division (a flat emission spectrum is the slightly
+// purple (1.205, 0.948, 0.909) times its value, not white), and a single value
+// v on an emitter is v times the sRGB of XYZ = (1, 1, 1).
 #pragma once
 
 #include "engine/core/math.h"
@@ -55,5 +56,11 @@ Rgb equalEnergyWhiteSrgb();
 // Linear sRGB, white-balanced so that a constant spectrum 1 maps to (1, 1, 1).
 // Out-of-gamut results may have negative components; callers clamp as their use requires.
 Rgb spectrumToRgb(std::span<const SpectrumSample> samples);
+
+// Linear sRGB of an emission spectrum, not white-balanced (as Mitsuba 3's RGB
+// mode); may be negative out of gamut.
+Rgb emissionSpectrumToRgb(std::span<const SpectrumSample> samples);
+// Linear sRGB of the constant emission spectrum `value`: value * sRGB(XYZ = 1, 1, 1).
+Rgb uniformEmissionToRgb(float value);
 
 }  // namespace fg

@@ -142,7 +142,11 @@ public:
     explicit ThinDielectricBsdf(float eta) : eta_(eta) {}
 
     std::uint32_t lobes() const override {
-        return BsdfLobe::Reflection | BsdfLobe::Transmission | BsdfLobe::Specular;
+        return BsdfLobe::Reflection | BsdfLobe::Transmission | BsdfLobe::Specular | BsdfLobe::Null;
+    }
+    Rgb nullTransmission(const Vec3& w, const Vec2&) const override {
+        if (w.z == 0.0f) return Rgb(0.0f);
+        return Rgb(1.0f - slabReflectance(absCosTheta(w)));
     }
     Rgb eval(const Vec3&, const Vec3&, const Vec2&, TransportMode) const override { return Rgb(0.0f); }
     float pdf(const Vec3&, const Vec3&, const Vec2&) const override { return 0.0f; }
@@ -150,8 +154,7 @@ public:
     std::optional<BsdfSample> sample(const Vec3& wo, const Vec2&, float uLobe, const Vec2&,
                                      TransportMode) const override {
         if (wo.z == 0.0f) return std::nullopt;
-        const float single = fresnelDielectric(absCosTheta(wo), eta_);
-        const float reflectance = single < 1.0f ? 2.0f * single / (1.0f + single) : 1.0f;
+        const float reflectance = slabReflectance(absCosTheta(wo));
         BsdfSample s;
         s.weight = Rgb(1.0f);
         if (uLobe < reflectance) {
@@ -161,12 +164,18 @@ public:
         } else {
             s.wi = -wo;
             s.pdf = 1.0f - reflectance;
-            s.lobe = BsdfLobe::Transmission | BsdfLobe::Specular;
+            s.lobe = BsdfLobe::Transmission | BsdfLobe::Specular | BsdfLobe::Null;
         }
         return s;
     }
 
 private:
+    // Both faces and all internal reflections, incoherently: R + T^2 R / (1 - R^2) = 2R / (1 + R).
+    float slabReflectance(float cosTheta) const {
+        const float single = fresnelDielectric(cosTheta, eta_);
+        return single < 1.0f ? 2.0f * single / (1.0f + single) : 1.0f;
+    }
+
     float eta_;
 };
 
@@ -666,6 +675,7 @@ private:
 class NullBsdf final : public Bsdf {
 public:
     std::uint32_t lobes() const override { return BsdfLobe::Null; }
+    Rgb nullTransmission(const Vec3&, const Vec2&) const override { return Rgb(1.0f); }
     Rgb eval(const Vec3&, const Vec3&, const Vec2&, TransportMode) const override { return Rgb(0.0f); }
     float pdf(const Vec3&, const Vec3&, const Vec2&) const override { return 0.0f; }
     std::optional<BsdfSample> sample(const Vec3& wo, const Vec2&, float, const Vec2&, TransportMode) const override {
@@ -685,6 +695,9 @@ public:
     explicit TwoSidedBsdf(std::shared_ptr<Bsdf> inner) : inner_(std::move(inner)) {}
 
     std::uint32_t lobes() const override { return inner_->lobes(); }
+    Rgb nullTransmission(const Vec3& w, const Vec2& uv) const override {
+        return inner_->nullTransmission(w.z < 0.0f ? flipZ(w) : w, uv);
+    }
 
     Rgb eval(const Vec3& wo, const Vec3& wi, const Vec2& uv, TransportMode mode) const override {
         if (wo.z < 0.0f) return inner_->eval(flipZ(wo), flipZ(wi), uv, mode);

@@ -61,7 +61,20 @@ public:
         return std::nullopt;
     }
 
+    // Light that goes straight through, as if there were no surface, for w (the
+    // direction either way, local frame): Mitsuba's null events. A path that
+    // samples such an event (BsdfLobe::Null in the sample) continues without a
+    // scattering vertex -- it counts no depth and keeps the previous vertex for
+    // MIS -- and shadow rays pass with this factor. Zero for opaque materials.
+    virtual Rgb nullTransmission(const Vec3& w, const Vec2& uv) const {
+        (void)w;
+        (void)uv;
+        return Rgb(0.0f);
+    }
+
     bool isNull() const { return lobes() == BsdfLobe::Null; }
+    // Some of the light may pass as a null event (thindielectric, null).
+    bool hasNullLobe() const { return (lobes() & BsdfLobe::Null) != 0; }
     bool hasSmoothLobe() const { return (lobes() & (BsdfLobe::Diffuse | BsdfLobe::Glossy)) != 0; }
     bool isPurelySpecular() const { return !hasSmoothLobe() && !isNull(); }
 };
@@ -86,6 +99,9 @@ std::shared_ptr<Bsdf> makeDiffuse(std::shared_ptr<Texture> reflectance);
 // eta = interior IOR / exterior IOR. The interior is the side the normal points away from.
 std::shared_ptr<Bsdf> makeDielectric(float eta, const Rgb& specularReflectance = Rgb(1.0f),
                                      const Rgb& specularTransmittance = Rgb(1.0f));
+// Thin slab of IOR eta, Mitsuba's `thindielectric`: its straight-through
+// transmission is a null event (BsdfLobe::Null, nullTransmission = 1 - R of the
+// slab), as Mitsuba 3 flags it.
 std::shared_ptr<Bsdf> makeThinDielectric(float eta);
 std::shared_ptr<Bsdf> makeConductor(const ConductorIor& ior, const Rgb& specularReflectance = Rgb(1.0f));
 // Microfacet conductor, alpha = roughness of the GGX or Beckmann distribution

@@ -17,16 +17,18 @@
 //     f(theta) = (theta_c - theta) / (theta_c - theta_b),   theta_b < theta < theta_c.
 //   Its solid-angle integral is 2 pi [1 - (sin theta_c - sin theta_b) / (theta_c - theta_b)]
 //   (2 pi (1 - cos theta_c) when the two angles coincide), which is power / I.
-// - Environment maps use Mitsuba's lat-long layout: with theta measured from the
-//   map's +Y axis and phi = atan2(x, -z) in [0, 2 pi), u = phi / (2 pi) and
-//   v = theta / pi; pixel (x, y) covers [x, x+1) / width by [y, y+1) / height,
-//   top row first, so the top row looks up (+Y) and u = 0 looks down -Z.
-//   Radiance is reconstructed bilinearly between pixel centres (wrapping in u,
-//   clamping in v); the sampling density over (u, v) is piecewise constant per
-//   pixel, proportional to the luminance of that reconstruction integrated over
-//   the pixel (a separable [1/8, 3/4, 1/8] filter of the pixel luminances)
-//   times sin(theta) at the pixel centre. Its solid-angle density is
-//   pdf(u, v) / (2 pi^2 sin theta).
+// - Environment maps use Mitsuba 3's lat-long layout and lookup: with theta
+//   measured from the map's +Y axis and phi = atan2(x, -z) in [0, 2 pi),
+//   u = phi / (2 pi) and v = theta / pi. Columns are texel-centred and wrap:
+//   column x sits at u = (x + 1/2) / width. Rows are corner-aligned: row y sits
+//   at v = y / (height - 1), so the top row is the radiance straight up (+Y) and
+//   the bottom row straight down (Mitsuba's envmap evaluates at v (height - 1)).
+//   Radiance is bilinear between those texels. The sampling density over (u, v)
+//   is piecewise constant on the same bilinear patches (between columns x, x+1
+//   and rows y, y+1), proportional to the luminance of the patch integrated
+//   over it (the mean of its four corners, exact for a bilinear function) times
+//   sin(theta) at the patch centre, so every patch with light is sampled. Its
+//   solid-angle density is pdf(u, v) / (2 pi^2 sin theta).
 // - An area light on a mesh emits on the side its winding faces (right-hand rule,
 //   the orientation ray queries report; flips are already baked into the
 //   winding), a sphere outwards unless Shape::flipNormals turns it inwards.
@@ -314,32 +316,24 @@ public:
             image_ = RgbImage{1, 1, {Rgb(0.0f)}};
         }
         const int w = image_.width, h = image_.height;
-        // Integral of the bilinear reconstruction over each pixel: separable [1/8, 3/4, 1/8].
-        constexpr std::array<float, 3> kCellFilter{0.125f, 0.75f, 0.125f};
-        std::vector<Rgb> cellMean(static_cast<std::size_t>(w) * h, Rgb(0.0f));
-        for (int y = 0; y < h; ++y)
-            for (int x = 0; x < w; ++x) {
-                Rgb sum(0.0f);
-                for (int dy = -1; dy <= 1; ++dy)
-                    for (int dx = -1; dx <= 1; ++dx)
-                        sum += kCellFilter[dx + 1] * kCellFilter[dy + 1] * texel(x + dx, y + dy);
-                cellMean[static_cast<std::size_t>(y) * w + x] = sum * scale_;
-            }
-        std::vector<float> weights(cellMean.size());
+        // Bilinear patches: w between columns (wrapping), h - 1 between rows (one for a single row).
+        patchRows_ = std::max(1, h - 1);
+        std::vector<float> weights(static_cast<std::size_t>(w) * patchRows_);
         Rgb radiantIntegral(0.0f);  // integral of L over the sphere of directions
-        for (int y = 0; y < h; ++y) {
-            const float theta0 = kPi * static_cast<float>(y) / static_cast<float>(h);
-            const float theta1 = kPi * static_cast<float>(y + 1) / static_cast<float>(h);
+        for (int y = 0; y < patchRows_; ++y) {
+            const float theta0 = kPi * static_cast<float>(y) / static_cast<float>(patchRows_);
+            const float theta1 = kPi * static_cast<float>(y + 1) / static_cast<float>(patchRows_);
             const float sinCentre = std::sin(0.5f * (theta0 + theta1));
-            const float cellSolidAngle = 2.0f * kPi / static_cast<float>(w) * (std::cos(theta0) - std::cos(theta1));
+            const float patchSolidAngle = 2.0f * kPi / static_cast<float>(w) * (std::cos(theta0) - std::cos(theta1));
             for (int x = 0; x < w; ++x) {
-                const Rgb& mean = cellMean[static_cast<std::size_t>(y) * w + x];
+                const Rgb mean =
+                    0.25f * scale_ * (texel(x, y) + texel(x + 1, y) + texel(x, y + 1) + texel(x + 1, y + 1));
                 weights[static_cast<std::size_t>(y) * w + x] = std::max(0.0f, luminance(mean)) * sinCentre;
-                radiantIntegral += mean * cellSolidAngle;
+                radiantIntegral += mean * patchSolidAngle;
             }
         }
         radiantIntegral_ = radiantIntegral;
-        distribution_ = Distribution2D(weights, w, h);
+        distribution_ = Distribution2D(weights, w, patchRows_);
     }
 
     bool isDelta() const override { return false; }
@@ -362,7 +356,7 @@ public:
         const Vec3 local = glm::normalize(toLocal_ * wi);
         const float sinTheta = std::sqrt(local.x * local.x + local.z * local.z);
         if (!(sinTheta > 0.0f)) return 0.0f;
-        return distribution_.pdf(localToUv(local)) / (2.0f * kPi * kPi * sinTheta);
+        return distribution_.pdf(uvToPatchSpace(localToUv(local))) / (2.0f * kPi * kPi * sinTheta);
     }
 
     Rgb environment(const Vec3& dir) const override { return lookup(localToUv(glm::normalize(toLocal_ * dir))); }
@@ -396,7 +390,7 @@ private:
 
     Rgb lookup(const Vec2& uv) const {
         const float fx = uv.x * static_cast<float>(image_.width) - 0.5f;
-        const float fy = uv.y * static_cast<float>(image_.height) - 0.5f;
+        const float fy = uv.y * static_cast<float>(image_.height - 1);
         const float x0 = std::floor(fx), y0 = std::floor(fy);
         const float tx = fx - x0, ty = fy - y0;
         const int ix = static_cast<int>(x0), iy = static_cast<int>(y0);
@@ -413,9 +407,18 @@ private:
         return {u, v};
     }
 
+    // Patch space: u shifted by half a column, so that patch x starts at column x's centre.
+    Vec2 uvToPatchSpace(const Vec2& uv) const {
+        float s = uv.x - 0.5f / static_cast<float>(image_.width);
+        if (s < 0.0f) s += 1.0f;
+        return {std::min(s, 0x1.fffffep-1f), uv.y};
+    }
+
     bool sampleDirection(const Vec2& u, Vec3* wi, Vec2* uv, float* pdf) const {
         float pdfUv = 0.0f;
         *uv = distribution_.sample(u, &pdfUv);
+        uv->x += 0.5f / static_cast<float>(image_.width);
+        if (uv->x >= 1.0f) uv->x -= 1.0f;
         const float theta = kPi * uv->y, phi = 2.0f * kPi * uv->x;
         const float sinTheta = std::sin(theta);
         if (!(pdfUv > 0.0f) || !(sinTheta > 0.0f)) return false;
@@ -428,6 +431,7 @@ private:
     RgbImage image_;
     float scale_;
     Mat3 toWorld_, toLocal_;
+    int patchRows_ = 1;
     Distribution2D distribution_;
     Rgb radiantIntegral_{0.0f};
     SceneDisk disk_;

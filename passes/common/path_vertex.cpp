@@ -71,7 +71,7 @@ bool russianRoulette(const PathLimits& limits, PathVertexState& s) {
 PathTracerScene::PathTracerScene(const Scene& s, const RayQuery& r) : scene(s), rays(r), infiniteLights(s.infiniteLights()) {
     shadowsNeedTransmittance = !s.media.empty();
     for (const Shape& shape : s.shapes) {
-        if (shape.bsdf < 0 || s.bsdfs[static_cast<std::size_t>(shape.bsdf)]->isNull()) shadowsNeedTransmittance = true;
+        if (shape.bsdf < 0 || s.bsdfs[static_cast<std::size_t>(shape.bsdf)]->hasNullLobe()) shadowsNeedTransmittance = true;
     }
 }
 
@@ -162,9 +162,28 @@ bool advancePathAtSurface(const PathTracerScene& pts, const PathLimits& limits, 
         return true;
     }
 
-    if (++h.depth > limits.maxDepth) return false;
     const Frame frame(sp.ns);
     const Vec3 wo = frame.toLocal(-s.ray.direction);
+
+    // A material that lets part of the light straight through (thindielectric)
+    // chooses first: a null event is no scattering vertex (Mitsuba 3 counts
+    // neither its depth nor its MIS vertex), so the path crosses it as it
+    // crosses a null boundary, and only a real event counts and scatters.
+    std::optional<BsdfSample> chosen;
+    if (bsdf->hasNullLobe()) {
+        const float uLobe = s.rng.uniform();  // drawn in a fixed order, not as call arguments
+        const Vec2 uDir = s.rng.uniform2();
+        chosen = bsdf->sample(wo, sp.uv, uLobe, uDir, TransportMode::Radiance);
+        if (!chosen || chosen->pdf <= 0.0f || isBlack(chosen->weight)) return false;
+        if (chosen->lobe & BsdfLobe::Null) {
+            beta *= chosen->weight;
+            h.medium = mediumAfterCrossing(shape, sp.ng, s.ray.direction, h.medium);
+            s.ray = Ray{offsetRayOrigin(sp.p, sp.ng, s.ray.direction), s.ray.direction, kInfinity};
+            return true;
+        }
+    }
+
+    if (++h.depth > limits.maxDepth) return false;
 
     if (bsdf->hasSmoothLobe()) {
         queueLightSample(pts, sp.p, sp.ng, &shape, h.medium, beta, s.rng,
@@ -178,9 +197,12 @@ bool advancePathAtSurface(const PathTracerScene& pts, const PathLimits& limits, 
                          shadow);
     }
 
-    const float uLobe = s.rng.uniform();
-    const Vec2 uDir = s.rng.uniform2();
-    const std::optional<BsdfSample> bs = bsdf->sample(wo, sp.uv, uLobe, uDir, TransportMode::Radiance);
+    if (!chosen) {
+        const float uLobe = s.rng.uniform();
+        const Vec2 uDir = s.rng.uniform2();
+        chosen = bsdf->sample(wo, sp.uv, uLobe, uDir, TransportMode::Radiance);
+    }
+    const std::optional<BsdfSample>& bs = chosen;
     if (!bs || bs->pdf <= 0.0f || isBlack(bs->weight)) return false;
     const Vec3 wi = frame.toWorld(bs->wi);
     if (glm::dot(wi, sp.ng) * bs->wi.z <= 0.0f) return false;
@@ -223,8 +245,14 @@ Rgb shadowTransmittance(const PathTracerScene& pts, const ShadowRequest& shadow)
         if (medium >= 0) transmittance *= segmentTransmittance(scene.media[static_cast<std::size_t>(medium)], segment);
         if (!hit.valid() || isBlack(transmittance)) return transmittance;
         const Shape& shape = scene.shapes[hit.shape];
-        if (shape.bsdf >= 0 && !scene.bsdfs[static_cast<std::size_t>(shape.bsdf)]->isNull()) return Rgb(0.0f);
+        const Bsdf* bsdf = shape.bsdf >= 0 ? scene.bsdfs[static_cast<std::size_t>(shape.bsdf)].get() : nullptr;
+        if (bsdf && !bsdf->hasNullLobe()) return Rgb(0.0f);
         const SurfacePoint sp = pts.rays.surface(ray, hit);
+        // What passes a surface with null events is the light its null event lets through.
+        if (bsdf) {
+            transmittance *= bsdf->nullTransmission(Frame(sp.ns).toLocal(ray.direction), sp.uv);
+            if (isBlack(transmittance)) return transmittance;
+        }
         medium = mediumAfterCrossing(shape, sp.ng, ray.direction, medium);
         const Vec3 origin = offsetRayOrigin(sp.p, sp.ng, ray.direction);
         ray.tMax -= glm::length(origin - ray.origin);

@@ -275,6 +275,26 @@ public:
                 ray = Ray{offsetRayOrigin(sp.p, sp.ng, direction), direction, kInfinity};
                 continue;
             }
+            const Frame frame(sp.ns);
+            const Vec3 wo = frame.toLocal(-direction);
+            // Straight-through transmission (thindielectric) is a null event as in
+            // the path tracer: the photon crosses as it crosses a null boundary,
+            // keeping its depth and class, so that light the eye passes gather
+            // by next-event estimation through the slab is not also a caustic.
+            std::optional<BsdfSample> chosen;
+            if (bsdf->hasNullLobe()) {
+                const float uLobe = rng.uniform();
+                const Vec2 uBsdf = rng.uniform2();
+                chosen = bsdf->sample(wo, sp.uv, uLobe, uBsdf, TransportMode::Importance);
+                if (!chosen || chosen->pdf <= 0.0f || isBlack(chosen->weight)) return;
+                if (chosen->lobe & BsdfLobe::Null) {
+                    if (++nullCrossings > kMaxNullCrossings) return;
+                    throughput *= chosen->weight;
+                    medium = mediumAfterCrossing(shape, sp.ng, direction, medium);
+                    ray = Ray{offsetRayOrigin(sp.p, sp.ng, direction), direction, kInfinity};
+                    continue;
+                }
+            }
             nullCrossings = 0;
             ++depth;
 
@@ -287,11 +307,12 @@ public:
             }
             if (depth >= settings_.maxDepth) return;
 
-            const Frame frame(sp.ns);
-            const Vec3 wo = frame.toLocal(-direction);
-            const float uLobe = rng.uniform();
-            const Vec2 uBsdf = rng.uniform2();
-            const std::optional<BsdfSample> bs = bsdf->sample(wo, sp.uv, uLobe, uBsdf, TransportMode::Importance);
+            if (!chosen) {
+                const float uLobe = rng.uniform();
+                const Vec2 uBsdf = rng.uniform2();
+                chosen = bsdf->sample(wo, sp.uv, uLobe, uBsdf, TransportMode::Importance);
+            }
+            const std::optional<BsdfSample>& bs = chosen;
             if (!bs || bs->pdf <= 0.0f || isBlack(bs->weight)) return;
             const Vec3 wi = frame.toWorld(bs->wi);
             const float cosGeometricIn = glm::dot(wi, sp.ng);

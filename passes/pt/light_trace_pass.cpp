@@ -22,7 +22,9 @@
 // radiance averaged over the pixel).
 //
 // Visibility and the surface's BSDF come from a ray from the camera towards
-// x_p: the photon is seen only if that ray's first hit lies at x_p. Photons
+// x_p: the photon is seen only if that ray's first hit lies at x_p, or if the
+// surfaces before it have null events (null boundaries, thindielectric), whose
+// transmittance then scales the contribution. Photons
 // the camera sees only through specular surfaces (L ... D S+ E) cannot be
 // connected and are missing from the image, as is emission seen directly; the
 // image holds exactly the light of the photon maps it is given (all surface
@@ -54,6 +56,8 @@ namespace {
 constexpr std::size_t kAccumulatorBudget = std::size_t{256} << 20;
 // Relative distance within which the camera ray's first hit counts as the photon's position.
 constexpr float kSameHitTolerance = 1e-3f;
+// Null-event surfaces a camera connection may cross; only degenerate geometry needs more.
+constexpr int kMaxConnectionCrossings = 64;
 
 struct ConnectAccumulator {
     std::vector<Rgb> pixels;
@@ -123,9 +127,27 @@ public:
                 ray.direction = toPhoton / distance;
                 const float tNear = camera_.nearClip / cosCamera;
                 ray.origin = camera_.eye + tNear * ray.direction;
-                const float rayLength = distance - tNear;
+                float rayLength = distance - tNear;
                 ray.tMax = rayLength + kSameHitTolerance * distance * 2.0f + kRayEpsilon;
-                const Hit hit = rays.intersect(ray);
+                Hit hit = rays.intersect(ray);
+                // Surfaces with null events in front of the photon (a thin glass pane, a
+                // null boundary) let the connection through with their transmittance.
+                Rgb transmittance(1.0f);
+                for (int crossing = 0; crossing < kMaxConnectionCrossings && hit.valid() &&
+                                       hit.t < rayLength - kSameHitTolerance * distance - kRayEpsilon;
+                     ++crossing) {
+                    const SurfacePoint blocker = rays.surface(ray, hit);
+                    const int blockerBsdf = scene.shapes[blocker.shape].bsdf;
+                    const Bsdf* bsdf = blockerBsdf >= 0 ? scene.bsdfs[static_cast<std::size_t>(blockerBsdf)].get() : nullptr;
+                    if (bsdf && !bsdf->hasNullLobe()) break;
+                    if (bsdf) transmittance *= bsdf->nullTransmission(Frame(blocker.ns).toLocal(ray.direction), blocker.uv);
+                    const Vec3 origin = offsetRayOrigin(blocker.p, blocker.ng, ray.direction);
+                    const float advanced = glm::dot(origin - ray.origin, ray.direction);
+                    ray.origin = origin;
+                    rayLength -= advanced;
+                    ray.tMax -= advanced;
+                    hit = rays.intersect(ray);
+                }
                 if (!hit.valid() || std::abs(hit.t - rayLength) > kSameHitTolerance * distance + kRayEpsilon) {
                     ++acc.occluded;
                     continue;
@@ -147,7 +169,7 @@ public:
                                  std::abs(wiLocal.z);
                 const float rasterPerArea =
                     rasterPerImagePlane_ * std::abs(glm::dot(surface.ng, wo)) / (sqr(distance) * cosCamera * sqr(cosCamera));
-                const Rgb value = power[p] * brdf * (rasterPerArea / filterIntegral_);
+                const Rgb value = power[p] * brdf * transmittance * (rasterPerArea / filterIntegral_);
                 if (!isFinite(value) || isBlack(value)) continue;
                 ++acc.connected;
                 const std::ptrdiff_t x0 = std::max<std::ptrdiff_t>(0, static_cast<std::ptrdiff_t>(std::floor(raster.x - reach)));

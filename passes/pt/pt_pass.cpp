@@ -2,8 +2,9 @@
 // estimation and multiple importance sampling (power heuristic, Veach 1997
 // §9.2), Russian roulette, and homogeneous participating media (chromatic
 // free-flight sampling with spectral MIS, HG phase function, shadow rays that
-// pass through index-matched `null` boundaries accumulating transmittance).
-// It is the ground truth for every other pipeline.
+// pass through index-matched `null` boundaries accumulating transmittance;
+// thindielectric's straight-through transmission is a null event too, as in
+// Mitsuba 3). It is the ground truth for every other pipeline.
 //
 // Two schedules share the same per-vertex code (path_vertex.h):
 //  - wavefront (default): paths of a wave live in SoA columns and advance stage
@@ -317,7 +318,8 @@ PassRegistration pathTracerPass() {
     spec.params = {
         {"spp", ParamType::Int, std::int64_t{16}, 1, 1 << 20, {}, "samples per pixel", "sample_count"},
         {"max_depth", ParamType::Int, std::int64_t{16}, 1, 4096, {},
-         "maximum number of scattering events (surface or medium) per path; 1 = direct/single scattering",
+         "maximum number of scattering events (surface or medium) per path; 1 = direct/single scattering "
+         "(Mitsuba's max_depth - 1)",
          "max_depth"},
         {"rr_depth", ParamType::Int, std::int64_t{5}, 1, 4096, {},
          "scattering events before Russian roulette may end a path"},

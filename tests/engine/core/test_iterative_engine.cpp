@@ -432,7 +432,7 @@ pipeline = "pt"
 scene_defines = { max_depth = 5, spp = 3 }
 )", sourcePath("data/jobs/test.toml"));
     const ExecutionPlan ptPlan = validateJob(ptJob);
-    EXPECT_EQ(ptPlan.passes()[0].params.getInt("max_depth"), 5);
+    EXPECT_EQ(ptPlan.passes()[0].params.getInt("max_depth"), 4);  // Mitsuba's 5 path vertices
     EXPECT_EQ(ptPlan.passes()[0].params.getInt("spp"), 3);
 }
 

@@ -133,7 +133,7 @@ TEST(SceneXml, MitsubaCornellBoxFilesLoad) {
         EXPECT_NEAR(scene.camera.nearClip, 10.0f, 1e-6f);
         EXPECT_NEAR(scene.camera.farClip, 2800.0f, 1e-3f);
         EXPECT_EQ(scene.hints.samplesPerPixel, c.spp);
-        EXPECT_EQ(scene.hints.maxDepth, 6);
+        EXPECT_EQ(scene.hints.maxDepth, 5);  // Mitsuba's 6 path vertices: 5 scattering events
         EXPECT_EQ(scene.hints.filter, c.filter);
         // The luminaire sits 0.5 below the ceiling (y = 548.8).
         const auto& luminaire = std::get<TriangleMesh>(scene.shapes[0].geometry);
@@ -152,7 +152,7 @@ TEST(SceneXml, MitsubaCornellBoxFilesLoad) {
         const Rgb radiance = scene.lights[0]->emitted(Vec3(0, -1, 0), Vec3(0, -1, 0));
         if (c.spectral) {
             const SpectrumSample light[] = {{400, 0}, {500, 8}, {600, 15.6f}, {700, 18.4f}};
-            expectNear(radiance, spectrumToRgb(light), 1e-4f, "radiance");
+            expectNear(radiance, emissionSpectrumToRgb(light), 1e-4f, "radiance");
         } else {
             expectNear(radiance, Rgb(18.387f, 10.9873f, 2.75357f), 1e-4f, "radiance");
         }
@@ -166,9 +166,9 @@ TEST(SceneXml, DefinesOverrideDefaults) {
     EXPECT_EQ(scene.hints.samplesPerPixel, 16);
     EXPECT_EQ(scene.camera.width, 48);
     EXPECT_EQ(scene.camera.height, 48);
-    EXPECT_EQ(scene.hints.maxDepth, 6);  // its default stays
+    EXPECT_EQ(scene.hints.maxDepth, 5);  // its default (Mitsuba's 6) stays
     // Through the generic loader too.
-    EXPECT_EQ(loadScene(path, {{"max_depth", "3"}}).hints.maxDepth, 3);
+    EXPECT_EQ(loadScene(path, {{"max_depth", "3"}}).hints.maxDepth, 2);
     // A define the scene does not know is a typo, not something to ignore.
     const std::string message = loadError(path, {{"sample_count", "4"}}).what();
     EXPECT_TRUE(contains(message, "sample_count")) << message;
@@ -770,7 +770,8 @@ TEST(SceneXml, EmittersAndMedia) {
     const auto sun = scene.lights[3]->sampleLi(Vec3(0, 0, 0), Vec2(0.5f));
     ASSERT_TRUE(sun.has_value());
     expectNear(sun->wi, Vec3(0, 1, 0), 1e-6f, "towards the directional light");
-    expectNear(sun->value, Rgb(3.0f), 1e-5f);
+    // A single-value <spectrum> on an emitter is not grey in Mitsuba 3's RGB mode (spectrum.h).
+    expectNear(sun->value, uniformEmissionToRgb(3.0f), 1e-5f);
     expectNear(scene.lights[4]->environment(Vec3(0, 1, 0)), Rgb(0.1f), 1e-6f);
     expectNear(scene.lights[5]->environment(Vec3(0, 1, 0)), Rgb(1.0f), 1e-4f);
     EXPECT_EQ(scene.infiniteLights().size(), 3u);
@@ -796,7 +797,7 @@ TEST(SceneXml, Mitsuba06NamesAndDefaults) {
 </scene>
 )";
     const Scene scene = loadXmlScene(writeFile(dir / "old.xml", text).string());
-    EXPECT_EQ(scene.hints.maxDepth, 5);
+    EXPECT_EQ(scene.hints.maxDepth, 4);  // 0.x counts path vertices as Mitsuba 3 does
     EXPECT_EQ(scene.hints.samplesPerPixel, 64);
     EXPECT_NEAR(scene.camera.fovYDegrees, 30.0f, 1e-5f);
     EXPECT_NEAR(scene.camera.nearClip, 0.5f, 1e-6f);
@@ -935,6 +936,59 @@ TEST(SceneXml, RenderHintsFillUnsetPassParameters) {
     EXPECT_EQ(fromHints.run.stats.front().items, 8 * 6 * 3);
     const RenderOutcome fromJob = render("[passes.pt]\nspp = 5\n");
     EXPECT_EQ(fromJob.run.stats.front().items, 8 * 6 * 5);
+}
+
+}  // namespace
+}  // namespace fg
+
+namespace fg {
+namespace {
+
+// Every problem of a scene is reported by one load, each on its own line with
+// its file:line and plugin; a broken shared object is reported once.
+TEST(SceneXml, ReportsEveryProblemAtOnce) {
+    const fs::path dir = scratchDir();
+    const std::string text = sceneText(R"(    <bsdf type="diffuse" id="shared"><float name="roughness" value="1"/></bsdf>
+    <shape type="sphere"><ref id="shared"/></shape>
+    <shape type="sphere"><ref id="shared"/></shape>
+    <shape type="hyperboloid"/>
+    <emitter type="point"><rgb name="intensity" value="-1"/></emitter>
+    <emitter type="constant"><rgb name="radiance" value="1"/></emitter>
+    <texture type="bitmap" id="unused"/>
+)");
+    const fs::path path = writeFile(dir / "scene.xml", text);
+    const InputError error = loadError(path);
+    const std::vector<std::string>& problems = error.problems();
+    ASSERT_EQ(problems.size(), 4u) << error.what();
+    const std::string file = path.string() + ":";
+    EXPECT_TRUE(contains(problems[0], file + std::to_string(lineOf(text, "roughness")) + ": bsdf 'diffuse'")) << problems[0];
+    EXPECT_TRUE(contains(problems[1], file + std::to_string(lineOf(text, "hyperboloid")) + ": shape 'hyperboloid'")) << problems[1];
+    EXPECT_TRUE(contains(problems[2], file + std::to_string(lineOf(text, "\"-1\"")) + ": emitter 'point'")) << problems[2];
+    EXPECT_TRUE(contains(problems[3], file + std::to_string(lineOf(text, "<texture")) + ": texture 'bitmap'")) << problems[3];
+    // what() holds the same lines.
+    const std::string all = error.what();
+    EXPECT_EQ(std::count(all.begin(), all.end(), '\n'), 3);
+}
+
+// One problem keeps the single-error form (file and line of the element).
+TEST(SceneXml, OneProblemIsOneError) {
+    const fs::path dir = scratchDir();
+    const std::string text = sceneText("    <shape type=\"hyperboloid\"/>\n");
+    const fs::path path = writeFile(dir / "scene.xml", text);
+    const InputError error = loadError(path);
+    EXPECT_TRUE(error.problems().empty());
+    EXPECT_EQ(error.line(), lineOf(text, "hyperboloid"));
+}
+
+// A scene with more problems than anyone reads stops at a cap, saying so.
+TEST(SceneXml, ProblemReportIsCapped) {
+    const fs::path dir = scratchDir();
+    std::string body;
+    for (int i = 0; i < 80; ++i) body += "    <shape type=\"hyperboloid" + std::to_string(i) + "\"/>\n";
+    const fs::path path = writeFile(dir / "scene.xml", sceneText(body));
+    const InputError error = loadError(path);
+    ASSERT_EQ(error.problems().size(), 51u);
+    EXPECT_TRUE(contains(error.problems().back(), "stopped after 50 problems")) << error.problems().back();
 }
 
 }  // namespace

@@ -164,3 +164,39 @@ TEST(Spectrum, CornellBoxReflectancesMatchMitsubasRgb) {
 
 }  // namespace
 }  // namespace fg
+
+namespace fg {
+namespace {
+
+// A constant emission spectrum v in Mitsuba 3's RGB mode is v * sRGB(XYZ = 1):
+// the rows of the IEC 61966-2-1 matrix summed, by hand
+// (3.2406 - 1.5372 - 0.4986, -0.9689 + 1.8758 + 0.0415, 0.0557 - 0.2040 + 1.0570).
+TEST(Spectrum, UniformEmissionIsNotWhiteBalanced) {
+    const Rgb expected = 2.5f * Rgb(1.2048f, 0.9484f, 0.9087f);
+    const Rgb rgb = uniformEmissionToRgb(2.5f);
+    for (int c = 0; c < 3; ++c) EXPECT_NEAR(rgb[c], expected[c], 1e-5f) << c;
+}
+
+// An emission spectrum goes to sRGB without the white balance: a flat list
+// converts as its single value does (the CIE 1931 functions have equal
+// integrals, so XYZ = (1, 1, 1) per unit), and a list is the white-balanced
+// conversion times the equal-energy white.
+TEST(Spectrum, EmissionSpectrumIsTheUnbalancedConversion) {
+    const SpectrumSample flat[] = {{380.0f, 2.0f}, {780.0f, 2.0f}};
+    const Rgb fromList = emissionSpectrumToRgb(flat);
+    const Rgb fromValue = uniformEmissionToRgb(2.0f);
+    for (int c = 0; c < 3; ++c) EXPECT_NEAR(fromList[c], fromValue[c], 2e-3f * fromValue[c]) << c;
+    const SpectrumSample luminaire[] = {{400.0f, 0.0f}, {500.0f, 8.0f}, {600.0f, 15.6f}, {700.0f, 18.4f}};
+    const Rgb ours = emissionSpectrumToRgb(luminaire);
+    const Rgb balanced = spectrumToRgb(luminaire) * equalEnergyWhiteSrgb();
+    for (int c = 0; c < 3; ++c) EXPECT_NEAR(balanced[c], ours[c], 1e-4f * maxComponent(ours)) << c;
+    // The luminaire is reddish: the balanced conversion (the reflectance one) scales it by
+    // 1 / (1.205, 0.948, 0.909) = (0.83, 1.06, 1.10), the per-channel error seen against Mitsuba.
+    const Rgb ratio = spectrumToRgb(luminaire) / ours;
+    EXPECT_NEAR(ratio.x, 0.83f, 0.01f);
+    EXPECT_NEAR(ratio.y, 1.055f, 0.01f);
+    EXPECT_NEAR(ratio.z, 1.10f, 0.01f);
+}
+
+}  // namespace
+}  // namespace fg

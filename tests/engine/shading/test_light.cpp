@@ -646,10 +646,12 @@ TEST(EnvironmentMap, MitsubaLatLongOrientation) {
     const float scale = 2.0f;
     const auto light = makeEnvironmentMap(image, scale);
     const auto pixel = [&](int x, int y) { return image.at(x, y) * scale; };
-    // Direction through the centre of pixel (x, y): u = phi / 2 pi with phi = atan2(x, -z), v = theta / pi from +Y.
-    for (const auto& [x, y] : std::vector<std::pair<int, int>>{{0, 0}, {5, 4}, {13, 9}, {31, 15}, {22, 7}}) {
+    // Direction of texel (x, y) as Mitsuba 3 looks it up: u = phi / 2 pi with phi = atan2(x, -z) at the
+    // column's centre, u = (x + 1/2) / width; v = theta / pi from +Y with rows on the corners,
+    // v = y / (height - 1), so that the first and last rows are the poles.
+    for (const auto& [x, y] : std::vector<std::pair<int, int>>{{0, 1}, {5, 4}, {13, 9}, {31, 14}, {22, 7}}) {
         const float phi = 2.0f * kPi * (x + 0.5f) / image.width;
-        const float theta = kPi * (y + 0.5f) / image.height;
+        const float theta = kPi * y / (image.height - 1.0f);
         const Vec3 dir(std::sin(phi) * std::sin(theta), std::cos(theta), -std::cos(phi) * std::sin(theta));
         const Rgb value = light->environment(dir);
         for (int c = 0; c < 3; ++c)
@@ -659,12 +661,48 @@ TEST(EnvironmentMap, MitsubaLatLongOrientation) {
     const Rgb expected = 0.25f * (pixel(7, 7) + pixel(8, 7) + pixel(7, 8) + pixel(8, 8));
     const Rgb value = light->environment(Vec3(1.0f, 0.0f, 0.0f));
     for (int c = 0; c < 3; ++c) EXPECT_NEAR(value[c], expected[c], 1e-4f * (1.0f + expected[c]));
+    // Just off the pole the radiance is the top row's, not a blend with the second row.
+    const Vec3 nearPole = glm::normalize(Vec3(0.0f, 1.0f, -1e-4f));  // u = 0: between columns 31 and 0
+    const Rgb topRow = 0.5f * (pixel(31, 0) + pixel(0, 0));
+    for (int c = 0; c < 3; ++c) EXPECT_NEAR(light->environment(nearPole)[c], topRow[c], 1e-3f * (1.0f + topRow[c]));
 
     // toWorld rotates the map: what the map holds at +Y appears at world +Z.
     const auto rotated = makeEnvironmentMap(image, scale, yUpToZUp());
     const Vec3 probe = glm::normalize(Vec3(0.3f, 0.5f, -0.4f));
     const Rgb a = light->environment(probe), b = rotated->environment(yUpToZUp() * probe);
     for (int c = 0; c < 3; ++c) EXPECT_NEAR(a[c], b[c], 1e-4f * (1.0f + a[c]));
+}
+
+// Importance sampling follows the lookup: a map lit on one row only has light
+// in the two bilinear patches around that row's v = y / (height - 1), and every
+// sampled direction must land where the lookup sees light (a texel-centred
+// sampling grid, (y + 1/2) / height, would put some outside).
+TEST(EnvironmentMap, SamplingCoversOnlyWhereTheLookupHasLight) {
+    RgbImage image;
+    image.width = 8;
+    image.height = 16;
+    image.pixels.assign(static_cast<std::size_t>(image.width) * image.height, Rgb(0.0f));
+    const int litRow = 4;
+    for (int x = 0; x < image.width; ++x) image.pixels[static_cast<std::size_t>(litRow) * image.width + x] = Rgb(1.0f + x);
+    const auto light = makeEnvironmentMap(image, 1.0f);
+    jobs::Rng rng(3, jobs::streamKey("env-support"), 0);
+    int above = 0, below = 0;
+    constexpr int kSamples = 20'000;
+    for (int i = 0; i < kSamples; ++i) {
+        const auto s = light->sampleLi(Vec3(0.0f), rng.uniform2());
+        ASSERT_TRUE(s.has_value());
+        const float v = std::acos(std::clamp(s->wi.y, -1.0f, 1.0f)) / kPi;
+        ASSERT_GT(v, (litRow - 1.0f) / (image.height - 1.0f));
+        ASSERT_LT(v, (litRow + 1.0f) / (image.height - 1.0f));
+        ASSERT_GT(luminance(light->environment(s->wi)), 0.0f) << "v = " << v;
+        (v < litRow / (image.height - 1.0f) ? above : below)++;
+    }
+    // Both patches hold the row's light, weighted by sin(theta) at their centres.
+    const double sinAbove = std::sin(M_PI * (litRow - 0.5) / (image.height - 1.0));
+    const double sinBelow = std::sin(M_PI * (litRow + 0.5) / (image.height - 1.0));
+    const double expectedAbove = sinAbove / (sinAbove + sinBelow);
+    EXPECT_NEAR(above / double(kSamples), expectedAbove, 5.0 * std::sqrt(0.25 / kSamples));
+    EXPECT_EQ(above + below, kSamples);
 }
 
 TEST(EnvironmentMap, IrradiancePowerAndPhotons) {
