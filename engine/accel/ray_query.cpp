@@ -358,9 +358,10 @@ SurfacePoint RayQuery::surface(const Ray& ray, const Hit& hit) const {
         sp.ns = sp.ng;
         // Spherical coordinates of the outward direction, as Mitsuba's sphere:
         // u = phi / 2pi with phi in [0, 2pi), v = theta / pi from the +z pole.
-        float phi = std::atan2(outward.y, outward.x);
+        const Vec3 local = sphere->worldToObject * outward;
+        float phi = std::atan2(local.y, local.x);
         if (phi < 0.0f) phi += 2.0f * kPi;
-        sp.uv = Vec2(phi * kInv2Pi, std::acos(std::clamp(outward.z, -1.0f, 1.0f)) * kInvPi);
+        sp.uv = Vec2(phi * kInv2Pi, std::acos(std::clamp(local.z, -1.0f, 1.0f)) * kInvPi);
         return sp;
     }
 

@@ -33,6 +33,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <memory>
 #include <numbers>
 #include <optional>
@@ -876,6 +877,8 @@ public:
                 buildObject(child);
             } else if (kValueTags.count(tag) || tag == "ref") {
                 fail(child, "<" + tag + "> is not allowed at the top level of a scene");
+            } else if (tag == "volume") {
+                fail(child, "heterogeneous medium not supported (<volume> grids are not implemented)");
             } else {
                 fail(child, "unknown element <" + tag + ">");
             }
@@ -906,6 +909,8 @@ public:
                 e.node = &child;
                 e.isObject = true;
                 if (const std::string* name = child.attribute("name")) e.name = *name;
+            } else if (child.tag == "volume") {
+                fail(child, what + ": heterogeneous medium not supported (<volume> grids are not implemented)");
             } else {
                 fail(child, what + ": unknown element <" + child.tag + ">");
             }
@@ -1008,13 +1013,19 @@ private:
 
     void readSensor(const Node& node) {
         Props p(*this, node, "sensor");
-        if (p.type() != "perspective") p.fail("unknown sensor type (supported: perspective)");
+        if (p.type() != "perspective" && p.type() != "orthographic") {
+            p.fail("unknown sensor type (supported: perspective, orthographic)");
+        }
         Camera& camera = scene_.camera;
         camera.width = 768;
         camera.height = 576;
         if (Entry* film = p.singleObject("film")) readFilm(expectObject(*film, "film", p.what()));
         if (Entry* sampler = p.singleObject("sampler")) readSampler(expectObject(*sampler, "sampler", p.what()));
         if (Entry* medium = p.singleObject("medium")) camera.medium = mediumIndex(expectObject(*medium, "medium", p.what()));
+        if (p.type() == "orthographic") {
+            readOrthographicSensor(p);
+            return;
+        }
 
         // Field of view, converted to the vertical angle fg::Camera uses.
         const bool hasFov = p.has("fov"), hasFocal = p.has("focal_length");
@@ -1082,6 +1093,39 @@ private:
         p.finish();
     }
 
+    // Mitsuba's orthographic sensor sees local x in [-1, 1] across the film's
+    // width and y in [-1/aspect, 1/aspect] across its height, along local +z;
+    // to_world's scale sets the extent in scene units.
+    void readOrthographicSensor(Props& p) {
+        Camera& camera = scene_.camera;
+        camera.orthographic = true;
+        camera.nearClip = p.number("near_clip", 0.01f);
+        camera.farClip = p.number("far_clip", 10000.0f);
+        if (!(camera.nearClip >= 0.0f)) p.fail(*p.valueNode("near_clip"), "near_clip must not be negative");
+        if (!(camera.farClip > camera.nearClip)) p.fail("far_clip must exceed near_clip");
+        for (const char* key : {"shutter_open", "shutter_close"}) p.accept(key, {"float", "integer"});
+
+        const Mat4 m = p.transform("to_world").value_or(Mat4(1.0f));
+        const Mat3 linear(m);
+        const float scaleX = glm::length(linear[0]), scaleY = glm::length(linear[1]), scaleZ = glm::length(linear[2]);
+        float skew = 0.0f;
+        for (int i = 0; i < 3; ++i)
+            for (int j = i + 1; j < 3; ++j) skew += std::abs(glm::dot(linear[i], linear[j])) / (glm::length(linear[i]) * glm::length(linear[j]));
+        if (!(skew <= 1e-3f) || !(std::abs(scaleX - scaleY) <= 1e-3f * scaleX)) {
+            p.fail(*p.valueNode("to_world"), "the orthographic sensor's to_world may rotate, translate, mirror and "
+                                             "scale, with equal scales along its x and y axes");
+        }
+        camera.eye = Vec3(m[3]);
+        camera.target = camera.eye + glm::normalize(linear[2]);
+        camera.up = glm::normalize(linear[1]);
+        camera.mirrored = glm::determinant(linear) < 0.0f;
+        const float aspect = static_cast<float>(camera.width) / static_cast<float>(camera.height);
+        camera.orthoHalfHeight = scaleY / aspect;
+        camera.nearClip *= scaleZ;
+        if (camera.farClip < kInfinity) camera.farClip *= scaleZ;
+        p.finish();
+    }
+
     void readFilm(const Node& node) {
         Props p(*this, node, "film");
         if (p.type() != "hdrfilm" && p.type() != "ldrfilm") {
@@ -1128,11 +1172,9 @@ private:
             hints.gaussianSigma = p.number("stddev", 0.5f);
             hints.filterRadius = 4.0f * hints.gaussianSigma;
         } else if (p.type() == "tent") {
-            // No tent filter on the film: the Gaussian of the same variance (r^2 / 6).
-            const float radius = p.number("radius", 1.0f);
-            hints.filter = FilterKind::Gaussian;
-            hints.gaussianSigma = radius / std::sqrt(6.0f);
-            hints.filterRadius = radius;
+            hints.filter = FilterKind::Tent;
+            hints.filterRadius = p.number("radius", 1.0f);
+            hints.gaussianSigma = 0.0f;
         } else {
             p.fail("unknown rfilter type (supported: box, gaussian, tent)");
         }
@@ -1392,6 +1434,9 @@ private:
     int mediumIndex(const Node& node) {
         if (const auto it = mediumIndex_.find(&node); it != mediumIndex_.end()) return it->second;
         const Building guard(building_, node);
+        if (const std::string* type = node.attribute("type"); type && *type == "heterogeneous") {
+            fail(node, "medium 'heterogeneous': heterogeneous medium not supported (only homogeneous media)");
+        }
         Props p(*this, node, "medium");
         if (p.type() != "homogeneous") p.fail("unknown medium type (supported: homogeneous)");
         const bool extinctionForm = p.has("sigma_t") || p.has("albedo");
@@ -1435,6 +1480,50 @@ private:
         else if (mesh.normals.empty()) computeVertexNormals(mesh);
     }
 
+    TriangleMesh readSerialized(Props& p) {
+        const std::string path = resolveFile(p, "filename");
+        const long long index = p.integer("shape_index").value_or(0);
+        if (index < 0 || index > std::numeric_limits<int>::max()) p.fail(*p.valueNode("shape_index"), "shape_index must not be negative");
+        try {
+            return loadSerializedMesh(path, static_cast<int>(index));
+        } catch (const InputError& e) {
+            p.fail(*p.valueNode("filename"), e.what());
+        }
+    }
+
+    // Mitsuba's cylinder, as a tessellated open tube in object space (to_world follows).
+    TriangleMesh readCylinder(Props& p) {
+        const Vec3 p0 = p.vec3("p0").value_or(Vec3(0.0f));
+        const Vec3 p1 = p.vec3("p1").value_or(Vec3(0.0f, 0.0f, 1.0f));
+        const float radius = p.number("radius", 1.0f);
+        if (!(radius > 0.0f) || !std::isfinite(radius)) p.fail(*p.valueNode("radius"), "radius must be positive");
+        if (!(glm::length(p1 - p0) > 0.0f)) p.fail("p0 and p1 must differ");
+        TriangleMesh mesh = makeCylinderMesh();
+        mesh.transform(cylinderPlacement(p0, p1, radius));
+        return mesh;
+    }
+
+    // A similarity (rotation, mirroring, uniform scale, translation) maps a sphere
+    // onto a sphere; anything that stretches would make an ellipsoid, which the
+    // analytic intersector does not represent.
+    void foldSphereTransform(Props& p, const Mat4& m, Sphere& sphere) {
+        const Mat3 linear(m);
+        const float s = glm::length(linear[0]);
+        float error = 0.0f;
+        for (int i = 0; i < 3; ++i) {
+            error += std::abs(glm::length(linear[i]) - s);
+            for (int j = i + 1; j < 3; ++j) error += std::abs(glm::dot(linear[i], linear[j])) / s;
+        }
+        if (!(error <= 1e-4f * s)) {
+            p.fail(*p.valueNode("to_world"), "a sphere's to_world may only rotate, translate and scale uniformly "
+                                             "(non-uniform scale would make an ellipsoid; use a mesh)");
+        }
+        sphere.center = Vec3(m * Vec4(sphere.center, 1.0f));
+        sphere.radius *= s;
+        // The inverse of a rotation times s is its transpose over s.
+        sphere.worldToObject = glm::transpose(linear) / s;
+    }
+
     void readShape(const Node& node) {
         Props p(*this, node, "shape");
         const std::size_t index = scene_.shapes.size();
@@ -1446,18 +1535,7 @@ private:
             sphere.center = p.vec3("center").value_or(Vec3(0.0f));
             sphere.radius = p.number("radius", 1.0f);
             if (!(sphere.radius > 0.0f)) p.fail(*p.valueNode("radius"), "radius must be positive");
-            if (const std::optional<Mat4> m = p.transform("to_world")) {
-                const Mat3 linear(*m);
-                const float s = glm::length(linear[0]);
-                float error = 0.0f;
-                for (int c = 0; c < 3; ++c) error += glm::length(linear[c] - s * Mat3(1.0f)[c]);
-                if (!(error <= 1e-4f * s)) {
-                    p.fail(*p.valueNode("to_world"), "a sphere's to_world may only translate and scale uniformly "
-                                                     "(spheres are analytic; use center and radius)");
-                }
-                sphere.center = Vec3(*m * Vec4(sphere.center, 1.0f));
-                sphere.radius *= s;
-            }
+            if (const std::optional<Mat4> m = p.transform("to_world")) foldSphereTransform(p, *m, sphere);
             shape.geometry = sphere;
             shape.flipNormals = flip;
         } else {
@@ -1482,8 +1560,14 @@ private:
                 mesh = makeDiskMesh();
             } else if (type == "cube") {
                 mesh = makeCubeMesh();
+            } else if (type == "cylinder") {
+                mesh = readCylinder(p);
+            } else if (type == "serialized") {
+                mesh = readSerialized(p);
+                faceNormalsParameter = true;
             } else {
-                p.fail("unknown shape type (supported: obj, ply, rectangle, disk, cube, sphere)");
+                p.fail("unknown shape type (supported: obj, ply, serialized, rectangle, disk, cube, cylinder, sphere, "
+                       "shapegroup, instance)");
             }
             finishMesh(p, mesh, faceNormalsParameter);
             if (flip) mesh.flipNormals();

@@ -84,4 +84,37 @@ TriangleMesh makeCubeMesh() {
     return m;
 }
 
+TriangleMesh makeCylinderMesh(int segments) {
+    TriangleMesh m;
+    // Two rings with a duplicated seam column, so u runs from 0 to 1 without wrapping.
+    for (int i = 0; i <= segments; ++i) {
+        const float u = static_cast<float>(i) / static_cast<float>(segments);
+        const float phi = 2.0f * kPi * u;
+        const Vec3 radial(std::cos(phi), std::sin(phi), 0.0f);
+        for (float z : {0.0f, 1.0f}) {
+            m.positions.push_back(radial + Vec3(0.0f, 0.0f, z));
+            m.normals.push_back(radial);
+            m.uvs.push_back({u, z});
+        }
+    }
+    for (int i = 0; i < segments; ++i) {
+        const auto bottom = static_cast<std::uint32_t>(2 * i), top = bottom + 1;
+        const std::uint32_t nextBottom = bottom + 2, nextTop = bottom + 3;
+        // Counter-clockwise seen from outside: (phi, z) increase along s x t = outward.
+        m.indices.insert(m.indices.end(), {bottom, nextBottom, nextTop, bottom, nextTop, top});
+    }
+    return m;
+}
+
+Mat4 cylinderPlacement(const Vec3& p0, const Vec3& p1, float radius) {
+    const Vec3 axis = p1 - p0;
+    const Frame frame(glm::normalize(axis));
+    Mat4 m(1.0f);
+    m[0] = Vec4(radius * frame.s, 0.0f);
+    m[1] = Vec4(radius * frame.t, 0.0f);
+    m[2] = Vec4(axis, 0.0f);
+    m[3] = Vec4(p0, 1.0f);
+    return m;
+}
+
 }  // namespace fg

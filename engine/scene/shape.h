@@ -29,6 +29,9 @@ struct TriangleMesh {
 struct Sphere {
     Vec3 center{0.0f};
     float radius = 1.0f;
+    // Rotation from world to the sphere's object frame: it only turns the (u, v)
+    // parametrisation (poles on the object's z axis), the geometry is symmetric.
+    Mat3 worldToObject{1.0f};
 };
 
 // Generators in object space, as Mitsuba defines them: rectangle [-1,1]^2 at z=0
@@ -36,12 +39,23 @@ struct Sphere {
 TriangleMesh makeRectangleMesh();
 TriangleMesh makeDiskMesh(int segments = 128);
 TriangleMesh makeCubeMesh();
+// Mitsuba's cylinder: an open tube of radius 1 around the z axis from z = 0 to
+// z = 1, facing outwards, uv = (phi / 2 pi, z); `segments` flat facets with
+// radial (smooth) vertex normals. A tessellated tube keeps every mesh path
+// (area sampling, instancing, transforms) for a shape that is rarely refractive.
+TriangleMesh makeCylinderMesh(int segments = 256);
+// Maps that unit tube onto the tube of `radius` from p0 to p1 (p0 != p1).
+Mat4 cylinderPlacement(const Vec3& p0, const Vec3& p1, float radius);
 // Loads a Wavefront OBJ (all groups merged); throws InputError naming file and problem.
 TriangleMesh loadObjMesh(const std::string& path);
 // Loads a Stanford PLY (ASCII or binary, either byte order; polygons are
 // triangulated, point and line elements rejected). Texture coordinates are
 // returned as stored in the file; throws InputError naming file and problem.
 TriangleMesh loadPlyMesh(const std::string& path);
+
+// Loads shape `shapeIndex` of a Mitsuba .serialized file (format versions 3
+// and 4, zlib-compressed); throws InputError naming file and problem.
+TriangleMesh loadSerializedMesh(const std::string& path, int shapeIndex = 0);
 
 struct ShapeSample {
     Vec3 p{0.0f};
