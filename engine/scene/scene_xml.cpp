@@ -884,6 +884,13 @@ public:
             }
         }
         if (!sawSensor) throw InputError(root.file->path, root.line, "the scene has no <sensor>");
+        // Groups nothing instantiates are still read, so that their errors show.
+        for (const Node* group : shapeGroups_) {
+            if (instancedGroups_.count(group)) continue;
+            Props groupProps(*this, *group, "shape");
+            const Mat4 identity(1.0f);
+            for (Entry* member : groupProps.objects("shape")) readShape(*member->node, &identity, false);
+        }
     }
 
     // Children of a plugin element, with <ref>s resolved.
@@ -1491,6 +1498,34 @@ private:
         }
     }
 
+    // A shape group only defines its shapes; instances place copies of them.
+    void readShapeGroup(Props& p) {
+        if (!p.node().attribute("id")) p.fail("a shapegroup needs an id (instances refer to it)");
+        if (p.objects("shape").empty()) p.fail("a shapegroup needs at least one <shape>");
+        p.finish();
+        shapeGroups_.push_back(&p.node());
+    }
+
+    // Every shape of the group, transformed by the instance's to_world. The
+    // copies do not share memory: each becomes an ordinary shape (its own
+    // Embree geometry, area light and photon bounds), which keeps every pass
+    // unaware of instancing.
+    void readInstance(Props& p) {
+        Entry* group = p.singleObject("shape");
+        if (!group || !group->ref) p.fail("an instance needs a <ref id=\"...\"/> to a shapegroup");
+        const Node& groupNode = *group->node;
+        const std::string* groupType = groupNode.attribute("type");
+        if (!groupType || *groupType != "shapegroup") {
+            p.fail(group->site(), "an instance must refer to a shapegroup, not a shape of type " +
+                                      inQuotes(groupType ? *groupType : ""));
+        }
+        const Mat4 toWorld = p.transform("to_world").value_or(Mat4(1.0f));
+        p.finish();
+        instancedGroups_.insert(&groupNode);
+        Props groupProps(*this, groupNode, "shape");
+        for (Entry* member : groupProps.objects("shape")) readShape(*member->node, &toWorld);
+    }
+
     // Mitsuba's cylinder, as a tessellated open tube in object space (to_world follows).
     TriangleMesh readCylinder(Props& p) {
         const Vec3 p0 = p.vec3("p0").value_or(Vec3(0.0f));
@@ -1506,7 +1541,7 @@ private:
     // A similarity (rotation, mirroring, uniform scale, translation) maps a sphere
     // onto a sphere; anything that stretches would make an ellipsoid, which the
     // analytic intersector does not represent.
-    void foldSphereTransform(Props& p, const Mat4& m, Sphere& sphere) {
+    void foldSphereTransform(Props& p, const Node& at, const Mat4& m, Sphere& sphere) {
         const Mat3 linear(m);
         const float s = glm::length(linear[0]);
         float error = 0.0f;
@@ -1515,27 +1550,37 @@ private:
             for (int j = i + 1; j < 3; ++j) error += std::abs(glm::dot(linear[i], linear[j])) / s;
         }
         if (!(error <= 1e-4f * s)) {
-            p.fail(*p.valueNode("to_world"), "a sphere's to_world may only rotate, translate and scale uniformly "
-                                             "(non-uniform scale would make an ellipsoid; use a mesh)");
+            p.fail(at, "a sphere's to_world (and an instance's) may only rotate, translate and scale uniformly "
+                       "(non-uniform scale would make an ellipsoid; use a mesh)");
         }
         sphere.center = Vec3(m * Vec4(sphere.center, 1.0f));
         sphere.radius *= s;
         // The inverse of a rotation times s is its transpose over s.
-        sphere.worldToObject = glm::transpose(linear) / s;
+        sphere.worldToObject = sphere.worldToObject * (glm::transpose(linear) / s);
     }
 
-    void readShape(const Node& node) {
+    // `instanceToWorld`: the shape belongs to a shape group and is placed by an
+    // instance (applied after its own to_world). `keep` false builds it only
+    // for its errors (a group nothing instantiates).
+    void readShape(const Node& node, const Mat4* instanceToWorld = nullptr, bool keep = true) {
         Props p(*this, node, "shape");
         const std::size_t index = scene_.shapes.size();
         Shape shape;
         const std::string& type = p.type();
+        if (type == "shapegroup" || type == "instance") {
+            if (instanceToWorld || !keep) p.fail("shape groups and instances cannot be nested in a shape group");
+            if (type == "shapegroup") readShapeGroup(p);
+            else readInstance(p);
+            return;
+        }
         const bool flip = p.boolean("flip_normals", false);
         if (type == "sphere") {
             Sphere sphere;
             sphere.center = p.vec3("center").value_or(Vec3(0.0f));
             sphere.radius = p.number("radius", 1.0f);
             if (!(sphere.radius > 0.0f)) p.fail(*p.valueNode("radius"), "radius must be positive");
-            if (const std::optional<Mat4> m = p.transform("to_world")) foldSphereTransform(p, *m, sphere);
+            if (const std::optional<Mat4> m = p.transform("to_world")) foldSphereTransform(p, *p.valueNode("to_world"), *m, sphere);
+            if (instanceToWorld) foldSphereTransform(p, node, *instanceToWorld, sphere);
             shape.geometry = sphere;
             shape.flipNormals = flip;
         } else {
@@ -1570,6 +1615,7 @@ private:
                        "shapegroup, instance)");
             }
             finishMesh(p, mesh, faceNormalsParameter);
+            if (instanceToWorld) mesh.transform(*instanceToWorld);
             if (flip) mesh.flipNormals();
             shape.geometry = std::move(mesh);
         }
@@ -1590,6 +1636,7 @@ private:
         std::optional<Rgb> radiance;
         if (const Entry* emitter = p.singleObject("emitter")) radiance = areaRadiance(expectObject(*emitter, "emitter", p.what()), p);
         p.finish();
+        if (!keep) return;
 
         if (radiance && !isBlack(*radiance)) {
             shape.areaLight = static_cast<int>(scene_.lights.size());
@@ -1683,6 +1730,8 @@ private:
     std::unordered_map<const Node*, std::shared_ptr<Texture>> textures_;
     std::unordered_map<const Node*, Rgb> areaRadiance_;
     std::set<const Node*> building_;
+    std::vector<const Node*> shapeGroups_;
+    std::set<const Node*> instancedGroups_;
     int defaultBsdf_ = -1;
 };
 

@@ -266,6 +266,76 @@ p1 = [0, 2, 0]
                  InputError);
 }
 
+// ---- shape groups and instances ------------------------------------------------------
+
+TEST(MitsubaShapes, InstancesEqualTheFlattenedScene) {
+    const fs::path dir = scratchDir();
+    writeFile(dir / "quad.obj", "v -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\nf 1 2 3 4\n");
+    const std::string members = R"(
+        <shape type="obj"><string name="filename" value="quad.obj"/>
+            <transform name="to_world"><rotate y="1" angle="-80"/></transform>
+            <bsdf type="diffuse"><rgb name="reflectance" value="0.2 0.5 0.3"/></bsdf></shape>
+        <shape type="sphere"><transform name="to_world"><scale value="0.5"/><translate x="-1"/></transform></shape>
+        <shape type="cylinder"><float name="radius" value="0.3"/></shape>)";
+    const std::string placement = R"(<rotate y="1" angle="45"/><rotate x="1" angle="-25"/><scale value="1.5"/><translate z="2"/>)";
+    const std::string grouped = sceneText("    <shape type=\"shapegroup\" id=\"group\">" + members +
+                                          "\n    </shape>\n"
+                                          "    <shape type=\"instance\"><ref id=\"group\"/></shape>\n"
+                                          "    <shape type=\"instance\"><ref id=\"group\"/><transform name=\"to_world\">" +
+                                          placement + "</transform></shape>\n");
+    // The same shapes written out twice, the second time with the placement appended to each to_world.
+    std::string flattened = members;
+    for (const char* original : {"<rotate y=\"1\" angle=\"-80\"/>", "<translate x=\"-1\"/>"}) {
+        flattened.replace(flattened.find(original), std::string(original).size(), std::string(original) + placement);
+    }
+    const std::string radius = "<float name=\"radius\" value=\"0.3\"/>";
+    flattened.replace(flattened.find(radius), radius.size(),
+                      radius + "<transform name=\"to_world\">" + placement + "</transform>");
+    const Scene a = loadXmlScene(writeFile(dir / "grouped.xml", grouped).string());
+    const Scene b = loadXmlScene(writeFile(dir / "flat.xml", sceneText(members + flattened + "\n")).string());
+    ASSERT_EQ(a.shapes.size(), 6u);
+    ASSERT_EQ(b.shapes.size(), 6u);
+    for (std::size_t i = 0; i < 6; ++i) {
+        SCOPED_TRACE("shape " + std::to_string(i));
+        EXPECT_EQ(a.shapes[i].isSphere(), b.shapes[i].isSphere());
+        EXPECT_NEAR(a.shapes[i].area(), b.shapes[i].area(), 1e-4f * b.shapes[i].area());
+        if (const auto* sa = std::get_if<Sphere>(&a.shapes[i].geometry)) {
+            const Sphere& sb = std::get<Sphere>(b.shapes[i].geometry);
+            EXPECT_NEAR(glm::length(sa->center - sb.center), 0.0f, 1e-5f);
+            EXPECT_NEAR(sa->radius, sb.radius, 1e-6f);
+            for (int c = 0; c < 3; ++c) EXPECT_NEAR(glm::length(sa->worldToObject[c] - sb.worldToObject[c]), 0.0f, 1e-5f);
+            continue;
+        }
+        const auto& ma = std::get<TriangleMesh>(a.shapes[i].geometry);
+        const auto& mb = std::get<TriangleMesh>(b.shapes[i].geometry);
+        ASSERT_EQ(ma.positions.size(), mb.positions.size());
+        EXPECT_EQ(ma.indices, mb.indices);
+        for (std::size_t v = 0; v < ma.positions.size(); ++v) {
+            EXPECT_NEAR(glm::length(ma.positions[v] - mb.positions[v]), 0.0f, 1e-5f);
+            EXPECT_NEAR(glm::length(ma.normals[v] - mb.normals[v]), 0.0f, 1e-5f);
+        }
+    }
+    // Members share their group's material across instances.
+    EXPECT_EQ(a.shapes[0].bsdf, a.shapes[3].bsdf);
+}
+
+TEST(MitsubaShapes, ShapeGroupErrors) {
+    const fs::path dir = scratchDir();
+    expectErrorAt(dir / "noid.xml", sceneText("    <shape type=\"shapegroup\"><shape type=\"cube\"/></shape>\n"),
+                  "shapegroup", "needs an id");
+    expectErrorAt(dir / "notgroup.xml",
+                  sceneText("    <shape type=\"cube\" id=\"box\"/>\n    <shape type=\"instance\"><ref id=\"box\"/></shape>\n"),
+                  "<ref id=\"box\"", "must refer to a shapegroup");
+    // An unused group is still read.
+    expectErrorAt(dir / "unused.xml",
+                  sceneText("    <shape type=\"shapegroup\" id=\"g\">\n        <shape type=\"sdfgrid\"/>\n    </shape>\n"),
+                  "sdfgrid", "unknown shape type");
+    expectErrorAt(dir / "nested.xml",
+                  sceneText("    <shape type=\"shapegroup\" id=\"g\">\n        <shape type=\"shapegroup\" id=\"h\"><shape type=\"cube\"/></shape>\n"
+                            "    </shape>\n    <shape type=\"instance\"><ref id=\"g\"/></shape>\n"),
+                  "id=\"h\"", "cannot be nested");
+}
+
 // ---- serialized meshes --------------------------------------------------------------
 
 template <typename T>
