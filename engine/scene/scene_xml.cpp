@@ -1409,6 +1409,7 @@ private:
                               image.pixels[static_cast<std::size_t>(image.height - 1 - y) * image.width + x]);
                 }
             }
+            textureResolution_[&node] = {image.width, image.height};
             result = makeBitmapTexture(std::move(image), scale);
         } else if (p.type() == "checkerboard") {
             const Rgb color0 = p.colour("color0", ColourUse::Reflectance).value_or(Rgb(0.4f));
@@ -1633,14 +1634,15 @@ private:
             if (slot >= 0) p.fail(medium->site(), "the " + medium->name + " medium is given twice");
             slot = mediumIndex(m);
         }
-        std::optional<Rgb> radiance;
-        if (const Entry* emitter = p.singleObject("emitter")) radiance = areaRadiance(expectObject(*emitter, "emitter", p.what()), p);
+        std::optional<AreaEmission> emission;
+        if (const Entry* emitter = p.singleObject("emitter")) emission = areaRadiance(expectObject(*emitter, "emitter", p.what()), p);
         p.finish();
         if (!keep) return;
 
-        if (radiance && !isBlack(*radiance)) {
+        if (emission && (emission->texture || !isBlack(emission->radiance))) {
             shape.areaLight = static_cast<int>(scene_.lights.size());
-            scene_.lights.push_back(makeAreaLight(shape, *radiance));
+            scene_.lights.push_back(emission->texture ? makeTexturedAreaLight(shape, emission->texture)
+                                                      : makeAreaLight(shape, emission->radiance));
             scene_.lightShape.push_back(static_cast<int>(index));
         }
         scene_.shapes.push_back(std::move(shape));
@@ -1648,14 +1650,74 @@ private:
 
     // ---- emitters ---------------------------------------------------------------
 
-    Rgb areaRadiance(const Node& node, const Props& shape) {
+    struct AreaEmission {
+        Rgb radiance{1.0f};
+        std::shared_ptr<Texture> texture;  // set when radiance is a texture
+    };
+
+    AreaEmission areaRadiance(const Node& node, const Props& shape) {
         if (const auto it = areaRadiance_.find(&node); it != areaRadiance_.end()) return it->second;
         Props p(*this, node, "emitter");
         if (p.type() != "area") shape.fail(node, "only area emitters can be attached to a shape, not " + p.what());
-        const Rgb radiance = p.colour("radiance", ColourUse::NonNegative).value_or(Rgb(1.0f));
+        AreaEmission emission;
+        emission.texture = emissionTexture(p, "radiance");
+        if (!emission.texture) emission.radiance = p.colour("radiance", ColourUse::NonNegative).value_or(Rgb(1.0f));
         p.finish();
-        areaRadiance_[&node] = radiance;
-        return radiance;
+        areaRadiance_[&node] = emission;
+        return emission;
+    }
+
+    // A nested or referenced <texture> given for an emitter parameter, or null.
+    std::shared_ptr<Texture> emissionTexture(Props& p, std::string_view key) {
+        Entry* e = p.namedObject(key);
+        return e ? texture(expectObject(*e, "texture", p.what() + " parameter " + inQuotes(key))) : nullptr;
+    }
+
+    // Mitsuba's projector: a pinhole's field of view (as the perspective sensor's,
+    // over the irradiance texture's aspect ratio) and a texture it projects.
+    std::shared_ptr<Light> readProjector(Props& p) {
+        std::shared_ptr<Texture> irradiance = emissionTexture(p, "irradiance");
+        int width = 1, height = 1;
+        if (irradiance) {
+            const Node& textureNode = *p.namedObject("irradiance")->node;
+            if (const auto it = textureResolution_.find(&textureNode); it != textureResolution_.end()) {
+                width = it->second.first;
+                height = it->second.second;
+            }
+        } else {
+            irradiance = makeConstantTexture(p.colour("irradiance", ColourUse::NonNegative).value_or(Rgb(1.0f)));
+        }
+        const double aspect = static_cast<double>(width) / height;
+        const bool hasFov = p.has("fov"), hasFocal = p.has("focal_length");
+        if (hasFov && hasFocal) p.fail("give either fov or focal_length, not both");
+        double tanHalf = 0.0, axisOverX = 1.0;  // tan of half the angle along the axis, and that axis' length / width
+        if (hasFov) {
+            const double fov = p.number("fov", 0.0f);
+            if (!(fov > 0.0 && fov < 180.0)) p.fail(*p.valueNode("fov"), "fov must lie in (0, 180) degrees");
+            tanHalf = std::tan(0.5 * fov * std::numbers::pi / 180.0);
+            std::string axis = p.string("fov_axis").value_or("x");
+            if (axis == "y") axisOverX = 1.0 / aspect;
+            else if (axis == "diagonal") axisOverX = std::sqrt(1.0 + 1.0 / (aspect * aspect));
+            else if (axis == "smaller") axisOverX = std::min(1.0, 1.0 / aspect);
+            else if (axis == "larger") axisOverX = std::max(1.0, 1.0 / aspect);
+            else if (axis != "x") p.fail(*p.valueNode("fov_axis"), "fov_axis " + inQuotes(axis) + " must be x, y, diagonal, smaller or larger");
+        } else {
+            std::string focal = p.string("focal_length").value_or("50mm");
+            if (focal.size() > 2 && focal.compare(focal.size() - 2, 2, "mm") == 0) focal.resize(focal.size() - 2);
+            const std::optional<double> mm = parseNumber(focal);
+            if (!mm || !(*mm > 0.0)) p.fail(*p.valueNode("focal_length"), "focal_length must be a positive length like \"50mm\"");
+            tanHalf = std::sqrt(36.0 * 36.0 + 24.0 * 24.0) / (2.0 * *mm);  // the 35 mm film's diagonal
+            axisOverX = std::sqrt(1.0 + 1.0 / (aspect * aspect));
+        }
+        const float scale = p.number("scale", 1.0f);
+        if (!(scale >= 0.0f) || !std::isfinite(scale)) p.fail(*p.valueNode("scale"), "scale must not be negative");
+        const Mat4 m = p.transform("to_world").value_or(Mat4(1.0f));
+        const Mat3 linear(m);
+        const Mat3 shouldBeIdentity = glm::transpose(linear) * linear;
+        float error = std::abs(std::abs(glm::determinant(linear)) - 1.0f);
+        for (int c = 0; c < 3; ++c) error += glm::length(shouldBeIdentity[c] - Mat3(1.0f)[c]);
+        if (error > 1e-3f) p.fail(*p.valueNode("to_world"), "a projector's to_world may only rotate and translate");
+        return makeProjectorLight(m, std::move(irradiance), width, height, static_cast<float>(tanHalf / axisOverX), scale);
     }
 
     Vec3 positionOf(Props& p) {
@@ -1685,7 +1747,14 @@ private:
             if (!(cutoff > 0.0f && cutoff < 180.0f)) p.fail(*p.valueNode("cutoff_angle"), "cutoff_angle must lie in (0, 180) degrees");
             const float beam = p.number("beam_width", 0.75f * cutoff);
             if (!(beam > 0.0f && beam <= cutoff)) p.fail(*p.valueNode("beam_width"), "beam_width must lie in (0, cutoff_angle]");
-            light = makeSpotLight(Vec3(m[3]), glm::normalize(axis), nonNegative("intensity"), cutoff, beam);
+            if (std::shared_ptr<Texture> pattern = emissionTexture(p, "texture")) {
+                if (!(cutoff < 90.0f)) p.fail(*p.valueNode("cutoff_angle"), "a textured spot's cutoff_angle must be below 90 degrees");
+                light = makeTexturedSpotLight(m, nonNegative("intensity"), cutoff, beam, std::move(pattern));
+            } else {
+                light = makeSpotLight(Vec3(m[3]), glm::normalize(axis), nonNegative("intensity"), cutoff, beam);
+            }
+        } else if (type == "projector") {
+            light = readProjector(p);
         } else if (type == "directional") {
             const bool hasDirection = p.has("direction"), hasTransform = p.has("to_world");
             if (hasDirection && hasTransform) p.fail("give either direction or to_world, not both");
@@ -1715,7 +1784,7 @@ private:
             }
             light = makeEnvironmentMap(image, scale, toWorld);
         } else {
-            p.fail("unknown emitter type (supported: area, point, spot, directional, constant, envmap)");
+            p.fail("unknown emitter type (supported: area, point, spot, projector, directional, constant, envmap)");
         }
         p.finish();
         scene_.lights.push_back(std::move(light));
@@ -1728,7 +1797,8 @@ private:
     std::unordered_map<const Node*, int> bsdfIndex_;
     std::unordered_map<const Node*, int> mediumIndex_;
     std::unordered_map<const Node*, std::shared_ptr<Texture>> textures_;
-    std::unordered_map<const Node*, Rgb> areaRadiance_;
+    std::unordered_map<const Node*, AreaEmission> areaRadiance_;
+    std::unordered_map<const Node*, std::pair<int, int>> textureResolution_;  // bitmaps: width, height
     std::set<const Node*> building_;
     std::vector<const Node*> shapeGroups_;
     std::set<const Node*> instancedGroups_;

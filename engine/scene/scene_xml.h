@@ -110,10 +110,15 @@
 //   checkerboard  color0 (0.4), color1 (0.2), to_uv (scale only; 0.x: uscale, vscale)
 //
 // Emitters
-//   area          radiance; inside a shape, or defined with an id and referenced from shapes
+//   area          radiance (colour or texture over the shape's uv); inside a shape, or
+//                 defined with an id and referenced from shapes
 //   point         position or to_world; intensity (1)
 //   spot          to_world (+z is the axis), intensity (1), cutoff_angle (20),
-//                 beam_width (3/4 cutoff_angle)
+//                 beam_width (3/4 cutoff_angle), texture (optional, over the cone:
+//                 uv = 1/2 + (x, y) / (2 z tan cutoff_angle) in the light's frame)
+//   projector     irradiance (colour, 1, or texture; its resolution sets the aspect and
+//                 the sampling grid), scale (1), fov + fov_axis or focal_length (50mm) as
+//                 the perspective sensor, to_world (rotation and translation)
 //   directional   direction or to_world (+z); irradiance (1)
 //   constant      radiance (1)
 //   envmap        filename, scale (1), to_world (rotation only)
