@@ -442,6 +442,44 @@ TEST(SerializedMesh, BadFilesAreOneClearError) {
     expectErrorAt(dir / "scene.xml", text, "filename", "shape 'serialized'");
 }
 
+// ---- the teapot that data/veach-ajar supplies ----------------------------------------------
+
+// Outward-facing meshes enclose a positive signed volume (divergence theorem).
+double signedVolume(const TriangleMesh& mesh) {
+    double volume = 0.0;
+    for (std::size_t t = 0; t + 2 < mesh.indices.size(); t += 3) {
+        const glm::dvec3 a(mesh.positions[mesh.indices[t]]), b(mesh.positions[mesh.indices[t + 1]]),
+            c(mesh.positions[mesh.indices[t + 2]]);
+        volume += glm::dot(a, glm::cross(b, c)) / 6.0;
+    }
+    return volume;
+}
+
+TEST(VeachAjarTeapot, MeshesFaceOutwardsAndStandOnTheirBase) {
+    const fs::path models = fs::path(FLUXGRAPH_SOURCE_DIR) / "data" / "veach-ajar" / "models";
+    const TriangleMesh body = loadObjMesh((models / "Mesh000.obj").string());
+    const TriangleMesh lid = loadObjMesh((models / "Mesh009.obj").string());
+    float lowest = 1e9f, highest = -1e9f;
+    for (const TriangleMesh* mesh : {&body, &lid}) {
+        ASSERT_GT(mesh->triangleCount(), 1000u);
+        ASSERT_EQ(mesh->normals.size(), mesh->positions.size());
+        for (const Vec3& p : mesh->positions) {
+            lowest = std::min(lowest, p.y);
+            highest = std::max(highest, p.y);
+        }
+        // Winding and vertex normals agree.
+        for (std::size_t t = 0; t + 2 < mesh->indices.size(); t += 3) {
+            const std::uint32_t i0 = mesh->indices[t], i1 = mesh->indices[t + 1], i2 = mesh->indices[t + 2];
+            const Vec3 ng = glm::cross(mesh->positions[i1] - mesh->positions[i0], mesh->positions[i2] - mesh->positions[i0]);
+            ASSERT_GT(glm::dot(ng, mesh->normals[i0] + mesh->normals[i1] + mesh->normals[i2]), 0.0f) << "triangle " << t / 3;
+        }
+    }
+    EXPECT_NEAR(lowest, 0.0f, 1e-4f) << "base on y = 0";
+    EXPECT_NEAR(highest, 3.15f, 1e-3f) << "Newell's teapot is 3.15 units tall";
+    EXPECT_GT(signedVolume(body), 15.0);
+    EXPECT_GT(signedVolume(lid), 0.0);
+}
+
 // ---- media -------------------------------------------------------------------------------
 
 TEST(MitsubaMedia, HeterogeneousMediaAreRefusedByName) {
