@@ -80,6 +80,11 @@ void Scene::finalize() {
         if (const auto* sphere = std::get_if<Sphere>(&shape.geometry)) {
             lo = glm::min(lo, sphere->center - Vec3(sphere->radius));
             hi = glm::max(hi, sphere->center + Vec3(sphere->radius));
+        } else if (const auto* instance = std::get_if<MeshInstance>(&shape.geometry)) {
+            for (const Vec3& p : instance->mesh->positions) {
+                lo = glm::min(lo, instance->point(p));
+                hi = glm::max(hi, instance->point(p));
+            }
         } else {
             for (const Vec3& p : std::get<TriangleMesh>(shape.geometry).positions) {
                 lo = glm::min(lo, p);

@@ -885,12 +885,7 @@ public:
         }
         if (!sawSensor) throw InputError(root.file->path, root.line, "the scene has no <sensor>");
         // Groups nothing instantiates are still read, so that their errors show.
-        for (const Node* group : shapeGroups_) {
-            if (instancedGroups_.count(group)) continue;
-            Props groupProps(*this, *group, "shape");
-            const Mat4 identity(1.0f);
-            for (Entry* member : groupProps.objects("shape")) readShape(*member->node, &identity, false);
-        }
+        for (const Node* group : shapeGroups_) groupMembers(*group);
     }
 
     // Children of a plugin element, with <ref>s resolved.
@@ -1507,10 +1502,9 @@ private:
         shapeGroups_.push_back(&p.node());
     }
 
-    // Every shape of the group, transformed by the instance's to_world. The
-    // copies do not share memory: each becomes an ordinary shape (its own
-    // Embree geometry, area light and photon bounds), which keeps every pass
-    // unaware of instancing.
+    // Every shape of the group, placed by the instance's to_world: meshes share
+    // their data (MeshInstance; one Embree scene, instanced), analytic spheres
+    // are copied with the transform folded in.
     void readInstance(Props& p) {
         Entry* group = p.singleObject("shape");
         if (!group || !group->ref) p.fail("an instance needs a <ref id=\"...\"/> to a shapegroup");
@@ -1523,8 +1517,12 @@ private:
         const Mat4 toWorld = p.transform("to_world").value_or(Mat4(1.0f));
         p.finish();
         instancedGroups_.insert(&groupNode);
-        Props groupProps(*this, groupNode, "shape");
-        for (Entry* member : groupProps.objects("shape")) readShape(*member->node, &toWorld);
+        for (const GroupMember& member : groupMembers(groupNode)) {
+            Shape shape = member.shape;
+            if (auto* instance = std::get_if<MeshInstance>(&shape.geometry)) instance->toWorld = toWorld;
+            else if (auto* sphere = std::get_if<Sphere>(&shape.geometry)) foldSphereTransform(p, group->site(), toWorld, *sphere);
+            addShape(std::move(shape), member.emission);
+        }
     }
 
     // Mitsuba's cylinder, as a tessellated open tube in object space (to_world follows).
@@ -1560,16 +1558,26 @@ private:
         sphere.worldToObject = sphere.worldToObject * (glm::transpose(linear) / s);
     }
 
-    // `instanceToWorld`: the shape belongs to a shape group and is placed by an
-    // instance (applied after its own to_world). `keep` false builds it only
-    // for its errors (a group nothing instantiates).
-    void readShape(const Node& node, const Mat4* instanceToWorld = nullptr, bool keep = true) {
+    struct AreaEmission {
+        Rgb radiance{1.0f};
+        std::shared_ptr<Texture> texture;  // set when radiance is a texture
+    };
+
+    // A shape of a shape group, built once in the group's space; instances copy
+    // it (a mesh as a MeshInstance of one shared mesh).
+    struct GroupMember {
+        Shape shape;
+        std::optional<AreaEmission> emission;
+    };
+
+    // With `member`, the shape belongs to a shape group: it is returned there
+    // instead of being added to the scene.
+    void readShape(const Node& node, GroupMember* member = nullptr) {
         Props p(*this, node, "shape");
-        const std::size_t index = scene_.shapes.size();
         Shape shape;
         const std::string& type = p.type();
         if (type == "shapegroup" || type == "instance") {
-            if (instanceToWorld || !keep) p.fail("shape groups and instances cannot be nested in a shape group");
+            if (member) p.fail("shape groups and instances cannot be nested in a shape group");
             if (type == "shapegroup") readShapeGroup(p);
             else readInstance(p);
             return;
@@ -1581,7 +1589,6 @@ private:
             sphere.radius = p.number("radius", 1.0f);
             if (!(sphere.radius > 0.0f)) p.fail(*p.valueNode("radius"), "radius must be positive");
             if (const std::optional<Mat4> m = p.transform("to_world")) foldSphereTransform(p, *p.valueNode("to_world"), *m, sphere);
-            if (instanceToWorld) foldSphereTransform(p, node, *instanceToWorld, sphere);
             shape.geometry = sphere;
             shape.flipNormals = flip;
         } else {
@@ -1616,12 +1623,12 @@ private:
                        "shapegroup, instance)");
             }
             finishMesh(p, mesh, faceNormalsParameter);
-            if (instanceToWorld) mesh.transform(*instanceToWorld);
             if (flip) mesh.flipNormals();
-            shape.geometry = std::move(mesh);
+            if (member) shape.geometry = MeshInstance{std::make_shared<const TriangleMesh>(std::move(mesh)), Mat4(1.0f)};
+            else shape.geometry = std::move(mesh);
         }
         if (const std::string* id = node.attribute("id")) shape.name = *id;
-        if (shape.name.empty()) shape.name = type + std::to_string(index);
+        if (shape.name.empty()) shape.name = type + std::to_string(scene_.shapes.size());
 
         const Entry* bsdf = p.singleObject("bsdf");
         shape.bsdf = bsdf ? bsdfIndex(expectObject(*bsdf, "bsdf", p.what())) : defaultBsdf();
@@ -1637,8 +1644,16 @@ private:
         std::optional<AreaEmission> emission;
         if (const Entry* emitter = p.singleObject("emitter")) emission = areaRadiance(expectObject(*emitter, "emitter", p.what()), p);
         p.finish();
-        if (!keep) return;
+        if (member) {
+            member->shape = std::move(shape);
+            member->emission = emission;
+            return;
+        }
+        addShape(std::move(shape), emission);
+    }
 
+    void addShape(Shape shape, const std::optional<AreaEmission>& emission) {
+        const std::size_t index = scene_.shapes.size();
         if (emission && (emission->texture || !isBlack(emission->radiance))) {
             shape.areaLight = static_cast<int>(scene_.lights.size());
             scene_.lights.push_back(emission->texture ? makeTexturedAreaLight(shape, emission->texture)
@@ -1648,12 +1663,20 @@ private:
         scene_.shapes.push_back(std::move(shape));
     }
 
-    // ---- emitters ---------------------------------------------------------------
+    // The members of a shape group, built on first use.
+    const std::vector<GroupMember>& groupMembers(const Node& group) {
+        if (const auto it = groupMembers_.find(&group); it != groupMembers_.end()) return it->second;
+        Props groupProps(*this, group, "shape");
+        std::vector<GroupMember> members;
+        for (Entry* entry : groupProps.objects("shape")) {
+            GroupMember member;
+            readShape(*entry->node, &member);
+            members.push_back(std::move(member));
+        }
+        return groupMembers_[&group] = std::move(members);
+    }
 
-    struct AreaEmission {
-        Rgb radiance{1.0f};
-        std::shared_ptr<Texture> texture;  // set when radiance is a texture
-    };
+    // ---- emitters ---------------------------------------------------------------
 
     AreaEmission areaRadiance(const Node& node, const Props& shape) {
         if (const auto it = areaRadiance_.find(&node); it != areaRadiance_.end()) return it->second;
@@ -1801,6 +1824,7 @@ private:
     std::unordered_map<const Node*, std::pair<int, int>> textureResolution_;  // bitmaps: width, height
     std::set<const Node*> building_;
     std::vector<const Node*> shapeGroups_;
+    std::unordered_map<const Node*, std::vector<GroupMember>> groupMembers_;
     std::set<const Node*> instancedGroups_;
     int defaultBsdf_ = -1;
 };

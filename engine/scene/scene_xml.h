@@ -79,9 +79,9 @@
 //                 non-uniform scale is an error (spheres stay analytic, no ellipsoids)
 //   shapegroup    (with an id) shapes that only instances place; an unused group is
 //                 still checked
-//   instance      <ref> to a shapegroup, to_world: every shape of the group, transformed
-//                 (after its own to_world); the copies are ordinary shapes (geometry is
-//                 duplicated, not shared)
+//   instance      <ref> to a shapegroup, to_world: every shape of the group, placed
+//                 after its own to_world; meshes are shared between instances (one
+//                 Embree scene, instanced), spheres copied with the transform folded in
 //   all           to_world, flip_normals, one bsdf (default: diffuse 0.5), one area
 //                 emitter, media named interior / exterior
 //   Texture coordinates keep Mitsuba's meaning: OBJ's v is flipped as Mitsuba flips it

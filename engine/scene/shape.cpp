@@ -33,7 +33,31 @@ float TriangleMesh::area() const {
 
 float Shape::area() const {
     if (const auto* s = std::get_if<Sphere>(&geometry)) return 4.0f * kPi * s->radius * s->radius;
+    if (const auto* instance = std::get_if<MeshInstance>(&geometry)) return instance->area();
     return std::get<TriangleMesh>(geometry).area();
+}
+
+TriangleMesh Shape::worldMesh() const {
+    if (const auto* instance = std::get_if<MeshInstance>(&geometry)) return instance->worldMesh();
+    return std::get<TriangleMesh>(geometry);
+}
+
+TriangleMesh MeshInstance::worldMesh() const {
+    TriangleMesh copy = *mesh;
+    copy.transform(toWorld);
+    return copy;
+}
+
+float MeshInstance::area() const {
+    double sum = 0.0;
+    const std::vector<std::uint32_t>& indices = mesh->indices;
+    for (std::size_t t = 0; t + 2 < indices.size(); t += 3) {
+        const Vec3 a = point(mesh->positions[indices[t]]);
+        const Vec3 b = point(mesh->positions[indices[t + 1]]);
+        const Vec3 c = point(mesh->positions[indices[t + 2]]);
+        sum += 0.5 * glm::length(glm::cross(b - a, c - a));
+    }
+    return static_cast<float>(sum);
 }
 
 TriangleMesh makeRectangleMesh() {

@@ -8,6 +8,7 @@
 #include "engine/core/math.h"
 
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <variant>
 #include <vector>
@@ -32,6 +33,19 @@ struct Sphere {
     // Rotation from world to the sphere's object frame: it only turns the (u, v)
     // parametrisation (poles on the object's z axis), the geometry is symmetric.
     Mat3 worldToObject{1.0f};
+};
+
+// A mesh shared by several shapes (Mitsuba's shape groups and instances): its
+// object-space data once, and where this shape puts it. Ray queries trace it as
+// an Embree instance of one shared acceleration structure.
+struct MeshInstance {
+    std::shared_ptr<const TriangleMesh> mesh;
+    Mat4 toWorld{1.0f};
+
+    Vec3 point(const Vec3& p) const { return Vec3(toWorld * Vec4(p, 1.0f)); }
+    // A transformed copy, for code that needs world-space triangles once (area lights).
+    TriangleMesh worldMesh() const;
+    float area() const;
 };
 
 // Generators in object space, as Mitsuba defines them: rectangle [-1,1]^2 at z=0
@@ -66,7 +80,7 @@ struct ShapeSample {
 
 struct Shape {
     std::string name;
-    std::variant<TriangleMesh, Sphere> geometry;
+    std::variant<TriangleMesh, Sphere, MeshInstance> geometry;
     int bsdf = -1;            // index into Scene::bsdfs
     int interiorMedium = -1;  // index into Scene::media, -1 = none
     int exteriorMedium = -1;
@@ -74,6 +88,8 @@ struct Shape {
     bool flipNormals = false; // spheres: normals point inwards
 
     bool isSphere() const { return std::holds_alternative<Sphere>(geometry); }
+    // The shape's triangles in world space: the mesh itself, or an instance's transformed copy.
+    TriangleMesh worldMesh() const;
     float area() const;
 };
 

@@ -609,7 +609,7 @@ public:
             inwards_ = shape.flipNormals;
             area_ = 4.0f * kPi * sphere_.radius * sphere_.radius;
         } else {
-            const auto& mesh = std::get<TriangleMesh>(shape.geometry);
+            const TriangleMesh mesh = shape.worldMesh();
             std::vector<float> areas;
             double total = 0.0;
             for (std::size_t t = 0; t + 2 < mesh.indices.size(); t += 3) {

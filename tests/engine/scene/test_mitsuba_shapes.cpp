@@ -306,7 +306,8 @@ TEST(MitsubaShapes, InstancesEqualTheFlattenedScene) {
             for (int c = 0; c < 3; ++c) EXPECT_NEAR(glm::length(sa->worldToObject[c] - sb.worldToObject[c]), 0.0f, 1e-5f);
             continue;
         }
-        const auto& ma = std::get<TriangleMesh>(a.shapes[i].geometry);
+        ASSERT_TRUE(std::holds_alternative<MeshInstance>(a.shapes[i].geometry)) << "group meshes are instanced";
+        const TriangleMesh ma = a.shapes[i].worldMesh();
         const auto& mb = std::get<TriangleMesh>(b.shapes[i].geometry);
         ASSERT_EQ(ma.positions.size(), mb.positions.size());
         EXPECT_EQ(ma.indices, mb.indices);
@@ -315,8 +316,59 @@ TEST(MitsubaShapes, InstancesEqualTheFlattenedScene) {
             EXPECT_NEAR(glm::length(ma.normals[v] - mb.normals[v]), 0.0f, 1e-5f);
         }
     }
-    // Members share their group's material across instances.
+    // Members share their group's material and mesh data across instances.
     EXPECT_EQ(a.shapes[0].bsdf, a.shapes[3].bsdf);
+    EXPECT_EQ(std::get<MeshInstance>(a.shapes[0].geometry).mesh, std::get<MeshInstance>(a.shapes[3].geometry).mesh);
+
+    // Traced through Embree instances, every ray sees what it sees in the flattened scene.
+    const RayQuery rayA(a), rayB(b);
+    int hits = 0;
+    for (int j = 0; j < 40; ++j) {
+        for (int i = 0; i < 40; ++i) {
+            Ray ray;
+            ray.origin = Vec3(-8.0f, 0.5f, 0.3f);
+            ray.direction = glm::normalize(Vec3(1.0f, -0.6f + 1.2f * (i + 0.5f) / 40.0f, -0.9f + 1.8f * (j + 0.5f) / 40.0f));
+            const Hit ha = rayA.intersect(ray), hb = rayB.intersect(ray);
+            ASSERT_EQ(ha.shape, hb.shape) << i << ", " << j;
+            if (!ha.valid()) continue;
+            ++hits;
+            EXPECT_NEAR(ha.t, hb.t, 1e-4f * hb.t);
+            const SurfacePoint sa = rayA.surface(ray, ha), sb = rayB.surface(ray, hb);
+            EXPECT_NEAR(glm::length(sa.p - sb.p), 0.0f, 1e-4f);
+            EXPECT_NEAR(glm::dot(sa.ng, sb.ng), 1.0f, 1e-4f);
+            EXPECT_NEAR(glm::dot(sa.ns, sb.ns), 1.0f, 1e-4f);
+            EXPECT_NEAR(glm::length(sa.uv - sb.uv), 0.0f, 1e-4f);
+            const Vec3 dp(0.01f, -0.02f, 0.015f);
+            const Vec3 da = rayA.shadingNormalDifferential(ray, ha, dp), db = rayB.shadingNormalDifferential(ray, hb, dp);
+            EXPECT_NEAR(glm::length(da - db), 0.0f, 1e-3f * (1.0f + glm::length(db)));
+        }
+    }
+    EXPECT_GT(hits, 100) << "the rays must meet the instances";
+}
+
+// A mirroring instance keeps the side its normals face, as a mirrored copy would.
+TEST(MitsubaShapes, MirroredInstanceFacesLikeAMirroredCopy) {
+    const fs::path dir = scratchDir();
+    const std::string member = R"(<shape type="rectangle"><transform name="to_world"><rotate y="1" angle="30"/></transform></shape>)";
+    const std::string mirror = R"(<scale x="-1"/><translate x="0.5"/>)";
+    const Scene grouped = loadXmlScene(
+        writeFile(dir / "g.xml", sceneText("    <shape type=\"shapegroup\" id=\"g\">" + member + "</shape>\n"
+                                           "    <shape type=\"instance\"><ref id=\"g\"/><transform name=\"to_world\">" +
+                                           mirror + "</transform></shape>\n"))
+            .string());
+    const Scene flat = loadXmlScene(
+        writeFile(dir / "f.xml", sceneText(R"(<shape type="rectangle"><transform name="to_world"><rotate y="1" angle="30"/>)" +
+                                           mirror + "</transform></shape>\n"))
+            .string());
+    const RayQuery a(grouped), b(flat);
+    for (const float side : {-1.0f, 1.0f}) {
+        Ray ray;
+        ray.origin = Vec3(0.3f, 0.2f, 5.0f * side);
+        ray.direction = Vec3(0.0f, 0.0f, -side);
+        const SurfacePoint sa = a.surface(ray, a.intersect(ray)), sb = b.surface(ray, b.intersect(ray));
+        EXPECT_NEAR(glm::dot(sa.ng, sb.ng), 1.0f, 1e-5f);
+        EXPECT_NEAR(glm::dot(sa.ns, sb.ns), 1.0f, 1e-5f);
+    }
 }
 
 TEST(MitsubaShapes, ShapeGroupErrors) {
