@@ -71,20 +71,19 @@ TriangleMesh makeRectangleMesh() {
 
 TriangleMesh makeDiskMesh(int segments) {
     TriangleMesh m;
-    m.positions.push_back({0, 0, 0});
-    m.normals.push_back({0, 0, 1});
-    m.uvs.push_back({0.5f, 0.5f});
+    // Mitsuba's disk parametrisation is polar, uv = (r, phi / 2 pi): each fan
+    // triangle gets corners of its own, so that v does not wrap at the seam and
+    // the centre takes the angle of the triangle's middle.
     for (int i = 0; i < segments; ++i) {
-        const float phi = 2.0f * kPi * static_cast<float>(i) / static_cast<float>(segments);
-        const Vec3 p(std::cos(phi), std::sin(phi), 0.0f);
-        m.positions.push_back(p);
-        m.normals.push_back({0, 0, 1});
-        m.uvs.push_back({0.5f + 0.5f * p.x, 0.5f + 0.5f * p.y});
-    }
-    for (int i = 0; i < segments; ++i) {
-        m.indices.push_back(0);
-        m.indices.push_back(static_cast<std::uint32_t>(1 + i));
-        m.indices.push_back(static_cast<std::uint32_t>(1 + (i + 1) % segments));
+        const float v0 = static_cast<float>(i) / static_cast<float>(segments);
+        const float v1 = static_cast<float>(i + 1) / static_cast<float>(segments);
+        const Vec3 a(std::cos(2.0f * kPi * v0), std::sin(2.0f * kPi * v0), 0.0f);
+        const Vec3 b = i + 1 == segments ? Vec3(1.0f, 0.0f, 0.0f) : Vec3(std::cos(2.0f * kPi * v1), std::sin(2.0f * kPi * v1), 0.0f);
+        const auto base = static_cast<std::uint32_t>(m.positions.size());
+        m.positions.insert(m.positions.end(), {Vec3(0.0f), a, b});
+        m.normals.insert(m.normals.end(), {Vec3(0, 0, 1), Vec3(0, 0, 1), Vec3(0, 0, 1)});
+        m.uvs.insert(m.uvs.end(), {Vec2(0.0f, 0.5f * (v0 + v1)), Vec2(1.0f, v0), Vec2(1.0f, v1)});
+        m.indices.insert(m.indices.end(), {base, base + 1, base + 2});
     }
     return m;
 }

@@ -49,7 +49,8 @@ struct MeshInstance {
 };
 
 // Generators in object space, as Mitsuba defines them: rectangle [-1,1]^2 at z=0
-// facing +z; disk of radius 1 at z=0 facing +z; cube [-1,1]^3 facing outwards.
+// facing +z; disk of radius 1 at z=0 facing +z with uv = (r, phi / 2 pi); cube
+// [-1,1]^3 facing outwards.
 TriangleMesh makeRectangleMesh();
 TriangleMesh makeDiskMesh(int segments = 128);
 TriangleMesh makeCubeMesh();

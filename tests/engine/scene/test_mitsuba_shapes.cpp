@@ -185,6 +185,29 @@ TEST(MitsubaShapes, RotatedSphereTurnsItsParametrisation) {
     EXPECT_NEAR(side.uv.y, 0.5f, 1e-4f);
 }
 
+// ---- disks -------------------------------------------------------------------------------
+
+TEST(MitsubaShapes, DiskUvIsPolarAsMitsubas) {
+    Scene scene;
+    Shape disk;
+    disk.geometry = makeDiskMesh(128);
+    scene.shapes.push_back(disk);
+    scene.finalize();
+    const RayQuery rays(scene);
+    for (const Vec2 point : {Vec2(0.5f, 0.2f), Vec2(-0.3f, 0.6f), Vec2(-0.4f, -0.7f), Vec2(0.8f, -0.05f)}) {
+        Ray ray;
+        ray.origin = Vec3(point, 1.0f);
+        ray.direction = Vec3(0, 0, -1);
+        const SurfacePoint sp = rays.surface(ray, rays.intersect(ray));
+        float phi = std::atan2(point.y, point.x);
+        if (phi < 0.0f) phi += 2.0f * kPi;
+        EXPECT_NEAR(sp.uv.x, glm::length(point), 2e-3f) << "u = r";
+        // Linear across each fan triangle: exact on the rim, within half a segment inside.
+        EXPECT_NEAR(sp.uv.y, phi / (2.0f * kPi), 0.5f / 128.0f) << "v = phi / 2 pi";
+    }
+    EXPECT_NEAR(disk.area(), kPi, 2e-3f);
+}
+
 // ---- cylinders ------------------------------------------------------------------------
 
 TEST(MitsubaShapes, CylinderIsAnOutwardFacingTube) {
