@@ -9,6 +9,7 @@ reproduces the committed file byte for byte.
     tools/make_geometry.py wave  OUT.obj [--size S] [--grid N] [--height H] [--waves A,LAMBDA,DEG,PHASE ...]
     tools/make_geometry.py ring  OUT.obj [--inner R] [--outer R] [--height H] [--segments N]
                                  [--start DEG] [--sweep DEG]
+    tools/make_geometry.py teapot BODY.obj LID.obj [--steps N]
     tools/make_geometry.py all [--root DIR]   (regenerates every mesh used by data/)
 
 Conventions: y is up. A wave is a height field y = H + sum_i a_i sin(k_i (d_i . (x, z)) + phase_i)
@@ -20,6 +21,15 @@ cylinder walls carry smooth radial normals, the top and bottom rims (and the
 end caps of a ring swept less than 360 degrees) are flat and do not share
 vertices with the walls, so their edges stay sharp. Every face normal points
 out of the metal.
+A teapot is Newell's Utah teapot (1975; public-domain data as published by
+Crow 1987, "The origins of the teapot", IEEE CG&A 7(1)), with the bottom
+patches many later copies add: 32 bicubic Bezier patches over 306 control
+points, z up in the data, written y up (x, z, -y) with the base on y = 0.
+Each patch becomes an N x N grid with analytic normals (dP/du x dP/dv, the
+partials taken slightly inside the patch where a patch collapses to a point);
+each patch's side is chosen so that its normals point out of the pot (a ray
+from the patch centre along the normal crosses the surface an even number of
+times). BODY gets rim, body, handle, spout and bottom, LID the lid.
 """
 
 import argparse
@@ -149,6 +159,202 @@ def make_ring(inner, outer, height, segments, start_deg, sweep_deg):
     return mesh
 
 
+# Newell's teapot control points (1-based in the patch table below).
+TEAPOT_POINTS = [float(v) for v in """
+1.4 0 2.4  1.4 -0.784 2.4  0.784 -1.4 2.4  0 -1.4 2.4  1.3375 0 2.53125  1.3375 -0.749 2.53125
+0.749 -1.3375 2.53125  0 -1.3375 2.53125  1.4375 0 2.53125  1.4375 -0.805 2.53125  0.805 -1.4375 2.53125
+0 -1.4375 2.53125  1.5 0 2.4  1.5 -0.84 2.4  0.84 -1.5 2.4  0 -1.5 2.4  -0.784 -1.4 2.4  -1.4 -0.784 2.4
+-1.4 0 2.4  -0.749 -1.3375 2.53125  -1.3375 -0.749 2.53125  -1.3375 0 2.53125  -0.805 -1.4375 2.53125
+-1.4375 -0.805 2.53125  -1.4375 0 2.53125  -0.84 -1.5 2.4  -1.5 -0.84 2.4  -1.5 0 2.4  -1.4 0.784 2.4
+-0.784 1.4 2.4  0 1.4 2.4  -1.3375 0.749 2.53125  -0.749 1.3375 2.53125  0 1.3375 2.53125
+-1.4375 0.805 2.53125  -0.805 1.4375 2.53125  0 1.4375 2.53125  -1.5 0.84 2.4  -0.84 1.5 2.4  0 1.5 2.4
+0.784 1.4 2.4  1.4 0.784 2.4  0.749 1.3375 2.53125  1.3375 0.749 2.53125  0.805 1.4375 2.53125
+1.4375 0.805 2.53125  0.84 1.5 2.4  1.5 0.84 2.4  1.75 0 1.875  1.75 -0.98 1.875  0.98 -1.75 1.875
+0 -1.75 1.875  2 0 1.35  2 -1.12 1.35  1.12 -2 1.35  0 -2 1.35  2 0 0.9  2 -1.12 0.9  1.12 -2 0.9  0 -2 0.9
+-0.98 -1.75 1.875  -1.75 -0.98 1.875  -1.75 0 1.875  -1.12 -2 1.35  -2 -1.12 1.35  -2 0 1.35  -1.12 -2 0.9
+-2 -1.12 0.9  -2 0 0.9  -1.75 0.98 1.875  -0.98 1.75 1.875  0 1.75 1.875  -2 1.12 1.35  -1.12 2 1.35
+0 2 1.35  -2 1.12 0.9  -1.12 2 0.9  0 2 0.9  0.98 1.75 1.875  1.75 0.98 1.875  1.12 2 1.35  2 1.12 1.35
+1.12 2 0.9  2 1.12 0.9  2 0 0.45  2 -1.12 0.45  1.12 -2 0.45  0 -2 0.45  1.5 0 0.225  1.5 -0.84 0.225
+0.84 -1.5 0.225  0 -1.5 0.225  1.5 0 0.15  1.5 -0.84 0.15  0.84 -1.5 0.15  0 -1.5 0.15  -1.12 -2 0.45
+-2 -1.12 0.45  -2 0 0.45  -0.84 -1.5 0.225  -1.5 -0.84 0.225  -1.5 0 0.225  -0.84 -1.5 0.15  -1.5 -0.84 0.15
+-1.5 0 0.15  -2 1.12 0.45  -1.12 2 0.45  0 2 0.45  -1.5 0.84 0.225  -0.84 1.5 0.225  0 1.5 0.225
+-1.5 0.84 0.15  -0.84 1.5 0.15  0 1.5 0.15  1.12 2 0.45  2 1.12 0.45  0.84 1.5 0.225  1.5 0.84 0.225
+0.84 1.5 0.15  1.5 0.84 0.15  -1.6 0 2.025  -1.6 -0.3 2.025  -1.5 -0.3 2.25  -1.5 0 2.25  -2.3 0 2.025
+-2.3 -0.3 2.025  -2.5 -0.3 2.25  -2.5 0 2.25  -2.7 0 2.025  -2.7 -0.3 2.025  -3 -0.3 2.25  -3 0 2.25
+-2.7 0 1.8  -2.7 -0.3 1.8  -3 -0.3 1.8  -3 0 1.8  -1.5 0.3 2.25  -1.6 0.3 2.025  -2.5 0.3 2.25  -2.3 0.3 2.025
+-3 0.3 2.25  -2.7 0.3 2.025  -3 0.3 1.8  -2.7 0.3 1.8  -2.7 0 1.575  -2.7 -0.3 1.575  -3 -0.3 1.35  -3 0 1.35
+-2.5 0 1.125  -2.5 -0.3 1.125  -2.65 -0.3 0.9375  -2.65 0 0.9375  -2 -0.3 0.9  -1.9 -0.3 0.6  -1.9 0 0.6
+-3 0.3 1.35  -2.7 0.3 1.575  -2.65 0.3 0.9375  -2.5 0.3 1.125  -1.9 0.3 0.6  -2 0.3 0.9  1.7 0 1.425
+1.7 -0.66 1.425  1.7 -0.66 0.6  1.7 0 0.6  2.6 0 1.425  2.6 -0.66 1.425  3.1 -0.66 0.825  3.1 0 0.825
+2.3 0 2.1  2.3 -0.25 2.1  2.4 -0.25 2.025  2.4 0 2.025  2.7 0 2.4  2.7 -0.25 2.4  3.3 -0.25 2.4  3.3 0 2.4
+1.7 0.66 0.6  1.7 0.66 1.425  3.1 0.66 0.825  2.6 0.66 1.425  2.4 0.25 2.025  2.3 0.25 2.1  3.3 0.25 2.4
+2.7 0.25 2.4  2.8 0 2.475  2.8 -0.25 2.475  3.525 -0.25 2.49375  3.525 0 2.49375  2.9 0 2.475
+2.9 -0.15 2.475  3.45 -0.15 2.5125  3.45 0 2.5125  2.8 0 2.4  2.8 -0.15 2.4  3.2 -0.15 2.4  3.2 0 2.4
+3.525 0.25 2.49375  2.8 0.25 2.475  3.45 0.15 2.5125  2.9 0.15 2.475  3.2 0.15 2.4  2.8 0.15 2.4  0 0 3.15
+0 -0.002 3.15  0.002 0 3.15  0.8 0 3.15  0.8 -0.45 3.15  0.45 -0.8 3.15  0 -0.8 3.15  0 0 2.85  0.2 0 2.7
+0.2 -0.112 2.7  0.112 -0.2 2.7  0 -0.2 2.7  -0.002 0 3.15  -0.45 -0.8 3.15  -0.8 -0.45 3.15  -0.8 0 3.15
+-0.112 -0.2 2.7  -0.2 -0.112 2.7  -0.2 0 2.7  0 0.002 3.15  -0.8 0.45 3.15  -0.45 0.8 3.15  0 0.8 3.15
+-0.2 0.112 2.7  -0.112 0.2 2.7  0 0.2 2.7  0.45 0.8 3.15  0.8 0.45 3.15  0.112 0.2 2.7  0.2 0.112 2.7
+0.4 0 2.55  0.4 -0.224 2.55  0.224 -0.4 2.55  0 -0.4 2.55  1.3 0 2.55  1.3 -0.728 2.55  0.728 -1.3 2.55
+0 -1.3 2.55  1.3 0 2.4  1.3 -0.728 2.4  0.728 -1.3 2.4  0 -1.3 2.4  -0.224 -0.4 2.55  -0.4 -0.224 2.55
+-0.4 0 2.55  -0.728 -1.3 2.55  -1.3 -0.728 2.55  -1.3 0 2.55  -0.728 -1.3 2.4  -1.3 -0.728 2.4  -1.3 0 2.4
+-0.4 0.224 2.55  -0.224 0.4 2.55  0 0.4 2.55  -1.3 0.728 2.55  -0.728 1.3 2.55  0 1.3 2.55  -1.3 0.728 2.4
+-0.728 1.3 2.4  0 1.3 2.4  0.224 0.4 2.55  0.4 0.224 2.55  0.728 1.3 2.55  1.3 0.728 2.55  0.728 1.3 2.4
+1.3 0.728 2.4  0 0 0  1.5 0 0.15  1.5 0.84 0.15  0.84 1.5 0.15  0 1.5 0.15  1.5 0 0.075  1.5 0.84 0.075
+0.84 1.5 0.075  0 1.5 0.075  1.425 0 0  1.425 0.798 0  0.798 1.425 0  0 1.425 0  -0.84 1.5 0.15
+-1.5 0.84 0.15  -1.5 0 0.15  -0.84 1.5 0.075  -1.5 0.84 0.075  -1.5 0 0.075  -0.798 1.425 0
+-1.425 0.798 0  -1.425 0 0  -1.5 -0.84 0.15  -0.84 -1.5 0.15  0 -1.5 0.15  -1.5 -0.84 0.075
+-0.84 -1.5 0.075  0 -1.5 0.075  -1.425 -0.798 0  -0.798 -1.425 0  0 -1.425 0  0.84 -1.5 0.15
+1.5 -0.84 0.15  0.84 -1.5 0.075  1.5 -0.84 0.075  0.798 -1.425 0  1.425 -0.798 0
+""".split()]
+
+# (part, 16 one-based control point indices, row by row).
+TEAPOT_PATCHES = [(part, [int(v) for v in row.split()]) for part, row in [
+    ("body", "1 2 3 4 5 6 7 8 9 10 11 12 13 14 15 16"),
+    ("body", "4 17 18 19 8 20 21 22 12 23 24 25 16 26 27 28"),
+    ("body", "19 29 30 31 22 32 33 34 25 35 36 37 28 38 39 40"),
+    ("body", "31 41 42 1 34 43 44 5 37 45 46 9 40 47 48 13"),
+    ("body", "13 14 15 16 49 50 51 52 53 54 55 56 57 58 59 60"),
+    ("body", "16 26 27 28 52 61 62 63 56 64 65 66 60 67 68 69"),
+    ("body", "28 38 39 40 63 70 71 72 66 73 74 75 69 76 77 78"),
+    ("body", "40 47 48 13 72 79 80 49 75 81 82 53 78 83 84 57"),
+    ("body", "57 58 59 60 85 86 87 88 89 90 91 92 93 94 95 96"),
+    ("body", "60 67 68 69 88 97 98 99 92 100 101 102 96 103 104 105"),
+    ("body", "69 76 77 78 99 106 107 108 102 109 110 111 105 112 113 114"),
+    ("body", "78 83 84 57 108 115 116 85 111 117 118 89 114 119 120 93"),
+    ("body", "121 122 123 124 125 126 127 128 129 130 131 132 133 134 135 136"),
+    ("body", "124 137 138 121 128 139 140 125 132 141 142 129 136 143 144 133"),
+    ("body", "133 134 135 136 145 146 147 148 149 150 151 152 69 153 154 155"),
+    ("body", "136 143 144 133 148 156 157 145 152 158 159 149 155 160 161 69"),
+    ("body", "162 163 164 165 166 167 168 169 170 171 172 173 174 175 176 177"),
+    ("body", "165 178 179 162 169 180 181 166 173 182 183 170 177 184 185 174"),
+    ("body", "174 175 176 177 186 187 188 189 190 191 192 193 194 195 196 197"),
+    ("body", "177 184 185 174 189 198 199 186 193 200 201 190 197 202 203 194"),
+    ("lid", "204 204 204 204 207 208 209 210 211 211 211 211 212 213 214 215"),
+    ("lid", "204 204 204 204 210 217 218 219 211 211 211 211 215 220 221 222"),
+    ("lid", "204 204 204 204 219 224 225 226 211 211 211 211 222 227 228 229"),
+    ("lid", "204 204 204 204 226 230 231 207 211 211 211 211 229 232 233 212"),
+    ("lid", "212 213 214 215 234 235 236 237 238 239 240 241 242 243 244 245"),
+    ("lid", "215 220 221 222 237 246 247 248 241 249 250 251 245 252 253 254"),
+    ("lid", "222 227 228 229 248 255 256 257 251 258 259 260 254 261 262 263"),
+    ("lid", "229 232 233 212 257 264 265 234 260 266 267 238 263 268 269 242"),
+    ("body", "270 270 270 270 279 280 281 282 275 276 277 278 271 272 273 274"),
+    ("body", "270 270 270 270 282 289 290 291 278 286 287 288 274 283 284 285"),
+    ("body", "270 270 270 270 291 298 299 300 288 295 296 297 285 292 293 294"),
+    ("body", "270 270 270 270 300 305 306 279 297 303 304 275 294 301 302 271"),
+]]
+
+
+def bezier_patch(points, u, v):
+    """Point and partial derivatives of a bicubic Bezier patch (rows along v, columns along u)."""
+    def basis(t):
+        s = 1.0 - t
+        return (s * s * s, 3.0 * t * s * s, 3.0 * t * t * s, t * t * t), \
+               (-3.0 * s * s, 3.0 * s * s - 6.0 * t * s, 6.0 * t * s - 3.0 * t * t, 3.0 * t * t)
+    bu, du = basis(u)
+    bv, dv = basis(v)
+    p, pu, pv = [0.0] * 3, [0.0] * 3, [0.0] * 3
+    for i in range(4):
+        for j in range(4):
+            c = points[4 * i + j]
+            for k in range(3):
+                p[k] += bv[i] * bu[j] * c[k]
+                pu[k] += bv[i] * du[j] * c[k]
+                pv[k] += dv[i] * bu[j] * c[k]
+    return p, pu, pv
+
+
+def cross(a, b):
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+def patch_normal(points, u, v):
+    """Unnormalised dP/du x dP/dv; at a collapsed edge, taken a little inside the patch."""
+    for inset in (0.0, 1e-3, 1e-2):
+        uu = min(max(u, inset), 1.0 - inset)
+        vv = min(max(v, inset), 1.0 - inset)
+        _, pu, pv = bezier_patch(points, uu, vv)
+        n = cross(pu, pv)
+        if sum(c * c for c in n) > 1e-16:
+            return n
+    return (0.0, 0.0, 1.0)
+
+
+def ray_crossings(origin, direction, triangles):
+    """How many triangles the ray origin + t direction (t > 0) crosses (Moller-Trumbore)."""
+    count = 0
+    for a, b, c in triangles:
+        e1 = [b[k] - a[k] for k in range(3)]
+        e2 = [c[k] - a[k] for k in range(3)]
+        pv = cross(direction, e2)
+        det = sum(e1[k] * pv[k] for k in range(3))
+        if abs(det) < 1e-12:
+            continue
+        tv = [origin[k] - a[k] for k in range(3)]
+        u = sum(tv[k] * pv[k] for k in range(3)) / det
+        if u < 0.0 or u > 1.0:
+            continue
+        qv = cross(tv, e1)
+        v = sum(direction[k] * qv[k] for k in range(3)) / det
+        if v < 0.0 or u + v > 1.0:
+            continue
+        if sum(e2[k] * qv[k] for k in range(3)) / det > 1e-6:
+            count += 1
+    return count
+
+
+def make_teapot(steps):
+    """Two meshes (body, lid) of Newell's teapot, y up, base on y = 0."""
+    control = [tuple(TEAPOT_POINTS[3 * i:3 * i + 3]) for i in range(len(TEAPOT_POINTS) // 3)]
+    grids = []
+    for part, indices in TEAPOT_PATCHES:
+        points = [control[i - 1] for i in indices]
+        grid = []
+        for j in range(steps + 1):
+            row = []
+            for i in range(steps + 1):
+                u, v = i / steps, j / steps
+                p, _, _ = bezier_patch(points, u, v)
+                row.append((p, patch_normal(points, u, v)))
+            grid.append(row)
+        grids.append((part, grid))
+    # Coarse triangles of the whole pot, for choosing each patch's outer side.
+    coarse = []
+    for _, grid in grids:
+        for j in range(steps):
+            for i in range(steps):
+                a, b, c, d = grid[j][i][0], grid[j][i + 1][0], grid[j + 1][i + 1][0], grid[j + 1][i][0]
+                coarse += [(a, b, c), (a, c, d)]
+    meshes = {"body": Mesh(), "lid": Mesh()}
+    for part, grid in grids:
+        centre, normal = grid[steps // 2][steps // 2]
+        length = math.sqrt(sum(c * c for c in normal))
+        direction = [c / length for c in normal]
+        start = [centre[k] + 1e-4 * direction[k] for k in range(3)]
+        sign = -1.0 if ray_crossings(start, direction, coarse) % 2 == 1 else 1.0
+        mesh = meshes[part]
+        index = []
+        for row in grid:
+            index_row = []
+            for p, n in row:
+                if sum(c * c for c in n) <= 0.0:
+                    n = (0.0, 0.0, 1.0)
+                # z up in the data, y up in the file.
+                index_row.append(mesh.vertex((p[0], p[2], -p[1]), (sign * n[0], sign * n[2], -sign * n[1])))
+            index.append(index_row)
+        for j in range(steps):
+            for i in range(steps):
+                a, b, c, d = index[j][i], index[j][i + 1], index[j + 1][i + 1], index[j + 1][i]
+                for tri in ((a, b, c), (a, c, d)):
+                    p0, p1, p2 = (mesh.positions[t] for t in tri)
+                    ng = cross([p1[k] - p0[k] for k in range(3)], [p2[k] - p0[k] for k in range(3)])
+                    if sum(c * c for c in ng) < 1e-20:
+                        continue  # collapsed corner of a patch
+                    ns = [sum(mesh.normals[t][k] for t in tri) for k in range(3)]
+                    mesh.triangles.append(tri if sum(ng[k] * ns[k] for k in range(3)) > 0.0 else (tri[0], tri[2], tri[1]))
+    return meshes["body"], meshes["lid"]
+
+
 def parse_wave(text):
     parts = [float(v) for v in text.split(",")]
     if len(parts) != 4 or parts[1] <= 0.0:
@@ -170,6 +376,20 @@ SCENE_MESHES = [
     ("data/spot-fog/meshes/lamp-shade.obj", "ring",
      dict(inner=0.205, outer=0.22, height=0.8, segments=96, start=0.0, sweep=360.0)),
 ]
+
+
+# Veach's "ajar" scene (../shared/scenes/bitterli-veach-ajar) names its teapots
+# models/Mesh000.obj and Mesh009.obj, which its copy lacks; data/veach-ajar/
+# includes that scene and supplies these two.
+TEAPOT_BODY = "data/veach-ajar/models/Mesh000.obj"
+TEAPOT_LID = "data/veach-ajar/models/Mesh009.obj"
+
+
+def write_teapot(body_path, lid_path, steps, names):
+    body, lid = make_teapot(steps)
+    command = "tools/make_geometry.py teapot %s %s --steps %d" % (names[0], names[1], steps)
+    write_obj(body, body_path, [command, "Newell's Utah teapot (public-domain data): rim, body, handle, spout, bottom"])
+    write_obj(lid, lid_path, [command, "Newell's Utah teapot (public-domain data): lid"])
 
 
 def build(kind, params):
@@ -210,6 +430,10 @@ def main(argv):
     ring.add_argument("--segments", type=int, default=360)
     ring.add_argument("--start", type=float, default=0.0, help="start angle, degrees from +x towards -z")
     ring.add_argument("--sweep", type=float, default=360.0, help="angular extent in degrees (360 = closed ring)")
+    teapot = sub.add_parser("teapot", help="Newell's Utah teapot as two meshes (body, lid)")
+    teapot.add_argument("body")
+    teapot.add_argument("lid")
+    teapot.add_argument("--steps", type=int, default=12, help="grid steps per patch side")
     everything = sub.add_parser("all", help="regenerate every mesh used by the scenes in data/")
     everything.add_argument("--root", default=REPO, help="write below this directory instead of the repository")
     args = parser.parse_args(argv)
@@ -217,6 +441,13 @@ def main(argv):
     if args.command == "all":
         for out, kind, params in SCENE_MESHES:
             write_obj(build(kind, params), os.path.join(args.root, out), [describe(kind, out, params)])
+        write_teapot(os.path.join(args.root, TEAPOT_BODY), os.path.join(args.root, TEAPOT_LID), 12,
+                     (TEAPOT_BODY, TEAPOT_LID))
+        return
+    if args.command == "teapot":
+        if args.steps < 1:
+            raise SystemExit("teapot: need steps >= 1")
+        write_teapot(args.body, args.lid, args.steps, (args.body, args.lid))
         return
     if args.command == "wave":
         if args.grid < 1 or args.size <= 0.0:

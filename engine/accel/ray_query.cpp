@@ -8,9 +8,14 @@
 // (Haines, Guenter, Akenine-Moller, "Precision Improvements for Ray/Sphere
 // Intersection", Ray Tracing Gems, 2019, ch. 7).
 // Geometry ids are attached explicitly so that geometry id == shape index.
+// A mesh shared by several shapes (MeshInstance) gets one Embree scene of its
+// own, and each of those shapes an Embree instance of it with its transform;
+// a hit reports the instance's id, and surface() moves the hit triangle into
+// world space.
 #include "engine/accel/ray_query.h"
 
 #include <embree3/rtcore.h>
+#include <glm/gtc/type_ptr.hpp>
 
 #include <algorithm>
 #include <cmath>
@@ -18,6 +23,7 @@
 #include <mutex>
 #include <stdexcept>
 #include <string>
+#include <unordered_map>
 #include <vector>
 
 namespace fg {
@@ -159,7 +165,8 @@ Hit fromEmbreeRayHit(const RTCRayHit& rh) {
     Hit hit;
     if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return hit;
     hit.t = rh.ray.tfar;
-    hit.shape = rh.hit.geomID;
+    // Shapes that instance a shared mesh are hit through their instance.
+    hit.shape = rh.hit.instID[0] != RTC_INVALID_GEOMETRY_ID ? rh.hit.instID[0] : rh.hit.geomID;
     hit.primitive = rh.hit.primID;
     hit.barycentric = Vec2(rh.hit.u, rh.hit.v);
     hit.geometricNormal = Vec3(rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z);
@@ -195,6 +202,44 @@ RTCIntersectContext makeContext(bool coherent) {
     return context;
 }
 
+// The corners of a hit triangle in world space. An instance's are transformed
+// as TriangleMesh::transform would transform a copy (normals by the inverse
+// transpose); a mirroring placement reverses the winding, which `orientation`
+// undoes instead of swapping corners, so that Embree's barycentrics still
+// refer to corners 1 and 2.
+struct TriangleCorners {
+    Vec3 p[3];
+    Vec3 n[3];
+    Vec2 uv[3];
+    bool hasNormals = false, hasUvs = false;
+    float orientation = 1.0f;
+};
+
+TriangleCorners cornersOf(const Shape& shape, std::uint32_t primitive) {
+    const auto* instance = std::get_if<MeshInstance>(&shape.geometry);
+    const TriangleMesh& mesh = instance ? *instance->mesh : std::get<TriangleMesh>(shape.geometry);
+    const std::size_t base = 3 * static_cast<std::size_t>(primitive);
+    TriangleCorners c;
+    c.hasNormals = !mesh.normals.empty();
+    c.hasUvs = !mesh.uvs.empty();
+    for (int k = 0; k < 3; ++k) {
+        const std::uint32_t i = mesh.indices[base + static_cast<std::size_t>(k)];
+        c.p[k] = mesh.positions[i];
+        if (c.hasNormals) c.n[k] = mesh.normals[i];
+        if (c.hasUvs) c.uv[k] = mesh.uvs[i];
+    }
+    if (instance) {
+        const Mat3 linear(instance->toWorld);
+        const Mat3 normalMatrix = glm::transpose(glm::inverse(linear));
+        for (int k = 0; k < 3; ++k) {
+            c.p[k] = instance->point(c.p[k]);
+            if (c.hasNormals) c.n[k] = glm::normalize(normalMatrix * c.n[k]);
+        }
+        if (glm::determinant(linear) < 0.0f) c.orientation = -1.0f;
+    }
+    return c;
+}
+
 // Rays go to Embree in chunks that fit comfortably on the stack.
 constexpr std::size_t kStreamChunk = 256;
 
@@ -204,11 +249,13 @@ struct RayQuery::Impl {
     RTCDevice device = nullptr;
     RTCScene scene = nullptr;
     std::vector<SphereGeometry> spheres;  // user data of the sphere geometries; never resized after build
+    std::unordered_map<const TriangleMesh*, RTCScene> sharedMeshes;  // one Embree scene per shared mesh
     std::mutex errorMutex;
     std::string firstError;
 
     ~Impl() {
         if (scene) rtcReleaseScene(scene);
+        for (const auto& [mesh, shared] : sharedMeshes) rtcReleaseScene(shared);
         if (device) rtcReleaseDevice(device);
     }
 
@@ -226,7 +273,7 @@ struct RayQuery::Impl {
         }
     }
 
-    void addMesh(unsigned id, const TriangleMesh& mesh) {
+    void addMesh(unsigned id, const TriangleMesh& mesh, RTCScene target = nullptr) {
         if (mesh.triangleCount() == 0 || mesh.positions.empty()) return;
         RTCGeometry geometry = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
         auto* vertices = static_cast<float*>(rtcSetNewGeometryBuffer(geometry, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
@@ -244,6 +291,26 @@ struct RayQuery::Impl {
             vertices[3 * v + 2] = mesh.positions[v].z;
         }
         for (std::size_t i = 0; i < 3 * mesh.triangleCount(); ++i) indices[i] = mesh.indices[i];
+        rtcCommitGeometry(geometry);
+        rtcAttachGeometryByID(target ? target : scene, geometry, id);
+        rtcReleaseGeometry(geometry);
+    }
+
+    void addInstance(unsigned id, const MeshInstance& instance) {
+        const TriangleMesh& mesh = *instance.mesh;
+        if (mesh.triangleCount() == 0 || mesh.positions.empty()) return;
+        RTCScene& shared = sharedMeshes[&mesh];
+        if (!shared) {
+            shared = rtcNewScene(device);
+            rtcSetSceneFlags(shared, RTC_SCENE_FLAG_ROBUST);
+            rtcSetSceneBuildQuality(shared, RTC_BUILD_QUALITY_HIGH);
+            addMesh(0, mesh, shared);
+            rtcCommitScene(shared);
+        }
+        RTCGeometry geometry = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_INSTANCE);
+        rtcSetGeometryInstancedScene(geometry, shared);
+        rtcSetGeometryTimeStepCount(geometry, 1);
+        rtcSetGeometryTransform(geometry, 0, RTC_FORMAT_FLOAT4X4_COLUMN_MAJOR, glm::value_ptr(instance.toWorld));
         rtcCommitGeometry(geometry);
         rtcAttachGeometryByID(scene, geometry, id);
         rtcReleaseGeometry(geometry);
@@ -283,6 +350,8 @@ RayQuery::RayQuery(const Scene& scene) : scene_(scene), impl_(std::make_unique<I
         if (const auto* sphere = std::get_if<Sphere>(&shape.geometry)) {
             impl.spheres.push_back({glm::dvec3(sphere->center), static_cast<double>(sphere->radius), shape.flipNormals});
             impl.addSphere(id, &impl.spheres.back());
+        } else if (const auto* instance = std::get_if<MeshInstance>(&shape.geometry)) {
+            impl.addInstance(id, *instance);
         } else {
             impl.addMesh(id, std::get<TriangleMesh>(shape.geometry));
         }
@@ -358,26 +427,25 @@ SurfacePoint RayQuery::surface(const Ray& ray, const Hit& hit) const {
         sp.ns = sp.ng;
         // Spherical coordinates of the outward direction, as Mitsuba's sphere:
         // u = phi / 2pi with phi in [0, 2pi), v = theta / pi from the +z pole.
-        float phi = std::atan2(outward.y, outward.x);
+        const Vec3 local = sphere->worldToObject * outward;
+        float phi = std::atan2(local.y, local.x);
         if (phi < 0.0f) phi += 2.0f * kPi;
-        sp.uv = Vec2(phi * kInv2Pi, std::acos(std::clamp(outward.z, -1.0f, 1.0f)) * kInvPi);
+        sp.uv = Vec2(phi * kInv2Pi, std::acos(std::clamp(local.z, -1.0f, 1.0f)) * kInvPi);
         return sp;
     }
 
-    const TriangleMesh& mesh = std::get<TriangleMesh>(shape.geometry);
-    const std::size_t base = 3 * static_cast<std::size_t>(hit.primitive);
-    const std::uint32_t i0 = mesh.indices[base], i1 = mesh.indices[base + 1], i2 = mesh.indices[base + 2];
+    const TriangleCorners c = cornersOf(shape, hit.primitive);
     const float b1 = hit.barycentric.x, b2 = hit.barycentric.y, b0 = 1.0f - b1 - b2;
-    const Vec3& p0 = mesh.positions[i0];
-    const Vec3& p1 = mesh.positions[i1];
-    const Vec3& p2 = mesh.positions[i2];
+    const Vec3& p0 = c.p[0];
+    const Vec3& p1 = c.p[1];
+    const Vec3& p2 = c.p[2];
     sp.p = b0 * p0 + b1 * p1 + b2 * p2;
-    const Vec3 cross = glm::cross(p1 - p0, p2 - p0);
+    const Vec3 cross = c.orientation * glm::cross(p1 - p0, p2 - p0);
     const float crossLength = glm::length(cross);
     sp.ng = crossLength > 0.0f ? cross / crossLength : Vec3(0.0f, 0.0f, 1.0f);
     sp.ns = sp.ng;
-    if (!mesh.normals.empty()) {
-        const Vec3 interpolated = b0 * mesh.normals[i0] + b1 * mesh.normals[i1] + b2 * mesh.normals[i2];
+    if (c.hasNormals) {
+        const Vec3 interpolated = b0 * c.n[0] + b1 * c.n[1] + b2 * c.n[2];
         const float nLength = glm::length(interpolated);
         if (nLength > 0.0f && std::isfinite(nLength)) {
             sp.ns = interpolated / nLength;
@@ -385,7 +453,7 @@ SurfacePoint RayQuery::surface(const Ray& ray, const Hit& hit) const {
         }
     }
     // Without texture coordinates the barycentrics serve as a per-triangle parametrisation.
-    sp.uv = mesh.uvs.empty() ? Vec2(b1, b2) : b0 * mesh.uvs[i0] + b1 * mesh.uvs[i1] + b2 * mesh.uvs[i2];
+    sp.uv = c.hasUvs ? b0 * c.uv[0] + b1 * c.uv[1] + b2 * c.uv[2] : Vec2(b1, b2);
     return sp;
 }
 
@@ -399,19 +467,17 @@ Vec3 RayQuery::shadingNormalDifferential(const Ray& ray, const Hit& hit, const V
         return tangential * ((shape.flipNormals ? -1.0f : 1.0f) / sphere->radius);
     }
 
-    const TriangleMesh& mesh = std::get<TriangleMesh>(shape.geometry);
-    if (mesh.normals.empty()) return Vec3(0.0f);
-    const std::size_t base = 3 * static_cast<std::size_t>(hit.primitive);
-    const std::uint32_t i0 = mesh.indices[base], i1 = mesh.indices[base + 1], i2 = mesh.indices[base + 2];
+    const TriangleCorners c = cornersOf(shape, hit.primitive);
+    if (!c.hasNormals) return Vec3(0.0f);
     const float b1 = hit.barycentric.x, b2 = hit.barycentric.y, b0 = 1.0f - b1 - b2;
-    const Vec3 interpolated = b0 * mesh.normals[i0] + b1 * mesh.normals[i1] + b2 * mesh.normals[i2];
+    const Vec3 interpolated = b0 * c.n[0] + b1 * c.n[1] + b2 * c.n[2];
     const float nLength = glm::length(interpolated);
     if (!(nLength > 0.0f) || !std::isfinite(nLength)) return Vec3(0.0f);
     const Vec3 ns = interpolated / nLength;
-    const Vec3 e1 = mesh.positions[i1] - mesh.positions[i0];
-    const Vec3 e2 = mesh.positions[i2] - mesh.positions[i0];
+    const Vec3 e1 = c.p[1] - c.p[0];
+    const Vec3 e2 = c.p[2] - c.p[0];
     // surface() flips the interpolated normal into the geometric normal's hemisphere.
-    const float side = glm::dot(ns, glm::cross(e1, e2)) < 0.0f ? -1.0f : 1.0f;
+    const float side = glm::dot(ns, c.orientation * glm::cross(e1, e2)) < 0.0f ? -1.0f : 1.0f;
     // Barycentric changes of the offset: least squares of dp = e1 db1 + e2 db2
     // (exact for a dp in the triangle's plane).
     const float a11 = glm::dot(e1, e1), a12 = glm::dot(e1, e2), a22 = glm::dot(e2, e2);
@@ -420,7 +486,7 @@ Vec3 RayQuery::shadingNormalDifferential(const Ray& ray, const Hit& hit, const V
     if (!(determinant > 0.0f)) return Vec3(0.0f);
     const float db1 = (a22 * r1 - a12 * r2) / determinant;
     const float db2 = (a11 * r2 - a12 * r1) / determinant;
-    const Vec3 dInterpolated = db1 * (mesh.normals[i1] - mesh.normals[i0]) + db2 * (mesh.normals[i2] - mesh.normals[i0]);
+    const Vec3 dInterpolated = db1 * (c.n[1] - c.n[0]) + db2 * (c.n[2] - c.n[0]);
     // Derivative of N / |N|: the part of dN perpendicular to the unit normal, over |N|.
     return side * (dInterpolated - glm::dot(ns, dInterpolated) * ns) / nLength;
 }

@@ -43,7 +43,7 @@ BufferCodec filmCodec() {
             writer.setItemCount(film.pixelCount());
             writer.write<std::int32_t>(settings.width);
             writer.write<std::int32_t>(settings.height);
-            writer.write<std::uint32_t>(settings.filter == FilterKind::Gaussian ? 1 : 0);
+            writer.write<std::uint32_t>(settings.filter == FilterKind::Gaussian ? 1 : settings.filter == FilterKind::Tent ? 2 : 0);
             writer.write(settings.filterRadius);
             writer.write(settings.gaussianSigma);
             writer.write(film.hasDirect());
@@ -61,8 +61,8 @@ BufferCodec filmCodec() {
             settings.width = reader.read<std::int32_t>();
             settings.height = reader.read<std::int32_t>();
             const auto filter = reader.read<std::uint32_t>();
-            if (filter > 1) reader.fail("corrupt buffer: filter kind " + std::to_string(filter));
-            settings.filter = filter == 1 ? FilterKind::Gaussian : FilterKind::Box;
+            if (filter > 2) reader.fail("corrupt buffer: filter kind " + std::to_string(filter));
+            settings.filter = filter == 1 ? FilterKind::Gaussian : filter == 2 ? FilterKind::Tent : FilterKind::Box;
             settings.filterRadius = reader.read<float>();
             settings.gaussianSigma = reader.read<float>();
             const bool hasDirect = reader.read<bool>();

@@ -375,8 +375,12 @@ Job parseJob(const std::string& text, const std::string& path, const JobOverride
         } else if (filter == "gaussian") {
             job.film.filter = FilterKind::Gaussian;
             job.film.filterRadius = 1.5f;
+        } else if (filter == "tent") {
+            job.film.filter = FilterKind::Tent;
+            job.film.filterRadius = 1.0f;
         } else {
-            r.fail(*film->get("filter"), "film.filter", "film.filter must be \"box\" or \"gaussian\", not \"" + filter + "\"");
+            r.fail(*film->get("filter"), "film.filter",
+                   "film.filter must be \"box\", \"tent\" or \"gaussian\", not \"" + filter + "\"");
         }
         job.film.filterRadius = static_cast<float>(
             r.getFloat(*film, "filter_radius", "film.filter_radius", job.film.filterRadius, 0.01, 16.0));

@@ -10,7 +10,7 @@
 //   [film]                          # optional; width/height default to the scene camera's
 //   width = 256
 //   height = 256
-//   filter = "gaussian"             # "box" | "gaussian"
+//   filter = "gaussian"             # "box" | "tent" | "gaussian"
 //   filter_radius = 1.5             # pixels
 //   gaussian_sigma = 0.5            # pixels
 //

@@ -1,4 +1,4 @@
-// Linear RGB film with box or Gaussian reconstruction and per-pixel AOVs.
+// Linear RGB film with box, tent or Gaussian reconstruction and per-pixel AOVs.
 // Samples arrive in rounds: a round holds `samplesPerPixel` samples for every
 // pixel of a contiguous pixel range, stored in pixel order (SoA: raster
 // position, radiance). Reconstruction is a gather: each output pixel visits the
@@ -17,13 +17,13 @@
 
 namespace fg {
 
-enum class FilterKind { Box, Gaussian };
+enum class FilterKind { Box, Gaussian, Tent };
 
 struct FilmSettings {
     int width = 256;
     int height = 256;
     FilterKind filter = FilterKind::Box;
-    float filterRadius = 0.5f;  // pixels; box: half-width (0.5 = the pixel), Gaussian: support radius
+    float filterRadius = 0.5f;  // pixels; box: half-width (0.5 = the pixel), tent and Gaussian: support radius
     float gaussianSigma = 0.5f; // pixels, Gaussian only
 };
 
@@ -94,10 +94,13 @@ public:
             // contains it), so the box filter is exactly the per-pixel mean.
             return (dx >= -radius_ && dx < radius_ && dy >= -radius_ && dy < radius_) ? 1.0f : 0.0f;
         }
+        if (kind_ == FilterKind::Tent) return tent1D(dx) * tent1D(dy);
         return gaussian1D(dx) * gaussian1D(dy);
     }
 
 private:
+    // Mitsuba's tent: 1 - |d| / r inside the radius, separable in x and y.
+    float tent1D(float d) const { return std::max(0.0f, 1.0f - std::abs(d) / radius_); }
     // Shifted down by its value at the radius so the filter reaches zero there
     // instead of stepping, clamped so nothing beyond the radius counts.
     float gaussian1D(float d) const {

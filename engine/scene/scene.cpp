@@ -1,6 +1,6 @@
 // The pinhole camera (look-at frame, vertical field of view, raster y pointing
 // down, near and far clip planes, as Mitsuba's perspective sensor with
-// fov_axis = "y") and the scene-wide bookkeeping done once after loading:
+// fov_axis = "y"), its orthographic variant (Mitsuba's orthographic sensor) and the scene-wide bookkeeping done once after loading:
 // bounds, the bounding sphere that infinite lights need, and light selection in
 // proportion to emitted power (luminance of Light::power(), as pbrt-v3's
 // PowerLightDistribution).
@@ -37,6 +37,15 @@ CameraFrame cameraFrame(const Camera& camera) {
 
 Ray Camera::generateRay(const Vec2& raster) const {
     const CameraFrame frame = cameraFrame(*this);
+    if (orthographic) {
+        const float x = (2.0f * raster.x / static_cast<float>(width) - 1.0f) * orthoHalfHeight * frame.aspect;
+        const float y = (1.0f - 2.0f * raster.y / static_cast<float>(height)) * orthoHalfHeight;
+        Ray ray;
+        ray.direction = frame.forward;
+        ray.origin = eye + x * frame.right + y * frame.up + nearClip * frame.forward;
+        ray.tMax = farClip < kInfinity ? farClip - nearClip : kInfinity;
+        return ray;
+    }
     const float x = (2.0f * raster.x / static_cast<float>(width) - 1.0f) * frame.tanHalfFovY * frame.aspect;
     const float y = (1.0f - 2.0f * raster.y / static_cast<float>(height)) * frame.tanHalfFovY;
     Ray ray;
@@ -55,8 +64,9 @@ bool Camera::project(const Vec3& p, Vec2* raster) const {
     const Vec3 d = p - eye;
     const float depth = glm::dot(d, frame.forward);
     if (!(depth > 0.0f)) return false;
-    const float x = glm::dot(d, frame.right) / (depth * frame.tanHalfFovY * frame.aspect);
-    const float y = glm::dot(d, frame.up) / (depth * frame.tanHalfFovY);
+    const float extent = orthographic ? orthoHalfHeight : depth * frame.tanHalfFovY;
+    const float x = glm::dot(d, frame.right) / (extent * frame.aspect);
+    const float y = glm::dot(d, frame.up) / extent;
     if (raster) {
         *raster = Vec2(0.5f * (x + 1.0f) * static_cast<float>(width), 0.5f * (1.0f - y) * static_cast<float>(height));
     }
@@ -70,6 +80,11 @@ void Scene::finalize() {
         if (const auto* sphere = std::get_if<Sphere>(&shape.geometry)) {
             lo = glm::min(lo, sphere->center - Vec3(sphere->radius));
             hi = glm::max(hi, sphere->center + Vec3(sphere->radius));
+        } else if (const auto* instance = std::get_if<MeshInstance>(&shape.geometry)) {
+            for (const Vec3& p : instance->mesh->positions) {
+                lo = glm::min(lo, instance->point(p));
+                hi = glm::max(hi, instance->point(p));
+            }
         } else {
             for (const Vec3& p : std::get<TriangleMesh>(shape.geometry).positions) {
                 lo = glm::min(lo, p);

@@ -39,10 +39,16 @@ struct Camera {
     // Mirror the image left-right: set for a Mitsuba sensor whose to_world has a
     // negative determinant (e.g. a <scale x="-1"/>), which flips its image.
     bool mirrored = false;
+    // Orthographic projection (Mitsuba's orthographic sensor): parallel rays along
+    // the viewing axis from a window of 2 * orthoHalfHeight * aspect by
+    // 2 * orthoHalfHeight scene units centred on the eye; fovYDegrees is unused.
+    bool orthographic = false;
+    float orthoHalfHeight = 1.0f;
 
     // Ray through a continuous raster position (x right, y down, pixel (i,j) spans [i,i+1)x[j,j+1)).
     Ray generateRay(const Vec2& raster) const;
-    // Inverse: raster position of a world point in front of the camera, false if behind.
+    // Inverse: raster position of a world point in front of the camera, false if behind
+    // (orthographic: behind the eye's plane).
     bool project(const Vec3& p, Vec2* raster) const;
 };
 

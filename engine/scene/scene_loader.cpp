@@ -41,7 +41,7 @@ void checkSceneExtent(const Scene& scene, const std::string& path) {
             checkExtent(sphere->center, path, name + " centre");
             checkExtent(Vec3(sphere->radius), path, name + " radius");
         } else {
-            for (const Vec3& p : std::get<TriangleMesh>(shape.geometry).positions) checkExtent(p, path, name + " vertex");
+            for (const Vec3& p : shape.worldMesh().positions) checkExtent(p, path, name + " vertex");
         }
     }
     for (const auto& light : scene.lights) {

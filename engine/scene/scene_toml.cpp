@@ -445,8 +445,21 @@ private:
             glm::length(glm::cross(forward, glm::normalize(camera.up))) < 1e-4f) {
             f.fail(f.has("up") ? "up" : "target", "camera 'up' must not be parallel to the viewing direction");
         }
-        camera.fovYDegrees = f.number("fov", 40.0f);
-        if (!(camera.fovYDegrees > 0.0f && camera.fovYDegrees < 180.0f)) f.fail("fov", "'fov' must lie in (0, 180) degrees");
+        const std::string projection = f.string("type").value_or("perspective");
+        if (projection == "orthographic") {
+            if (f.has("fov")) f.fail("fov", "an orthographic camera takes 'view_height', not 'fov'");
+            camera.orthographic = true;
+            camera.orthoHalfHeight = 0.5f * f.number("view_height", 2.0f);
+            if (!(camera.orthoHalfHeight > 0.0f) || !std::isfinite(camera.orthoHalfHeight)) {
+                f.fail("view_height", "'view_height' must be positive");
+            }
+        } else if (projection == "perspective") {
+            if (f.has("view_height")) f.fail("view_height", "'view_height' applies to orthographic cameras only");
+            camera.fovYDegrees = f.number("fov", 40.0f);
+            if (!(camera.fovYDegrees > 0.0f && camera.fovYDegrees < 180.0f)) f.fail("fov", "'fov' must lie in (0, 180) degrees");
+        } else {
+            f.fail("type", "unknown camera type '" + projection + "' (expected perspective or orthographic)");
+        }
         for (const char* key : {"width", "height"}) {
             const toml::node* node = f.get(key);
             if (!node) continue;
@@ -578,8 +591,16 @@ private:
                 mesh = makeDiskMesh(segments);
             } else if (type == "cube") {
                 mesh = makeCubeMesh();
+            } else if (type == "cylinder") {
+                const Vec3 p0 = f.vec3("p0", Vec3(0.0f));
+                const Vec3 p1 = f.vec3("p1", Vec3(0.0f, 0.0f, 1.0f));
+                const float radius = f.number("radius", 1.0f);
+                if (!(radius > 0.0f) || !std::isfinite(radius)) f.fail("radius", "cylinder 'radius' must be positive");
+                if (!(glm::length(p1 - p0) > 0.0f)) f.fail(f.has("p1") ? "p1" : "p0", "cylinder 'p0' and 'p1' must differ");
+                mesh = makeCylinderMesh();
+                mesh.transform(cylinderPlacement(p0, p1, radius));
             } else {
-                f.fail("type", "unknown shape type '" + type + "' (expected obj, rectangle, disk, cube or sphere)");
+                f.fail("type", "unknown shape type '" + type + "' (expected obj, rectangle, disk, cube, cylinder or sphere)");
             }
             if (const toml::node* transform = f.get("transform")) mesh.transform(readTransform(*transform));
             if (flip) mesh.flipNormals();

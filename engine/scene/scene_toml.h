@@ -14,11 +14,14 @@
 //   rgb    [r, g, b] or one number for grey
 //   ior    a number > 0 or a preset name ("vacuum", "air", "water", "bk7", "glass", "diamond", ...)
 //
-// [camera]                     pinhole camera; required
+// [camera]                     pinhole or orthographic camera; required
+//   type = "perspective"       default; or "orthographic" (parallel rays along target - eye)
 //   eye = vec3                 required
 //   target = vec3              required
 //   up = vec3                  default [0, 1, 0]
-//   fov = number               vertical field of view, degrees in (0, 180); default 40
+//   fov = number               perspective: vertical field of view, degrees in (0, 180); default 40
+//   view_height = number       orthographic: height of the view in scene units, > 0; default 2
+//                              (the width follows the image's aspect ratio)
 //   width, height = integer    image size in pixels; default 256 x 256
 //   medium = "name"            medium surrounding the camera; default none
 //
@@ -57,6 +60,9 @@
 //          "rectangle"         [-1, 1]^2 in the z = 0 plane, facing +z
 //          "disk"              unit disk in the z = 0 plane, facing +z; segments = integer >= 3 (default 128)
 //          "cube"              [-1, 1]^3, facing outwards
+//          "cylinder"          open tube (no caps) facing outwards: radius = number > 0 (default 1),
+//                              p0 = vec3 (default origin), p1 = vec3 (default [0, 0, 1]);
+//                              256 flat facets with smooth normals, uv = (angle / 360, height)
 //          "sphere"            center = vec3 (default origin), radius = number > 0 (default 1);
 //                              analytic, so it takes no transform
 //   name = "name"              optional label

@@ -33,6 +33,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <memory>
 #include <numbers>
 #include <optional>
@@ -872,6 +873,14 @@ public:
             }
         }
         if (!sawSensor) record(InputError(root.file->path, root.line, "the scene has no <sensor>"));
+        // Groups nothing instantiates are still read, so that their errors show.
+        for (const Node* group : shapeGroups_) {
+            try {
+                groupMembers(*group);
+            } catch (const InputError& e) {
+                record(e);
+            }
+        }
         if (problems_.size() == 1) throw firstProblem_.value();
         if (!problems_.empty()) throw InputError(problems_);
     }
@@ -911,6 +920,8 @@ public:
             buildObject(child);
         } else if (kValueTags.count(tag) || tag == "ref") {
             fail(child, "<" + tag + "> is not allowed at the top level of a scene");
+        } else if (tag == "volume") {
+            fail(child, "heterogeneous medium not supported (<volume> grids are not implemented)");
         } else {
             fail(child, "unknown element <" + tag + ">");
         }
@@ -939,6 +950,8 @@ public:
                 e.node = &child;
                 e.isObject = true;
                 if (const std::string* name = child.attribute("name")) e.name = *name;
+            } else if (child.tag == "volume") {
+                fail(child, what + ": heterogeneous medium not supported (<volume> grids are not implemented)");
             } else {
                 fail(child, what + ": unknown element <" + child.tag + ">");
             }
@@ -1063,13 +1076,19 @@ private:
 
     void readSensor(const Node& node) {
         Props p(*this, node, "sensor");
-        if (p.type() != "perspective") p.fail("unknown sensor type (supported: perspective)");
+        if (p.type() != "perspective" && p.type() != "orthographic") {
+            p.fail("unknown sensor type (supported: perspective, orthographic)");
+        }
         Camera& camera = scene_.camera;
         camera.width = 768;
         camera.height = 576;
         if (Entry* film = p.singleObject("film")) readFilm(expectObject(*film, "film", p.what()));
         if (Entry* sampler = p.singleObject("sampler")) readSampler(expectObject(*sampler, "sampler", p.what()));
         if (Entry* medium = p.singleObject("medium")) camera.medium = mediumIndex(expectObject(*medium, "medium", p.what()));
+        if (p.type() == "orthographic") {
+            readOrthographicSensor(p);
+            return;
+        }
 
         // Field of view, converted to the vertical angle fg::Camera uses.
         const bool hasFov = p.has("fov"), hasFocal = p.has("focal_length");
@@ -1137,6 +1156,39 @@ private:
         p.finish();
     }
 
+    // Mitsuba's orthographic sensor sees local x in [-1, 1] across the film's
+    // width and y in [-1/aspect, 1/aspect] across its height, along local +z;
+    // to_world's scale sets the extent in scene units.
+    void readOrthographicSensor(Props& p) {
+        Camera& camera = scene_.camera;
+        camera.orthographic = true;
+        camera.nearClip = p.number("near_clip", 0.01f);
+        camera.farClip = p.number("far_clip", 10000.0f);
+        if (!(camera.nearClip >= 0.0f)) p.fail(*p.valueNode("near_clip"), "near_clip must not be negative");
+        if (!(camera.farClip > camera.nearClip)) p.fail("far_clip must exceed near_clip");
+        for (const char* key : {"shutter_open", "shutter_close"}) p.accept(key, {"float", "integer"});
+
+        const Mat4 m = p.transform("to_world").value_or(Mat4(1.0f));
+        const Mat3 linear(m);
+        const float scaleX = glm::length(linear[0]), scaleY = glm::length(linear[1]), scaleZ = glm::length(linear[2]);
+        float skew = 0.0f;
+        for (int i = 0; i < 3; ++i)
+            for (int j = i + 1; j < 3; ++j) skew += std::abs(glm::dot(linear[i], linear[j])) / (glm::length(linear[i]) * glm::length(linear[j]));
+        if (!(skew <= 1e-3f) || !(std::abs(scaleX - scaleY) <= 1e-3f * scaleX)) {
+            p.fail(*p.valueNode("to_world"), "the orthographic sensor's to_world may rotate, translate, mirror and "
+                                             "scale, with equal scales along its x and y axes");
+        }
+        camera.eye = Vec3(m[3]);
+        camera.target = camera.eye + glm::normalize(linear[2]);
+        camera.up = glm::normalize(linear[1]);
+        camera.mirrored = glm::determinant(linear) < 0.0f;
+        const float aspect = static_cast<float>(camera.width) / static_cast<float>(camera.height);
+        camera.orthoHalfHeight = scaleY / aspect;
+        camera.nearClip *= scaleZ;
+        if (camera.farClip < kInfinity) camera.farClip *= scaleZ;
+        p.finish();
+    }
+
     void readFilm(const Node& node) {
         Props p(*this, node, "film");
         if (p.type() != "hdrfilm" && p.type() != "ldrfilm") {
@@ -1183,11 +1235,9 @@ private:
             hints.gaussianSigma = p.number("stddev", 0.5f);
             hints.filterRadius = 4.0f * hints.gaussianSigma;
         } else if (p.type() == "tent") {
-            // No tent filter on the film: the Gaussian of the same variance (r^2 / 6).
-            const float radius = p.number("radius", 1.0f);
-            hints.filter = FilterKind::Gaussian;
-            hints.gaussianSigma = radius / std::sqrt(6.0f);
-            hints.filterRadius = radius;
+            hints.filter = FilterKind::Tent;
+            hints.filterRadius = p.number("radius", 1.0f);
+            hints.gaussianSigma = 0.0f;
         } else {
             p.fail("unknown rfilter type (supported: box, gaussian, tent)");
         }
@@ -1431,6 +1481,7 @@ private:
                               image.pixels[static_cast<std::size_t>(image.height - 1 - y) * image.width + x]);
                 }
             }
+            textureResolution_[&node] = {image.width, image.height};
             result = makeBitmapTexture(std::move(image), scale);
         } else if (p.type() == "checkerboard") {
             const Rgb color0 = p.colour("color0", ColourUse::Reflectance).value_or(Rgb(0.4f));
@@ -1463,6 +1514,9 @@ private:
     int mediumIndex(const Node& node) {
         if (const auto it = mediumIndex_.find(&node); it != mediumIndex_.end()) return it->second;
         const Building guard(building_, node);
+        if (const std::string* type = node.attribute("type"); type && *type == "heterogeneous") {
+            fail(node, "medium 'heterogeneous': heterogeneous medium not supported (only homogeneous media)");
+        }
         Props p(*this, node, "medium");
         if (p.type() != "homogeneous") p.fail("unknown medium type (supported: homogeneous)");
         const bool extinctionForm = p.has("sigma_t") || p.has("albedo");
@@ -1506,29 +1560,112 @@ private:
         else if (mesh.normals.empty()) computeVertexNormals(mesh);
     }
 
-    void readShape(const Node& node) {
+    TriangleMesh readSerialized(Props& p) {
+        const std::string path = resolveFile(p, "filename");
+        const long long index = p.integer("shape_index").value_or(0);
+        if (index < 0 || index > std::numeric_limits<int>::max()) p.fail(*p.valueNode("shape_index"), "shape_index must not be negative");
+        try {
+            return loadSerializedMesh(path, static_cast<int>(index));
+        } catch (const InputError& e) {
+            p.fail(*p.valueNode("filename"), e.what());
+        }
+    }
+
+    // A shape group only defines its shapes; instances place copies of them.
+    void readShapeGroup(Props& p) {
+        if (!p.node().attribute("id")) p.fail("a shapegroup needs an id (instances refer to it)");
+        if (p.objects("shape").empty()) p.fail("a shapegroup needs at least one <shape>");
+        p.finish();
+        shapeGroups_.push_back(&p.node());
+    }
+
+    // Every shape of the group, placed by the instance's to_world: meshes share
+    // their data (MeshInstance; one Embree scene, instanced), analytic spheres
+    // are copied with the transform folded in.
+    void readInstance(Props& p) {
+        Entry* group = p.singleObject("shape");
+        if (!group || !group->ref) p.fail("an instance needs a <ref id=\"...\"/> to a shapegroup");
+        const Node& groupNode = *group->node;
+        const std::string* groupType = groupNode.attribute("type");
+        if (!groupType || *groupType != "shapegroup") {
+            p.fail(group->site(), "an instance must refer to a shapegroup, not a shape of type " +
+                                      inQuotes(groupType ? *groupType : ""));
+        }
+        const Mat4 toWorld = p.transform("to_world").value_or(Mat4(1.0f));
+        p.finish();
+        instancedGroups_.insert(&groupNode);
+        for (const GroupMember& member : groupMembers(groupNode)) {
+            Shape shape = member.shape;
+            if (auto* instance = std::get_if<MeshInstance>(&shape.geometry)) instance->toWorld = toWorld;
+            else if (auto* sphere = std::get_if<Sphere>(&shape.geometry)) foldSphereTransform(p, group->site(), toWorld, *sphere);
+            addShape(std::move(shape), member.emission);
+        }
+    }
+
+    // Mitsuba's cylinder, as a tessellated open tube in object space (to_world follows).
+    TriangleMesh readCylinder(Props& p) {
+        const Vec3 p0 = p.vec3("p0").value_or(Vec3(0.0f));
+        const Vec3 p1 = p.vec3("p1").value_or(Vec3(0.0f, 0.0f, 1.0f));
+        const float radius = p.number("radius", 1.0f);
+        if (!(radius > 0.0f) || !std::isfinite(radius)) p.fail(*p.valueNode("radius"), "radius must be positive");
+        if (!(glm::length(p1 - p0) > 0.0f)) p.fail("p0 and p1 must differ");
+        TriangleMesh mesh = makeCylinderMesh();
+        mesh.transform(cylinderPlacement(p0, p1, radius));
+        return mesh;
+    }
+
+    // A similarity (rotation, mirroring, uniform scale, translation) maps a sphere
+    // onto a sphere; anything that stretches would make an ellipsoid, which the
+    // analytic intersector does not represent.
+    void foldSphereTransform(Props& p, const Node& at, const Mat4& m, Sphere& sphere) {
+        const Mat3 linear(m);
+        const float s = glm::length(linear[0]);
+        float error = 0.0f;
+        for (int i = 0; i < 3; ++i) {
+            error += std::abs(glm::length(linear[i]) - s);
+            for (int j = i + 1; j < 3; ++j) error += std::abs(glm::dot(linear[i], linear[j])) / s;
+        }
+        if (!(error <= 1e-4f * s)) {
+            p.fail(at, "a sphere's to_world (and an instance's) may only rotate, translate and scale uniformly "
+                       "(non-uniform scale would make an ellipsoid; use a mesh)");
+        }
+        sphere.center = Vec3(m * Vec4(sphere.center, 1.0f));
+        sphere.radius *= s;
+        // The inverse of a rotation times s is its transpose over s.
+        sphere.worldToObject = sphere.worldToObject * (glm::transpose(linear) / s);
+    }
+
+    struct AreaEmission {
+        Rgb radiance{1.0f};
+        std::shared_ptr<Texture> texture;  // set when radiance is a texture
+    };
+
+    // A shape of a shape group, built once in the group's space; instances copy
+    // it (a mesh as a MeshInstance of one shared mesh).
+    struct GroupMember {
+        Shape shape;
+        std::optional<AreaEmission> emission;
+    };
+
+    // With `member`, the shape belongs to a shape group: it is returned there
+    // instead of being added to the scene.
+    void readShape(const Node& node, GroupMember* member = nullptr) {
         Props p(*this, node, "shape");
-        const std::size_t index = scene_.shapes.size();
         Shape shape;
         const std::string& type = p.type();
+        if (type == "shapegroup" || type == "instance") {
+            if (member) p.fail("shape groups and instances cannot be nested in a shape group");
+            if (type == "shapegroup") readShapeGroup(p);
+            else readInstance(p);
+            return;
+        }
         const bool flip = p.boolean("flip_normals", false);
         if (type == "sphere") {
             Sphere sphere;
             sphere.center = p.vec3("center").value_or(Vec3(0.0f));
             sphere.radius = p.number("radius", 1.0f);
             if (!(sphere.radius > 0.0f)) p.fail(*p.valueNode("radius"), "radius must be positive");
-            if (const std::optional<Mat4> m = p.transform("to_world")) {
-                const Mat3 linear(*m);
-                const float s = glm::length(linear[0]);
-                float error = 0.0f;
-                for (int c = 0; c < 3; ++c) error += glm::length(linear[c] - s * Mat3(1.0f)[c]);
-                if (!(error <= 1e-4f * s)) {
-                    p.fail(*p.valueNode("to_world"), "a sphere's to_world may only translate and scale uniformly "
-                                                     "(spheres are analytic; use center and radius)");
-                }
-                sphere.center = Vec3(*m * Vec4(sphere.center, 1.0f));
-                sphere.radius *= s;
-            }
+            if (const std::optional<Mat4> m = p.transform("to_world")) foldSphereTransform(p, *p.valueNode("to_world"), *m, sphere);
             shape.geometry = sphere;
             shape.flipNormals = flip;
         } else {
@@ -1553,15 +1690,22 @@ private:
                 mesh = makeDiskMesh();
             } else if (type == "cube") {
                 mesh = makeCubeMesh();
+            } else if (type == "cylinder") {
+                mesh = readCylinder(p);
+            } else if (type == "serialized") {
+                mesh = readSerialized(p);
+                faceNormalsParameter = true;
             } else {
-                p.fail("unknown shape type (supported: obj, ply, rectangle, disk, cube, sphere)");
+                p.fail("unknown shape type (supported: obj, ply, serialized, rectangle, disk, cube, cylinder, sphere, "
+                       "shapegroup, instance)");
             }
             finishMesh(p, mesh, faceNormalsParameter);
             if (flip) mesh.flipNormals();
-            shape.geometry = std::move(mesh);
+            if (member) shape.geometry = MeshInstance{std::make_shared<const TriangleMesh>(std::move(mesh)), Mat4(1.0f)};
+            else shape.geometry = std::move(mesh);
         }
         if (const std::string* id = node.attribute("id")) shape.name = *id;
-        if (shape.name.empty()) shape.name = type + std::to_string(index);
+        if (shape.name.empty()) shape.name = type + std::to_string(scene_.shapes.size());
 
         const Entry* bsdf = p.singleObject("bsdf");
         shape.bsdf = bsdf ? bsdfIndex(expectObject(*bsdf, "bsdf", p.what())) : defaultBsdf();
@@ -1574,28 +1718,106 @@ private:
             if (slot >= 0) p.fail(medium->site(), "the " + medium->name + " medium is given twice");
             slot = mediumIndex(m);
         }
-        std::optional<Rgb> radiance;
-        if (const Entry* emitter = p.singleObject("emitter")) radiance = areaRadiance(expectObject(*emitter, "emitter", p.what()), p);
+        std::optional<AreaEmission> emission;
+        if (const Entry* emitter = p.singleObject("emitter")) emission = areaRadiance(expectObject(*emitter, "emitter", p.what()), p);
         p.finish();
+        if (member) {
+            member->shape = std::move(shape);
+            member->emission = emission;
+            return;
+        }
+        addShape(std::move(shape), emission);
+    }
 
-        if (radiance && !isBlack(*radiance)) {
+    void addShape(Shape shape, const std::optional<AreaEmission>& emission) {
+        const std::size_t index = scene_.shapes.size();
+        if (emission && (emission->texture || !isBlack(emission->radiance))) {
             shape.areaLight = static_cast<int>(scene_.lights.size());
-            scene_.lights.push_back(makeAreaLight(shape, *radiance));
+            scene_.lights.push_back(emission->texture ? makeTexturedAreaLight(shape, emission->texture)
+                                                      : makeAreaLight(shape, emission->radiance));
             scene_.lightShape.push_back(static_cast<int>(index));
         }
         scene_.shapes.push_back(std::move(shape));
     }
 
+    // The members of a shape group, built on first use.
+    const std::vector<GroupMember>& groupMembers(const Node& group) {
+        if (const auto it = groupMembers_.find(&group); it != groupMembers_.end()) return it->second;
+        Props groupProps(*this, group, "shape");
+        std::vector<GroupMember> members;
+        for (Entry* entry : groupProps.objects("shape")) {
+            GroupMember member;
+            readShape(*entry->node, &member);
+            members.push_back(std::move(member));
+        }
+        return groupMembers_[&group] = std::move(members);
+    }
+
     // ---- emitters ---------------------------------------------------------------
 
-    Rgb areaRadiance(const Node& node, const Props& shape) {
+    AreaEmission areaRadiance(const Node& node, const Props& shape) {
         if (const auto it = areaRadiance_.find(&node); it != areaRadiance_.end()) return it->second;
         Props p(*this, node, "emitter");
         if (p.type() != "area") shape.fail(node, "only area emitters can be attached to a shape, not " + p.what());
-        const Rgb radiance = p.colour("radiance", ColourUse::NonNegative).value_or(Rgb(1.0f));
+        AreaEmission emission;
+        emission.texture = emissionTexture(p, "radiance");
+        if (!emission.texture) emission.radiance = p.colour("radiance", ColourUse::NonNegative).value_or(Rgb(1.0f));
         p.finish();
-        areaRadiance_[&node] = radiance;
-        return radiance;
+        areaRadiance_[&node] = emission;
+        return emission;
+    }
+
+    // A nested or referenced <texture> given for an emitter parameter, or null.
+    std::shared_ptr<Texture> emissionTexture(Props& p, std::string_view key) {
+        Entry* e = p.namedObject(key);
+        return e ? texture(expectObject(*e, "texture", p.what() + " parameter " + inQuotes(key))) : nullptr;
+    }
+
+    // Mitsuba's projector: a pinhole's field of view (as the perspective sensor's,
+    // over the irradiance texture's aspect ratio) and a texture it projects.
+    std::shared_ptr<Light> readProjector(Props& p) {
+        std::shared_ptr<Texture> irradiance = emissionTexture(p, "irradiance");
+        int width = 1, height = 1;
+        if (irradiance) {
+            const Node& textureNode = *p.namedObject("irradiance")->node;
+            if (const auto it = textureResolution_.find(&textureNode); it != textureResolution_.end()) {
+                width = it->second.first;
+                height = it->second.second;
+            }
+        } else {
+            irradiance = makeConstantTexture(p.colour("irradiance", ColourUse::NonNegative).value_or(Rgb(1.0f)));
+        }
+        const double aspect = static_cast<double>(width) / height;
+        const bool hasFov = p.has("fov"), hasFocal = p.has("focal_length");
+        if (hasFov && hasFocal) p.fail("give either fov or focal_length, not both");
+        double tanHalf = 0.0, axisOverX = 1.0;  // tan of half the angle along the axis, and that axis' length / width
+        if (hasFov) {
+            const double fov = p.number("fov", 0.0f);
+            if (!(fov > 0.0 && fov < 180.0)) p.fail(*p.valueNode("fov"), "fov must lie in (0, 180) degrees");
+            tanHalf = std::tan(0.5 * fov * std::numbers::pi / 180.0);
+            std::string axis = p.string("fov_axis").value_or("x");
+            if (axis == "y") axisOverX = 1.0 / aspect;
+            else if (axis == "diagonal") axisOverX = std::sqrt(1.0 + 1.0 / (aspect * aspect));
+            else if (axis == "smaller") axisOverX = std::min(1.0, 1.0 / aspect);
+            else if (axis == "larger") axisOverX = std::max(1.0, 1.0 / aspect);
+            else if (axis != "x") p.fail(*p.valueNode("fov_axis"), "fov_axis " + inQuotes(axis) + " must be x, y, diagonal, smaller or larger");
+        } else {
+            std::string focal = p.string("focal_length").value_or("50mm");
+            if (focal.size() > 2 && focal.compare(focal.size() - 2, 2, "mm") == 0) focal.resize(focal.size() - 2);
+            const std::optional<double> mm = parseNumber(focal);
+            if (!mm || !(*mm > 0.0)) p.fail(*p.valueNode("focal_length"), "focal_length must be a positive length like \"50mm\"");
+            tanHalf = std::sqrt(36.0 * 36.0 + 24.0 * 24.0) / (2.0 * *mm);  // the 35 mm film's diagonal
+            axisOverX = std::sqrt(1.0 + 1.0 / (aspect * aspect));
+        }
+        const float scale = p.number("scale", 1.0f);
+        if (!(scale >= 0.0f) || !std::isfinite(scale)) p.fail(*p.valueNode("scale"), "scale must not be negative");
+        const Mat4 m = p.transform("to_world").value_or(Mat4(1.0f));
+        const Mat3 linear(m);
+        const Mat3 shouldBeIdentity = glm::transpose(linear) * linear;
+        float error = std::abs(std::abs(glm::determinant(linear)) - 1.0f);
+        for (int c = 0; c < 3; ++c) error += glm::length(shouldBeIdentity[c] - Mat3(1.0f)[c]);
+        if (error > 1e-3f) p.fail(*p.valueNode("to_world"), "a projector's to_world may only rotate and translate");
+        return makeProjectorLight(m, std::move(irradiance), width, height, static_cast<float>(tanHalf / axisOverX), scale);
     }
 
     Vec3 positionOf(Props& p) {
@@ -1625,7 +1847,14 @@ private:
             if (!(cutoff > 0.0f && cutoff < 180.0f)) p.fail(*p.valueNode("cutoff_angle"), "cutoff_angle must lie in (0, 180) degrees");
             const float beam = p.number("beam_width", 0.75f * cutoff);
             if (!(beam > 0.0f && beam <= cutoff)) p.fail(*p.valueNode("beam_width"), "beam_width must lie in (0, cutoff_angle]");
-            light = makeSpotLight(Vec3(m[3]), glm::normalize(axis), nonNegative("intensity"), cutoff, beam);
+            if (std::shared_ptr<Texture> pattern = emissionTexture(p, "texture")) {
+                if (!(cutoff < 90.0f)) p.fail(*p.valueNode("cutoff_angle"), "a textured spot's cutoff_angle must be below 90 degrees");
+                light = makeTexturedSpotLight(m, nonNegative("intensity"), cutoff, beam, std::move(pattern));
+            } else {
+                light = makeSpotLight(Vec3(m[3]), glm::normalize(axis), nonNegative("intensity"), cutoff, beam);
+            }
+        } else if (type == "projector") {
+            light = readProjector(p);
         } else if (type == "directional") {
             const bool hasDirection = p.has("direction"), hasTransform = p.has("to_world");
             if (hasDirection && hasTransform) p.fail("give either direction or to_world, not both");
@@ -1655,7 +1884,7 @@ private:
             }
             light = makeEnvironmentMap(image, scale, toWorld);
         } else {
-            p.fail("unknown emitter type (supported: area, point, spot, directional, constant, envmap)");
+            p.fail("unknown emitter type (supported: area, point, spot, projector, directional, constant, envmap)");
         }
         p.finish();
         scene_.lights.push_back(std::move(light));
@@ -1668,8 +1897,12 @@ private:
     std::unordered_map<const Node*, int> bsdfIndex_;
     std::unordered_map<const Node*, int> mediumIndex_;
     std::unordered_map<const Node*, std::shared_ptr<Texture>> textures_;
-    std::unordered_map<const Node*, Rgb> areaRadiance_;
+    std::unordered_map<const Node*, AreaEmission> areaRadiance_;
+    std::unordered_map<const Node*, std::pair<int, int>> textureResolution_;  // bitmaps: width, height
     std::set<const Node*> building_;
+    std::vector<const Node*> shapeGroups_;
+    std::unordered_map<const Node*, std::vector<GroupMember>> groupMembers_;
+    std::set<const Node*> instancedGroups_;
     int defaultBsdf_ = -1;
     std::vector<std::string> problems_;
     std::optional<InputError> firstProblem_;

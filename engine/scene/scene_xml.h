@@ -52,10 +52,14 @@
 //                 Accepted, no effect on a pinhole: focus_distance, shutter_open, shutter_close.
 //                 Mitsuba's camera looks along +z of to_world with +x to the LEFT of the
 //                 image; fg::Camera uses the same convention, so images are not mirrored.
+//   orthographic  near_clip (0.01), far_clip (10000), to_world (rotation, translation,
+//                 mirroring, scale equal in x and y: the view spans local x in [-1, 1]
+//                 across the width and y in [-1/aspect, 1/aspect], as in Mitsuba);
+//                 accepted, no effect: shutter_open, shutter_close. pt only (light
+//                 tracing cannot reach a camera whose rays are parallel).
 //   film          hdrfilm or ldrfilm: width (768), height (576) -> camera resolution;
 //                 rfilter box (radius 0.5) | gaussian (stddev 0.5, support 4 stddev; the
-//                 default) | tent (radius 1; recorded as the Gaussian of equal variance,
-//                 sigma = radius / sqrt(6), support = radius) -> Scene::hints.
+//                 default) | tent (radius 1) -> Scene::hints.
 //                 Accepted, no effect (the job file decides the output): file_format,
 //                 pixel_format, component_format, sample_border, compensate, banner,
 //                 high_quality_edges, attach_log; ldrfilm's tonemap_method, gamma,
@@ -73,8 +77,18 @@
 //                 angle-weighted smooth normals as Mitsuba computes them; true: flat);
 //                 obj: flip_tex_coords (true)
 //   rectangle, disk, cube   Mitsuba's unit shapes
-//   sphere        center, radius; a to_world that only translates and scales uniformly is
-//                 folded into them, anything else is an error (spheres stay analytic)
+//   cylinder      radius (1), p0 (0, 0, 0), p1 (0, 0, 1): an open tube, tessellated
+//                 into 256 facets with smooth normals; uv = (phi / 2 pi, height)
+//   serialized    filename, shape_index (0); Mitsuba's zlib-compressed mesh format
+//                 (versions 3 and 4), face_normals as obj/ply
+//   sphere        center, radius; to_world may rotate, mirror, translate and scale
+//                 uniformly (folded in; the rotation turns the uv parametrisation);
+//                 non-uniform scale is an error (spheres stay analytic, no ellipsoids)
+//   shapegroup    (with an id) shapes that only instances place; an unused group is
+//                 still checked
+//   instance      <ref> to a shapegroup, to_world: every shape of the group, placed
+//                 after its own to_world; meshes are shared between instances (one
+//                 Embree scene, instanced), spheres copied with the transform folded in
 //   all           to_world, flip_normals, one bsdf (default: diffuse 0.5), one area
 //                 emitter, media named interior / exterior
 //   Texture coordinates keep Mitsuba's meaning: OBJ's v is flipped as Mitsuba flips it
@@ -106,10 +120,15 @@
 //   checkerboard  color0 (0.4), color1 (0.2), to_uv (scale only; 0.x: uscale, vscale)
 //
 // Emitters
-//   area          radiance; inside a shape, or defined with an id and referenced from shapes
+//   area          radiance (colour or texture over the shape's uv); inside a shape, or
+//                 defined with an id and referenced from shapes
 //   point         position or to_world; intensity (1)
 //   spot          to_world (+z is the axis), intensity (1), cutoff_angle (20),
-//                 beam_width (3/4 cutoff_angle)
+//                 beam_width (3/4 cutoff_angle), texture (optional, over the cone:
+//                 uv = 1/2 + (x, y) / (2 z tan cutoff_angle) in the light's frame)
+//   projector     irradiance (colour, 1, or texture; its resolution sets the aspect and
+//                 the sampling grid), scale (1), fov + fov_axis or focal_length (50mm) as
+//                 the perspective sensor, to_world (rotation and translation)
 //   directional   direction or to_world (+z); irradiance (1)
 //   constant      radiance (1)
 //   envmap        filename, scale (1), to_world (rotation only); looked up as Mitsuba 3 does
@@ -120,6 +139,7 @@
 //                 one of the two: their default is a material preset); scale (1);
 //                 phase isotropic or hg (g, default 0.8); accepted, no effect:
 //                 sample_emitters, has_spectral_extinction
+//   heterogeneous (and any <volume>): refused with "heterogeneous medium not supported"
 #pragma once
 
 #include "engine/scene/scene.h"

@@ -8,6 +8,7 @@
 #include "engine/core/math.h"
 
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <variant>
 #include <vector>
@@ -29,19 +30,47 @@ struct TriangleMesh {
 struct Sphere {
     Vec3 center{0.0f};
     float radius = 1.0f;
+    // Rotation from world to the sphere's object frame: it only turns the (u, v)
+    // parametrisation (poles on the object's z axis), the geometry is symmetric.
+    Mat3 worldToObject{1.0f};
+};
+
+// A mesh shared by several shapes (Mitsuba's shape groups and instances): its
+// object-space data once, and where this shape puts it. Ray queries trace it as
+// an Embree instance of one shared acceleration structure.
+struct MeshInstance {
+    std::shared_ptr<const TriangleMesh> mesh;
+    Mat4 toWorld{1.0f};
+
+    Vec3 point(const Vec3& p) const { return Vec3(toWorld * Vec4(p, 1.0f)); }
+    // A transformed copy, for code that needs world-space triangles once (area lights).
+    TriangleMesh worldMesh() const;
+    float area() const;
 };
 
 // Generators in object space, as Mitsuba defines them: rectangle [-1,1]^2 at z=0
-// facing +z; disk of radius 1 at z=0 facing +z; cube [-1,1]^3 facing outwards.
+// facing +z; disk of radius 1 at z=0 facing +z with uv = (r, phi / 2 pi); cube
+// [-1,1]^3 facing outwards.
 TriangleMesh makeRectangleMesh();
 TriangleMesh makeDiskMesh(int segments = 128);
 TriangleMesh makeCubeMesh();
+// Mitsuba's cylinder: an open tube of radius 1 around the z axis from z = 0 to
+// z = 1, facing outwards, uv = (phi / 2 pi, z); `segments` flat facets with
+// radial (smooth) vertex normals. A tessellated tube keeps every mesh path
+// (area sampling, instancing, transforms) for a shape that is rarely refractive.
+TriangleMesh makeCylinderMesh(int segments = 256);
+// Maps that unit tube onto the tube of `radius` from p0 to p1 (p0 != p1).
+Mat4 cylinderPlacement(const Vec3& p0, const Vec3& p1, float radius);
 // Loads a Wavefront OBJ (all groups merged); throws InputError naming file and problem.
 TriangleMesh loadObjMesh(const std::string& path);
 // Loads a Stanford PLY (ASCII or binary, either byte order; polygons are
 // triangulated, point and line elements rejected). Texture coordinates are
 // returned as stored in the file; throws InputError naming file and problem.
 TriangleMesh loadPlyMesh(const std::string& path);
+
+// Loads shape `shapeIndex` of a Mitsuba .serialized file (format versions 3
+// and 4, zlib-compressed); throws InputError naming file and problem.
+TriangleMesh loadSerializedMesh(const std::string& path, int shapeIndex = 0);
 
 struct ShapeSample {
     Vec3 p{0.0f};
@@ -52,7 +81,7 @@ struct ShapeSample {
 
 struct Shape {
     std::string name;
-    std::variant<TriangleMesh, Sphere> geometry;
+    std::variant<TriangleMesh, Sphere, MeshInstance> geometry;
     int bsdf = -1;            // index into Scene::bsdfs
     int interiorMedium = -1;  // index into Scene::media, -1 = none
     int exteriorMedium = -1;
@@ -60,6 +89,8 @@ struct Shape {
     bool flipNormals = false; // spheres: normals point inwards
 
     bool isSphere() const { return std::holds_alternative<Sphere>(geometry); }
+    // The shape's triangles in world space: the mesh itself, or an instance's transformed copy.
+    TriangleMesh worldMesh() const;
     float area() const;
 };
 

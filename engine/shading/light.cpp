@@ -1,5 +1,6 @@
-// Light sources: point, spot, directional, constant and image-based
-// environments, and diffuse area emitters on meshes and spheres.
+// Light sources: point, spot (optionally textured), projector, directional,
+// constant and image-based environments, and diffuse area emitters (constant or
+// textured radiance) on meshes and spheres.
 //
 // Next-event estimation follows the solid-angle formulation of pbrt (Pharr,
 // Jakob & Humphreys, "Physically Based Rendering", 3rd ed., Sec. 14.2): area
@@ -46,6 +47,8 @@
 namespace fg {
 
 Rgb Light::emitted(const Vec3&, const Vec3&) const { return Rgb(0.0f); }
+Rgb Light::emittedAt(const Vec3& n, const Vec3& w, const Vec2&) const { return emitted(n, w); }
+float Light::emissionDirectionPdf(const Vec3&) const { return 0.0f; }
 Rgb Light::environment(const Vec3&) const { return Rgb(0.0f); }
 void Light::setSceneBounds(const Vec3&, float) {}
 
@@ -114,8 +117,10 @@ private:
 
 class SpotLight final : public Light {
 public:
-    SpotLight(const Vec3& position, const Vec3& direction, const Rgb& intensity, float cutoffDeg, float beamDeg)
-        : position_(position), frame_(glm::normalize(direction)), intensity_(intensity) {
+    SpotLight(const Vec3& position, const Vec3& direction, const Rgb& intensity, float cutoffDeg, float beamDeg,
+              std::shared_ptr<Texture> texture = nullptr, const Mat3& toLocal = Mat3(1.0f))
+        : position_(position), frame_(glm::normalize(direction)), intensity_(intensity), texture_(std::move(texture)),
+          toLocal_(toLocal) {
         const float cutoff = std::clamp(cutoffDeg, 0.0f, 180.0f);
         cutoff_ = glm::radians(cutoff);
         beam_ = glm::radians(std::clamp(beamDeg, 0.0f, cutoff));
@@ -127,6 +132,9 @@ public:
         const double sincHalf = half > 1e-8 ? std::sin(half) / half : 1.0;
         coneMass_ = 1.0 - std::cos(mid) * sincHalf;
         innerMass_ = 1.0 - std::cos(static_cast<double>(beam_));
+        uvFactor_ = std::tan(cutoff_);
+        power_ = intensity_ * static_cast<float>(2.0 * kPi * coneMass_);
+        if (texture_) power_ = intensity_ * texturedConeIntegral();
     }
 
     bool isDelta() const override { return true; }
@@ -147,16 +155,20 @@ public:
         s.wi = toLight / s.distance;
         const float f = falloff(glm::dot(-s.wi, frame_.n));
         if (f <= 0.0f || isBlack(intensity_)) return std::nullopt;
-        s.value = intensity_ * (f / distance2);
+        s.value = intensity_ * textureFactor(-s.wi) * (f / distance2);
         s.pdf = 1.0f;
         s.p = position_;
         return s;
     }
     float pdfLi(const Vec3&, const Vec3&, const Vec3&, const Vec3&) const override { return 0.0f; }
-    Rgb power() const override { return intensity_ * static_cast<float>(2.0 * kPi * coneMass_); }
+    Rgb power() const override { return power_; }
     std::optional<Vec3> position() const override { return position_; }
+    float emissionDirectionPdf(const Vec3& direction) const override {
+        return directionPdf(glm::dot(glm::normalize(direction), frame_.n));
+    }
 
-    // Directions are drawn in proportion to the falloff, so every photon carries the same flux.
+    // Directions are drawn in proportion to the falloff, so every photon of an
+    // untextured spot carries the same flux; a texture scales each photon's flux.
     std::optional<EmissionSample> sampleEmission(const Vec2&, const Vec2& uDir) const override {
         if (!(coneMass_ > 0.0)) return std::nullopt;
         const double theta = sampleTheta(uDir.x);
@@ -168,7 +180,7 @@ public:
         EmissionSample e;
         e.origin = position_;
         e.direction = frame_.toWorld(Vec3(sinT * std::cos(phi), sinT * std::sin(phi), cosT));
-        e.flux = power();
+        e.flux = intensity_ * static_cast<float>(2.0 * kPi * coneMass_) * textureFactor(e.direction);
         e.pdfPosition = 1.0f;
         e.pdfDirection = pdf;
         e.emitterArea = 0.0f;
@@ -182,6 +194,36 @@ public:
     }
 
 private:
+    // The texture's value in world direction w leaving the light (1 without a texture).
+    Rgb textureFactor(const Vec3& w) const {
+        if (!texture_) return Rgb(1.0f);
+        const Vec3 local = toLocal_ * w;
+        if (!(local.z > 0.0f)) return Rgb(0.0f);
+        const float scale = 0.5f / (local.z * uvFactor_);
+        return texture_->eval(Vec2(0.5f + local.x * scale, 0.5f + local.y * scale));
+    }
+
+    // Integral of falloff x texture over the cone by the midpoint rule in
+    // (theta, phi): the texture is arbitrary, and power only chooses lights
+    // (photon fluxes carry the exact texture value of their direction).
+    Rgb texturedConeIntegral() const {
+        constexpr int kThetaSteps = 256, kPhiSteps = 512;
+        const double dTheta = static_cast<double>(cutoff_) / kThetaSteps, dPhi = 2.0 * kPi / kPhiSteps;
+        Rgb sum(0.0f);
+        for (int i = 0; i < kThetaSteps; ++i) {
+            const double theta = (i + 0.5) * dTheta;
+            const float weight = falloff(static_cast<float>(std::cos(theta))) * static_cast<float>(std::sin(theta) * dTheta * dPhi);
+            if (!(weight > 0.0f)) continue;
+            for (int j = 0; j < kPhiSteps; ++j) {
+                const double phi = (j + 0.5) * dPhi;
+                const Vec3 local(static_cast<float>(std::sin(theta) * std::cos(phi)),
+                                 static_cast<float>(std::sin(theta) * std::sin(phi)), static_cast<float>(std::cos(theta)));
+                sum += weight * textureFactor(frame_.toWorld(local));
+            }
+        }
+        return sum;
+    }
+
     // Unnormalised cumulative mass of f(theta) sin(theta) on [0, theta].
     double cumulative(double theta) const {
         if (theta <= beam_) return 1.0 - std::cos(theta);
@@ -216,6 +258,128 @@ private:
     float cutoff_ = 0.0f, beam_ = 0.0f, cosCutoff_ = 1.0f, cosBeam_ = 1.0f;
     double coneMass_ = 0.0;   // integral of f over the sphere / (2 pi)
     double innerMass_ = 0.0;  // the part of it inside the full-intensity core
+    std::shared_ptr<Texture> texture_;  // optional
+    Mat3 toLocal_;                      // world to the texture's frame (the spot's to_world inverted)
+    float uvFactor_ = 1.0f;             // tan(cutoff): the cone's edge reaches uv = 0 and 1 on the axes
+    Rgb power_{0.0f};
+};
+
+// ---------------------------------------------------------------------------
+
+// Mitsuba's projector. In the light's frame (+z forward) the virtual image plane
+// z = 1 spans x in [-a, a], y in [-b, b] with a = tan(fov_x / 2) and b = a * height
+// / width; uv = (1/2 - x / (2a), 1/2 - y / (2b)), so u = 0 is the +x edge (the
+// image's left, as for Mitsuba's cameras) and v = 0 the top (+y). Mitsuba scales
+// the texture so that the irradiance on that plane is pi * scale * E(uv) (its
+// projector divides by the camera importance, which carries a 1/pi); derived:
+// a plane element dA at z = 1 subtends d(omega) = cos^3(theta) dA, so the
+// intensity is I(omega) = pi * scale * E(uv) / cos^3(theta), the irradiance it
+// gives a point at distance d is I / d^2 = pi * scale * E / (z^2 cos(theta))
+// with z = d cos(theta) the point's depth, and the power is pi * scale * 4ab *
+// mean(E). Photons pick uv from a piecewise-constant density over the texture's
+// pixel grid (each pixel weighted by the largest luminance among itself and its
+// eight neighbours, so that bilinear lookups between pixel centres never fall
+// where the density is zero) and carry flux pi * scale * 4ab * E(uv) / pdf(uv).
+class ProjectorLight final : public Light {
+public:
+    ProjectorLight(const Mat4& toWorld, std::shared_ptr<Texture> irradiance, int width, int height, float tanHalfFovX,
+                   float scale)
+        : position_(Vec3(toWorld[3])), toWorld_(Mat3(toWorld)), toLocal_(glm::transpose(Mat3(toWorld))),
+          irradiance_(std::move(irradiance)), scale_(scale) {
+        width = std::max(1, width);
+        height = std::max(1, height);
+        halfWidth_ = tanHalfFovX;
+        halfHeight_ = tanHalfFovX * static_cast<float>(height) / static_cast<float>(width);
+        planeArea_ = 4.0f * halfWidth_ * halfHeight_;
+        std::vector<float> centre(static_cast<std::size_t>(width) * height);
+        for (int y = 0; y < height; ++y)
+            for (int x = 0; x < width; ++x) {
+                const Vec2 uv((static_cast<float>(x) + 0.5f) / static_cast<float>(width),
+                              (static_cast<float>(y) + 0.5f) / static_cast<float>(height));
+                centre[static_cast<std::size_t>(y) * width + x] = std::max(0.0f, luminance(irradiance_->eval(uv)));
+            }
+        std::vector<float> weights(centre.size(), 0.0f);
+        for (int y = 0; y < height; ++y)
+            for (int x = 0; x < width; ++x) {
+                float w = 0.0f;
+                for (int dy = -1; dy <= 1; ++dy)
+                    for (int dx = -1; dx <= 1; ++dx) {
+                        const int nx = (x + dx + width) % width, ny = (y + dy + height) % height;
+                        w = std::max(w, centre[static_cast<std::size_t>(ny) * width + nx]);
+                    }
+                weights[static_cast<std::size_t>(y) * width + x] = w;
+            }
+        distribution_ = Distribution2D(weights, width, height);
+        // Solid angle of the frustum: a rectangular pyramid with half-extents a, b at unit depth.
+        const double a = halfWidth_, b = halfHeight_;
+        solidAngle_ = static_cast<float>(4.0 * std::asin(a * b / std::sqrt((1.0 + a * a) * (1.0 + b * b))));
+    }
+
+    bool isDelta() const override { return true; }
+    bool isInfinite() const override { return false; }
+    std::optional<Vec3> position() const override { return position_; }
+
+    std::optional<LightSample> sampleLi(const Vec3& ref, const Vec2&) const override {
+        const Vec3 toRef = ref - position_;
+        const float distance = glm::length(toRef);
+        if (!(distance > 0.0f)) return std::nullopt;
+        const Vec3 local = toLocal_ * toRef;
+        Vec2 uv;
+        if (!localToUv(local, &uv)) return std::nullopt;
+        const Rgb e = irradiance_->eval(uv);
+        if (isBlack(e)) return std::nullopt;
+        const float cosTheta = local.z / distance;
+        LightSample s;
+        s.distance = distance;
+        s.wi = -toRef / distance;
+        s.value = e * (kPi * scale_ / (local.z * local.z * cosTheta));
+        s.pdf = 1.0f;
+        s.p = position_;
+        return s;
+    }
+    float pdfLi(const Vec3&, const Vec3&, const Vec3&, const Vec3&) const override { return 0.0f; }
+    Rgb power() const override { return irradiance_->mean() * (kPi * scale_ * planeArea_); }
+
+    std::optional<EmissionSample> sampleEmission(const Vec2&, const Vec2& uDir) const override {
+        float pdfUv = 0.0f;
+        const Vec2 uv = distribution_.sample(uDir, &pdfUv);
+        if (!(pdfUv > 0.0f)) return std::nullopt;
+        const Vec3 onPlane((1.0f - 2.0f * uv.x) * halfWidth_, (1.0f - 2.0f * uv.y) * halfHeight_, 1.0f);
+        const Vec3 local = glm::normalize(onPlane);
+        const float cos3 = local.z * local.z * local.z;
+        EmissionSample e;
+        e.origin = position_;
+        e.direction = glm::normalize(toWorld_ * local);
+        e.pdfPosition = 1.0f;
+        e.pdfDirection = pdfUv / (planeArea_ * cos3);
+        e.flux = irradiance_->eval(uv) * (kPi * scale_ * planeArea_ / pdfUv);
+        e.emitterArea = 0.0f;
+        e.emitterSolidAngle = solidAngle_;
+        return e;
+    }
+
+    float emissionDirectionPdf(const Vec3& direction) const override {
+        const Vec3 local = toLocal_ * direction;
+        Vec2 uv;
+        if (!localToUv(local, &uv)) return 0.0f;
+        const float cosTheta = local.z / glm::length(local);
+        return distribution_.pdf(uv) / (planeArea_ * cosTheta * cosTheta * cosTheta);
+    }
+
+private:
+    bool localToUv(const Vec3& local, Vec2* uv) const {
+        if (!(local.z > 0.0f)) return false;
+        const float x = local.x / local.z, y = local.y / local.z;
+        *uv = Vec2(0.5f - 0.5f * x / halfWidth_, 0.5f - 0.5f * y / halfHeight_);
+        return uv->x >= 0.0f && uv->x <= 1.0f && uv->y >= 0.0f && uv->y <= 1.0f;
+    }
+
+    Vec3 position_;
+    Mat3 toWorld_, toLocal_;  // a rotation: its inverse is its transpose
+    std::shared_ptr<Texture> irradiance_;
+    float scale_;
+    float halfWidth_ = 1.0f, halfHeight_ = 1.0f, planeArea_ = 4.0f, solidAngle_ = 0.0f;
+    Distribution2D distribution_;
 };
 
 // ---------------------------------------------------------------------------
@@ -441,19 +605,27 @@ private:
 
 class AreaLight final : public Light {
 public:
-    AreaLight(const Shape& shape, const Rgb& radiance, bool twoSided) : radiance_(radiance), twoSided_(twoSided) {
+    AreaLight(const Shape& shape, const Rgb& radiance, bool twoSided, std::shared_ptr<Texture> texture = nullptr)
+        : radiance_(radiance), twoSided_(twoSided), texture_(std::move(texture)) {
         if (const auto* sphere = std::get_if<Sphere>(&shape.geometry)) {
             sphere_ = *sphere;
             isSphere_ = true;
             inwards_ = shape.flipNormals;
             area_ = 4.0f * kPi * sphere_.radius * sphere_.radius;
         } else {
-            const auto& mesh = std::get<TriangleMesh>(shape.geometry);
+            const TriangleMesh mesh = shape.worldMesh();
             std::vector<float> areas;
             double total = 0.0;
             for (std::size_t t = 0; t + 2 < mesh.indices.size(); t += 3) {
                 Triangle tri{mesh.positions[mesh.indices[t]], mesh.positions[mesh.indices[t + 1]],
                              mesh.positions[mesh.indices[t + 2]], Vec3(0.0f)};
+                // As ray queries report uv: the mesh's coordinates, else the barycentrics.
+                if (mesh.uvs.empty()) {
+                    tri.uvA = Vec2(0.0f, 0.0f), tri.uvB = Vec2(1.0f, 0.0f), tri.uvC = Vec2(0.0f, 1.0f);
+                } else {
+                    tri.uvA = mesh.uvs[mesh.indices[t]], tri.uvB = mesh.uvs[mesh.indices[t + 1]];
+                    tri.uvC = mesh.uvs[mesh.indices[t + 2]];
+                }
                 const Vec3 cross = glm::cross(tri.b - tri.a, tri.c - tri.a);
                 const float twiceArea = glm::length(cross);
                 // Degenerate triangles keep zero weight and are never chosen.
@@ -473,6 +645,7 @@ public:
     std::optional<LightSample> sampleLi(const Vec3& ref, const Vec2& u) const override {
         if (!(area_ > 0.0f)) return std::nullopt;
         LightSample s;
+        Vec2 uv(0.0f);
         if (isSphere_ && isOutside(ref)) {
             // Uniform in the cone of directions the sphere subtends.
             const Vec3 toCenter = sphere_.center - ref;
@@ -491,6 +664,7 @@ public:
             const Vec3 outward = glm::normalize(ref + tHit * w - sphere_.center);
             s.p = sphere_.center + sphere_.radius * outward;
             s.n = inwards_ ? -outward : outward;
+            uv = sphereUv(outward);
             s.pdf = conePdf(oneMinusCosMax);
             // From outside only the outer side is visible.
             if (inwards_ && !twoSided_) return std::nullopt;
@@ -498,6 +672,7 @@ public:
             const ShapeSample point = sampleArea(u);
             s.p = point.p;
             s.n = point.n;
+            uv = point.uv;
             s.pdf = solidAnglePdf(ref, s.p, s.n);
             if (!facesTowards(s.n, ref - s.p)) return std::nullopt;
         }
@@ -505,7 +680,7 @@ public:
         s.distance = glm::length(toLight);
         if (!(s.distance > 0.0f) || !(s.pdf > 0.0f) || !std::isfinite(s.pdf)) return std::nullopt;
         s.wi = toLight / s.distance;
-        s.value = radiance_;
+        s.value = radianceAt(uv);
         return s;
     }
 
@@ -522,6 +697,11 @@ public:
     Rgb emitted(const Vec3& n, const Vec3& w) const override {
         return facesTowards(n, w) ? radiance_ : Rgb(0.0f);
     }
+    Rgb emittedAt(const Vec3& n, const Vec3& w, const Vec2& uv) const override {
+        return facesTowards(n, w) ? radianceAt(uv) : Rgb(0.0f);
+    }
+    // With a texture, its mean stands for the area average: power only chooses
+    // lights, and photons carry the texture value where they start.
     Rgb power() const override { return radiance_ * (kPi * area_ * (twoSided_ ? 2.0f : 1.0f)); }
 
     std::optional<EmissionSample> sampleEmission(const Vec2& uPos, const Vec2& uDir) const override {
@@ -546,7 +726,8 @@ public:
         e.direction = Frame(side).toWorld(local);
         e.pdfPosition = point.pdfArea;
         e.pdfDirection = cosineHemispherePdf(local.z) * (twoSided_ ? 0.5f : 1.0f);
-        e.flux = power();  // L cos / (pdfPosition pdfDirection), with the cosine cancelled exactly
+        // L cos / (pdfPosition pdfDirection), with the cosine cancelled exactly.
+        e.flux = radianceAt(point.uv) * (kPi * area_ * (twoSided_ ? 2.0f : 1.0f));
         e.emitterArea = area_;
         e.emitterSolidAngle = twoSided_ ? kFourPi : 2.0f * kPi;
         return e;
@@ -555,7 +736,17 @@ public:
 private:
     struct Triangle {
         Vec3 a, b, c, n;
+        Vec2 uvA{0.0f}, uvB{0.0f}, uvC{0.0f};
     };
+
+    Rgb radianceAt(const Vec2& uv) const { return texture_ ? texture_->eval(uv) : radiance_; }
+    // Mitsuba's sphere parametrisation, as ray queries report it.
+    Vec2 sphereUv(const Vec3& outward) const {
+        const Vec3 local = sphere_.worldToObject * outward;
+        float phi = std::atan2(local.y, local.x);
+        if (phi < 0.0f) phi += 2.0f * kPi;
+        return Vec2(phi * kInv2Pi, std::acos(std::clamp(local.z, -1.0f, 1.0f)) * kInvPi);
+    }
 
     bool facesTowards(const Vec3& n, const Vec3& w) const { return twoSided_ || glm::dot(n, w) > 0.0f; }
     bool isOutside(const Vec3& ref) const {
@@ -577,12 +768,14 @@ private:
             const Vec3 outward = sampleUniformSphere(u);
             s.p = sphere_.center + sphere_.radius * outward;
             s.n = inwards_ ? -outward : outward;
+            s.uv = sphereUv(outward);
             return s;
         }
         float uTriangle = 0.0f;
         const Triangle& tri = triangles_[triangleChoice_.sampleDiscrete(u.x, nullptr, &uTriangle)];
         const Vec2 b = sampleUniformTriangle(Vec2(uTriangle, u.y));
         s.p = (1.0f - b.x - b.y) * tri.a + b.x * tri.b + b.y * tri.c;
+        s.uv = (1.0f - b.x - b.y) * tri.uvA + b.x * tri.uvB + b.y * tri.uvC;
         s.n = tri.n;
         return s;
     }
@@ -597,6 +790,7 @@ private:
 
     Rgb radiance_;
     bool twoSided_;
+    std::shared_ptr<Texture> texture_;  // optional; replaces radiance_ where set
     bool isSphere_ = false;
     bool inwards_ = false;
     Sphere sphere_;
@@ -616,6 +810,18 @@ std::shared_ptr<Light> makeSpotLight(const Vec3& position, const Vec3& direction
     return std::make_shared<SpotLight>(position, direction, intensity, cutoffAngleDeg, beamWidthDeg);
 }
 
+std::shared_ptr<Light> makeTexturedSpotLight(const Mat4& toWorld, const Rgb& intensity, float cutoffAngleDeg,
+                                             float beamWidthDeg, std::shared_ptr<Texture> texture) {
+    const Mat3 linear(toWorld);
+    return std::make_shared<SpotLight>(Vec3(toWorld[3]), glm::normalize(linear[2]), intensity, cutoffAngleDeg,
+                                       beamWidthDeg, std::move(texture), glm::inverse(linear));
+}
+
+std::shared_ptr<Light> makeProjectorLight(const Mat4& toWorld, std::shared_ptr<Texture> irradiance, int width,
+                                          int height, float tanHalfFovX, float scale) {
+    return std::make_shared<ProjectorLight>(toWorld, std::move(irradiance), width, height, tanHalfFovX, scale);
+}
+
 std::shared_ptr<Light> makeDirectionalLight(const Vec3& direction, const Rgb& irradiance) {
     return std::make_shared<DirectionalLight>(direction, irradiance);
 }
@@ -630,6 +836,11 @@ std::shared_ptr<Light> makeEnvironmentMap(const RgbImage& image, float scale, co
 
 std::shared_ptr<Light> makeAreaLight(const Shape& shape, const Rgb& radiance, bool twoSided) {
     return std::make_shared<AreaLight>(shape, radiance, twoSided);
+}
+
+std::shared_ptr<Light> makeTexturedAreaLight(const Shape& shape, std::shared_ptr<Texture> radiance, bool twoSided) {
+    const Rgb mean = radiance->mean();
+    return std::make_shared<AreaLight>(shape, mean, twoSided, std::move(radiance));
 }
 
 }  // namespace fg

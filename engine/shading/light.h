@@ -48,11 +48,16 @@ public:
     virtual float pdfLi(const Vec3& ref, const Vec3& p, const Vec3& n, const Vec3& wi) const = 0;
     // Radiance leaving an area light at a point with normal n in direction w (towards the viewer).
     virtual Rgb emitted(const Vec3& n, const Vec3& w) const;
+    // The same at surface coordinates uv, for emitters whose radiance is a texture.
+    virtual Rgb emittedAt(const Vec3& n, const Vec3& w, const Vec2& uv) const;
     // Radiance arriving along a ray that escapes the scene in direction `dir` (infinite lights).
     virtual Rgb environment(const Vec3& dir) const;
     // Total emitted power, for choosing lights in proportion to power.
     virtual Rgb power() const = 0;
     virtual std::optional<EmissionSample> sampleEmission(const Vec2& uPos, const Vec2& uDir) const = 0;
+    // Solid-angle density of sampleEmission's directions, for sources at a point
+    // (point, spot, projector); 0 for the others.
+    virtual float emissionDirectionPdf(const Vec3& direction) const;
     // Infinite and directional lights need the scene's bounding sphere.
     virtual void setSceneBounds(const Vec3& center, float radius);
     // Where a point or spot light sits, so that loaders can check it lies in a
@@ -64,6 +69,17 @@ std::shared_ptr<Light> makePointLight(const Vec3& position, const Rgb& intensity
 // Mitsuba's spot: full intensity inside beamWidth, smooth falloff to zero at cutoffAngle (degrees).
 std::shared_ptr<Light> makeSpotLight(const Vec3& position, const Vec3& direction, const Rgb& intensity,
                                      float cutoffAngleDeg, float beamWidthDeg);
+// Mitsuba's spot whose intensity is also multiplied by `texture` over the cone:
+// a direction with local coordinates (x, y, z) (toWorld's columns, +z the axis)
+// reads uv = (1/2 + x / (2 z tan cutoff), 1/2 + y / (2 z tan cutoff)).
+std::shared_ptr<Light> makeTexturedSpotLight(const Mat4& toWorld, const Rgb& intensity, float cutoffAngleDeg,
+                                             float beamWidthDeg, std::shared_ptr<Texture> texture);
+// Mitsuba's projector: a pinhole at toWorld's origin (rotation and translation
+// only) looking along +z that projects `irradiance` (resolution width x height
+// sets the aspect ratio and the sampling grid) through a frustum with
+// horizontal half-angle atan(tanHalfFovX); see light.cpp for the convention.
+std::shared_ptr<Light> makeProjectorLight(const Mat4& toWorld, std::shared_ptr<Texture> irradiance, int width,
+                                          int height, float tanHalfFovX, float scale);
 // Collimated light travelling along `direction` with irradiance `irradiance` on a perpendicular plane.
 std::shared_ptr<Light> makeDirectionalLight(const Vec3& direction, const Rgb& irradiance);
 std::shared_ptr<Light> makeConstantEnvironment(const Rgb& radiance);
@@ -72,5 +88,8 @@ std::shared_ptr<Light> makeConstantEnvironment(const Rgb& radiance);
 std::shared_ptr<Light> makeEnvironmentMap(const RgbImage& image, float scale, const Mat3& toWorld = Mat3(1.0f));
 // Diffuse emitter on a shape (front side only unless twoSided). The light keeps its own copy of the geometry.
 std::shared_ptr<Light> makeAreaLight(const Shape& shape, const Rgb& radiance, bool twoSided = false);
+// Diffuse emitter whose radiance is a texture over the shape's uv (meshes: their
+// texture coordinates, or barycentrics without them; spheres: Mitsuba's (phi, theta)).
+std::shared_ptr<Light> makeTexturedAreaLight(const Shape& shape, std::shared_ptr<Texture> radiance, bool twoSided = false);
 
 }  // namespace fg

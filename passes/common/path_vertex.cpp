@@ -141,7 +141,7 @@ bool advancePathAtSurface(const PathTracerScene& pts, const PathLimits& limits, 
 
     if (shape.areaLight >= 0) {
         const Light& light = *scene.lights[static_cast<std::size_t>(shape.areaLight)];
-        const Rgb Le = light.emitted(sp.ng, -s.ray.direction);
+        const Rgb Le = light.emittedAt(sp.ng, -s.ray.direction, sp.uv);
         if (!isBlack(Le)) {
             float weight = 1.0f;
             if (!h.specular) {

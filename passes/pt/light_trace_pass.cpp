@@ -219,6 +219,11 @@ private:
                              " has participating media, which light tracing does not support (it would need their "
                              "transmittance); render it with pt");
         }
+        if (scene.camera.orthographic) {
+            // Its rays share one direction, so a light path meets it with probability zero.
+            throw InputError("pass '" + ctx.instanceName() + "': " + scene.sourcePath +
+                             " has an orthographic camera, which light tracing cannot connect to; render it with pt");
+        }
         const FilmSettings& film = ctx.filmSettings();
         camera_ = scene.camera;
         camera_.width = film.width;

@@ -112,6 +112,68 @@ TEST(Film, GaussianFilterKeepsAConstantImageConstant) {
     }
 }
 
+TEST(Film, TentFilterKeepsAConstantImageConstant) {
+    FilmSettings settings;
+    settings.width = 13;
+    settings.height = 9;
+    settings.filter = FilterKind::Tent;
+    settings.filterRadius = 1.0f;
+    Film film(settings);
+    RoundData round = randomRound(13, 9, 5, 11);
+    const Rgb constant(0.25f, 3.5f, 17.0f);
+    for (Rgb& l : round.radiance) l = constant;
+    film.addRound(round.view());
+
+    for (const Rgb& pixel : film.resolve()) {
+        EXPECT_NEAR(pixel.x, constant.x, 1e-6f * constant.x);
+        EXPECT_NEAR(pixel.y, constant.y, 1e-6f * constant.y);
+        EXPECT_NEAR(pixel.z, constant.z, 1e-6f * constant.z);
+    }
+}
+
+TEST(Film, TentWeightFallsLinearlyToZeroAtTheRadius) {
+    FilmSettings settings;
+    settings.filter = FilterKind::Tent;
+    settings.filterRadius = 1.5f;
+    const PixelFilter tent(settings);
+    for (float dx : {-1.4f, -0.5f, 0.0f, 0.75f, 1.2f}) {
+        for (float dy : {-1.0f, 0.0f, 0.3f, 1.49f}) {
+            const double expected = (1.0 - std::abs(dx) / 1.5) * (1.0 - std::abs(dy) / 1.5);
+            EXPECT_NEAR(tent(dx, dy), expected, 1e-6) << dx << ", " << dy;
+        }
+    }
+    EXPECT_EQ(tent(1.5f, 0.0f), 0.0f);
+    EXPECT_EQ(tent(0.0f, -2.0f), 0.0f);
+}
+
+// A tent of radius 1 interpolates linearly: a bright column of samples at one
+// pixel centre shares itself with its neighbours by distance.
+TEST(Film, TentFilterSpreadsASampleLinearly) {
+    FilmSettings settings;
+    settings.width = 4;
+    settings.height = 1;
+    settings.filter = FilterKind::Tent;
+    settings.filterRadius = 1.0f;
+    Film film(settings);
+    // Pixel 1 holds one sample 0.25 px right of its centre, the others one dark sample each at their centres.
+    const std::vector<Vec2> raster = {{0.5f, 0.5f}, {1.75f, 0.5f}, {2.5f, 0.5f}, {3.5f, 0.5f}};
+    const std::vector<Rgb> radiance = {Rgb(0.0f), Rgb(1.0f), Rgb(0.0f), Rgb(0.0f)};
+    SampleRound round;
+    round.firstPixel = 0;
+    round.pixelCount = 4;
+    round.samplesPerPixel = 1;
+    round.raster = raster;
+    round.radiance = radiance;
+    film.addRound(round);
+    const std::vector<Rgb> image = film.resolve();
+    // Pixel 1: weight 0.75 on the bright sample, 0 on its neighbours (distance 1): 1.
+    EXPECT_NEAR(image[1].x, 1.0f, 1e-6f);
+    // Pixel 2: bright at distance 0.75 (weight 0.25), its own dark at 0 (weight 1): 0.25 / 1.25.
+    EXPECT_NEAR(image[2].x, 0.2f, 1e-6f);
+    // Pixel 0: the bright sample is 1.25 away, beyond the radius.
+    EXPECT_EQ(image[0].x, 0.0f);
+}
+
 TEST(Film, GaussianWeightIsSeparableAndVanishesAtTheRadius) {
     FilmSettings settings;
     settings.filter = FilterKind::Gaussian;

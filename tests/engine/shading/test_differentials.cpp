@@ -272,7 +272,7 @@ int addBsdf(Scene& scene, std::shared_ptr<Bsdf> bsdf) {
 int addDiffuse(Scene& scene) { return addBsdf(scene, makeDiffuse(makeConstantTexture(Rgb(0.5f)))); }
 int addMirror(Scene& scene) { return addBsdf(scene, makeConductor(*conductorPreset("none"))); }
 
-void addShape(Scene& scene, std::variant<TriangleMesh, Sphere> geometry, int bsdf, bool flip = false) {
+void addShape(Scene& scene, decltype(Shape::geometry) geometry, int bsdf, bool flip = false) {
     Shape shape;
     shape.geometry = std::move(geometry);
     shape.bsdf = bsdf;

@@ -57,7 +57,7 @@ int addBsdf(Scene& scene, std::shared_ptr<Bsdf> bsdf) {
     return static_cast<int>(scene.bsdfs.size()) - 1;
 }
 
-void addShape(Scene& scene, std::variant<TriangleMesh, Sphere> geometry, int bsdf) {
+void addShape(Scene& scene, decltype(Shape::geometry) geometry, int bsdf) {
     Shape shape;
     shape.geometry = std::move(geometry);
     shape.bsdf = bsdf;
