@@ -1242,7 +1242,7 @@ private:
             const std::optional<ConductorIor> preset = conductorPreset(name);
             if (!preset) {
                 p.fail(*p.valueNode("material"), "conductor material " + inQuotes(name) +
-                                                     " is not available (supported: Au, Ag, Al, Cu, Cr, none)");
+                                                     " is not available (supported: " + conductorNames() + ")");
             }
             ior = *preset;
         }
@@ -1250,6 +1250,12 @@ private:
         ior.eta /= extEta;
         ior.k /= extEta;
         return ior;
+    }
+
+    static std::string conductorNames() {
+        std::string names;
+        for (std::string_view name : conductorPresetNames()) names += (names.empty() ? "" : ", ") + std::string(name);
+        return names;
     }
 
     std::shared_ptr<Bsdf> makeBsdf(Props& p) {

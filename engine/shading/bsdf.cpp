@@ -22,6 +22,7 @@
 
 #include <array>
 #include <complex>
+#include <span>
 #include <utility>
 
 namespace fg {
@@ -496,6 +497,21 @@ private:
     std::shared_ptr<Bsdf> inner_;
 };
 
+struct ConductorTableEntry {
+    std::string_view name;
+    Rgb eta;
+    Rgb k;
+};
+
+// Mitsuba's named conductors: its spectral eta/k tables (mostly the luxpop.com
+// database, some Palik) reduced to RGB by tools/conductor_table.py.
+std::span<const ConductorTableEntry> conductorTable() {
+    static const ConductorTableEntry kTable[] = {
+#include "engine/shading/conductor_table.inc"
+    };
+    return kTable;
+}
+
 }  // namespace
 
 // ---------------------------------------------------------------------------
@@ -548,26 +564,19 @@ Rgb fresnelConductor(float cosThetaI, const Rgb& eta, const Rgb& k) {
 }
 
 std::optional<ConductorIor> conductorPreset(std::string_view name) {
-    // Measured optical constants (luxpop.com database, as distributed with
-    // Mitsuba 0.5's data/ior/*.spd; Palik for Cr), linearly interpolated at the
-    // wavelengths 650 nm (R), 550 nm (G) and 450 nm (B).
-    struct Entry {
-        std::string_view name;
-        ConductorIor ior;
-    };
-    static const std::array<Entry, 6> kPresets = {{
-        {"Au", {Rgb(0.1678f, 0.3504f, 1.5085f), Rgb(3.1378f, 2.7141f, 1.8788f)}},
-        {"Ag", {Rgb(0.1394f, 0.1248f, 0.1517f), Rgb(4.1288f, 3.3396f, 2.4704f)}},
-        {"Al", {Rgb(1.4748f, 0.9586f, 0.6180f), Rgb(7.7941f, 6.6870f, 5.4694f)}},
-        {"Cu", {Rgb(0.2166f, 0.9582f, 1.1658f), Rgb(3.6377f, 2.5771f, 2.3939f)}},
-        {"Cr", {Rgb(3.6375f, 3.1158f, 1.9277f), Rgb(4.3644f, 4.4228f, 4.1675f)}},
-        // Mitsuba's "none": a perfect mirror; with eta = 0, k = 1 the exact
-        // conductor Fresnel term is 1 at every angle.
-        {"none", {Rgb(0.0f), Rgb(1.0f)}},
-    }};
-    for (const Entry& e : kPresets)
-        if (e.name == name) return e.ior;
+    // Mitsuba's "none": a perfect mirror; with eta = 0, k = 1 the exact
+    // conductor Fresnel term is 1 at every angle.
+    if (name == "none") return ConductorIor{Rgb(0.0f), Rgb(1.0f)};
+    for (const ConductorTableEntry& e : conductorTable())
+        if (e.name == name) return ConductorIor{e.eta, e.k};
     return std::nullopt;
+}
+
+std::vector<std::string_view> conductorPresetNames() {
+    std::vector<std::string_view> names;
+    for (const ConductorTableEntry& e : conductorTable()) names.push_back(e.name);
+    names.push_back("none");
+    return names;
 }
 
 std::optional<float> dielectricIorPreset(std::string_view name) {

@@ -18,6 +18,7 @@
 #include <memory>
 #include <optional>
 #include <string_view>
+#include <vector>
 
 namespace fg {
 
@@ -75,9 +76,12 @@ struct ConductorIor {
     Rgb eta;
     Rgb k;
 };
-// Complex IOR presets at the RGB primaries' wavelengths (names as Mitsuba: "Au",
-// "Ag", "Al", "Cu", plus "Cr", "none" = perfect mirror with eta=0,k=1 semantics handled by caller).
+// Mitsuba's named conductor materials ("Au", "Cu", "Ag", ... as in its ior
+// tables, integrated to RGB as Mitsuba's RGB mode does), and "none", a perfect
+// mirror (eta = 0, k = 1).
 std::optional<ConductorIor> conductorPreset(std::string_view name);
+// Every name conductorPreset knows, in table order, "none" last.
+std::vector<std::string_view> conductorPresetNames();
 // Named dielectric IORs ("vacuum", "air", "water", "bk7", "glass", "diamond", ...).
 std::optional<float> dielectricIorPreset(std::string_view name);
 
