@@ -1220,8 +1220,6 @@ private:
         return alpha;
     }
 
-    Rgb specular(Props& p, std::string_view key) { return p.colour(key, ColourUse::Reflectance).value_or(Rgb(1.0f)); }
-
     void requireUnitSpecular(Props& p, std::string_view key) {
         if (const std::optional<Rgb> v = p.colour(key, ColourUse::Reflectance); v && *v != Rgb(1.0f)) {
             p.fail(*p.valueNode(key), std::string(key) + " other than 1 is not supported by " + p.what());
@@ -1263,9 +1261,9 @@ private:
         if (type == "diffuse") return makeDiffuse(textureParam(p, "reflectance", Rgb(0.5f)));
         if (type == "dielectric") {
             const float eta = relativeIor(p, 1.5046f);  // bk7
-            const Rgb r = specular(p, "specular_reflectance");
-            const Rgb t = specular(p, "specular_transmittance");
-            return makeDielectric(eta, r, t);
+            auto reflectance = textureParam(p, "specular_reflectance", Rgb(1.0f));
+            auto transmittance = textureParam(p, "specular_transmittance", Rgb(1.0f));
+            return makeDielectric(eta, std::move(reflectance), std::move(transmittance));
         }
         if (type == "thindielectric") {
             const float eta = relativeIor(p, 1.5046f);
@@ -1282,12 +1280,12 @@ private:
         }
         if (type == "conductor") {
             const ConductorIor ior = readConductor(p);
-            return makeConductor(ior, specular(p, "specular_reflectance"));
+            return makeConductor(ior, textureParam(p, "specular_reflectance", Rgb(1.0f)));
         }
         if (type == "roughconductor") {
             const ConductorIor ior = readConductor(p);
             const float alpha = readAlpha(p);
-            return makeRoughConductor(ior, alpha, specular(p, "specular_reflectance"));
+            return makeRoughConductor(ior, alpha, textureParam(p, "specular_reflectance", Rgb(1.0f)));
         }
         if (type == "plastic") {
             auto diffuse = textureParam(p, "diffuse_reflectance", Rgb(0.5f));
@@ -1314,25 +1312,51 @@ private:
         return makeConstantTexture(p.colour(key, ColourUse::Reflectance).value_or(fallback));
     }
 
-    // to_uv (Mitsuba 3) or uscale/vscale/uoffset/voffset (0.x): only scales are representable.
-    Vec2 uvScale(Props& p) {
-        Vec2 scale(1.0f);
+    // to_uv (Mitsuba 3: its 2x2 linear part and x, y translation act on uv) or
+    // uscale/vscale/uoffset/voffset (0.x: uv * scale + offset).
+    UvTransform uvTransform(Props& p) {
+        UvTransform result;
         if (const std::optional<Mat4> m = p.transform("to_uv")) {
             const Mat4& t = *m;
-            const bool scaleOnly = t[1][0] == 0.0f && t[0][1] == 0.0f && t[3][0] == 0.0f && t[3][1] == 0.0f &&
-                                   t[2][0] == 0.0f && t[2][1] == 0.0f && t[0][2] == 0.0f && t[1][2] == 0.0f;
-            if (!scaleOnly) p.fail(*p.valueNode("to_uv"), "to_uv may only scale (offsets and rotations are not supported)");
-            scale = Vec2(t[0][0], t[1][1]);
+            result.linear = glm::mat2(t[0][0], t[0][1], t[1][0], t[1][1]);
+            result.offset = Vec2(t[3][0], t[3][1]);
         }
         if (p.version().legacy()) {
-            scale.x *= p.number("uscale", 1.0f);
-            scale.y *= p.number("vscale", 1.0f);
-            for (const char* key : {"uoffset", "voffset"}) {
-                if (p.number(key).value_or(0.0f) != 0.0f) p.fail(*p.valueNode(key), std::string(key) + " is not supported (only 0)");
-            }
+            const Vec2 scale(p.number("uscale", 1.0f), p.number("vscale", 1.0f));
+            const Vec2 offset(p.number("uoffset", 0.0f), p.number("voffset", 0.0f));
+            result = UvTransform{glm::mat2(scale.x, 0.0f, 0.0f, scale.y), offset}.after(result);
         }
-        if (scale.x == 0.0f || scale.y == 0.0f) p.fail("texture scale must not be zero");
-        return scale;
+        if (glm::determinant(result.linear) == 0.0f) {
+            const Node* toUv = p.valueNode("to_uv");
+            p.fail(toUv ? *toUv : p.node(), "texture coordinate transform must not be singular");
+        }
+        return result;
+    }
+
+    TextureWrap wrapMode(Props& p, std::string_view key, TextureWrap fallback) {
+        const std::optional<std::string> mode = p.string(key);
+        if (!mode) return fallback;
+        if (*mode == "repeat") return TextureWrap::Repeat;
+        if (*mode == "mirror") return TextureWrap::Mirror;
+        if (*mode == "clamp") return TextureWrap::Clamp;
+        p.fail(*p.valueNode(key), std::string(key) + " " + inQuotes(*mode) + " is not supported (repeat, mirror, clamp)");
+    }
+
+    BitmapLookup bitmapLookup(Props& p) {
+        BitmapLookup lookup;
+        std::string filter = p.string("filter_type").value_or("bilinear");
+        // Mitsuba 0.x filters mip-mapped lookups; fluxgraph has one bilinear lookup.
+        if (p.version().legacy() && (filter == "ewa" || filter == "trilinear")) filter = "bilinear";
+        if (filter == "nearest") {
+            lookup.filter = TextureFilter::Nearest;
+        } else if (filter != "bilinear") {
+            p.fail(*p.valueNode("filter_type"), "filter_type " + inQuotes(filter) + " is not supported (bilinear, nearest)");
+        }
+        const TextureWrap both = wrapMode(p, "wrap_mode", TextureWrap::Repeat);
+        lookup.wrapU = wrapMode(p, "wrap_mode_u", both);
+        lookup.wrapV = wrapMode(p, "wrap_mode_v", both);
+        lookup.toUv = uvTransform(p);
+        return lookup;
     }
 
     std::shared_ptr<Texture> texture(const Node& node) {
@@ -1342,20 +1366,11 @@ private:
         std::shared_ptr<Texture> result;
         if (p.type() == "bitmap") {
             const std::string path = resolveFile(p, "filename");
-            std::string filter = p.string("filter_type").value_or("bilinear");
-            // Mitsuba 0.x filters mip-mapped lookups; fluxgraph has one bilinear lookup.
-            if (p.version().legacy() && (filter == "ewa" || filter == "trilinear")) filter = "bilinear";
-            if (filter != "bilinear") p.fail(*p.valueNode("filter_type"), "filter_type " + inQuotes(filter) + " is not supported (bilinear)");
-            for (const char* key : {"wrap_mode", "wrap_mode_u", "wrap_mode_v"}) {
-                if (const std::optional<std::string> mode = p.string(key); mode && *mode != "repeat") {
-                    p.fail(*p.valueNode(key), std::string(key) + " " + inQuotes(*mode) + " is not supported (repeat)");
-                }
-            }
-            if (p.boolean("raw", false)) p.fail(*p.valueNode("raw"), "raw = true is not supported");
-            const Vec2 scale = uvScale(p);
+            const bool raw = p.boolean("raw", false);
+            const BitmapLookup lookup = bitmapLookup(p);
             RgbImage image;
             try {
-                image = readRgbImage(path);
+                image = readRgbImage(path, raw);
             } catch (const InputError& e) {
                 p.fail(*p.valueNode("filename"), e.what());
             }
@@ -1366,12 +1381,12 @@ private:
                               image.pixels[static_cast<std::size_t>(image.height - 1 - y) * image.width + x]);
                 }
             }
-            result = makeBitmapTexture(std::move(image), scale);
+            result = makeBitmapTexture(std::move(image), lookup);
         } else if (p.type() == "checkerboard") {
             const Rgb color0 = p.colour("color0", ColourUse::Reflectance).value_or(Rgb(0.4f));
             const Rgb color1 = p.colour("color1", ColourUse::Reflectance).value_or(Rgb(0.2f));
             // Mitsuba's checkerboard has one checker per half unit of uv.
-            result = makeCheckerboardTexture(color0, color1, 2.0f * uvScale(p));
+            result = makeCheckerboardTexture(color0, color1, UvTransform::scale(Vec2(2.0f)).after(uvTransform(p)));
         } else {
             p.fail("unknown texture type (supported: bitmap, checkerboard)");
         }

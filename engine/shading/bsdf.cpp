@@ -86,8 +86,10 @@ private:
 
 class DielectricBsdf final : public Bsdf {
 public:
-    DielectricBsdf(float eta, const Rgb& specularReflectance, const Rgb& specularTransmittance)
-        : eta_(eta), specularReflectance_(specularReflectance), specularTransmittance_(specularTransmittance) {}
+    DielectricBsdf(float eta, std::shared_ptr<Texture> specularReflectance, std::shared_ptr<Texture> specularTransmittance)
+        : eta_(eta),
+          specularReflectance_(std::move(specularReflectance)),
+          specularTransmittance_(std::move(specularTransmittance)) {}
 
     std::uint32_t lobes() const override {
         return BsdfLobe::Reflection | BsdfLobe::Transmission | BsdfLobe::Specular;
@@ -95,7 +97,7 @@ public:
     Rgb eval(const Vec3&, const Vec3&, const Vec2&, TransportMode) const override { return Rgb(0.0f); }
     float pdf(const Vec3&, const Vec3&, const Vec2&) const override { return 0.0f; }
 
-    std::optional<BsdfSample> sample(const Vec3& wo, const Vec2&, float uLobe, const Vec2&,
+    std::optional<BsdfSample> sample(const Vec3& wo, const Vec2& uv, float uLobe, const Vec2&,
                                      TransportMode mode) const override {
         if (wo.z == 0.0f) return std::nullopt;
         float cosThetaT = 0.0f;
@@ -104,7 +106,7 @@ public:
         if (uLobe < reflectance) {
             s.wi = mirrorReflect(wo);
             s.pdf = reflectance;
-            s.weight = specularReflectance_;
+            s.weight = specularReflectance_->eval(uv);
             s.lobe = BsdfLobe::Reflection | BsdfLobe::Specular;
             return s;
         }
@@ -115,7 +117,7 @@ public:
         // Radiance is compressed into a narrower cone when entering a denser
         // medium; importance (photon flux) is not.
         const float scale = mode == TransportMode::Radiance ? 1.0f / (etaCrossed * etaCrossed) : 1.0f;
-        s.weight = specularTransmittance_ * scale;
+        s.weight = specularTransmittance_->eval(uv) * scale;
         s.eta = etaCrossed;
         s.lobe = BsdfLobe::Transmission | BsdfLobe::Specular;
         return s;
@@ -123,8 +125,8 @@ public:
 
 private:
     float eta_;
-    Rgb specularReflectance_;
-    Rgb specularTransmittance_;
+    std::shared_ptr<Texture> specularReflectance_;
+    std::shared_ptr<Texture> specularTransmittance_;
 };
 
 // ---------------------------------------------------------------------------
@@ -169,45 +171,45 @@ private:
 
 class ConductorBsdf final : public Bsdf {
 public:
-    ConductorBsdf(const ConductorIor& ior, const Rgb& specularReflectance)
-        : ior_(ior), specularReflectance_(specularReflectance) {}
+    ConductorBsdf(const ConductorIor& ior, std::shared_ptr<Texture> specularReflectance)
+        : ior_(ior), specularReflectance_(std::move(specularReflectance)) {}
 
     std::uint32_t lobes() const override { return BsdfLobe::Reflection | BsdfLobe::Specular; }
     Rgb eval(const Vec3&, const Vec3&, const Vec2&, TransportMode) const override { return Rgb(0.0f); }
     float pdf(const Vec3&, const Vec3&, const Vec2&) const override { return 0.0f; }
 
-    std::optional<BsdfSample> sample(const Vec3& wo, const Vec2&, float, const Vec2&, TransportMode) const override {
+    std::optional<BsdfSample> sample(const Vec3& wo, const Vec2& uv, float, const Vec2&, TransportMode) const override {
         if (wo.z <= 0.0f) return std::nullopt;
         BsdfSample s;
         s.wi = mirrorReflect(wo);
         s.pdf = 1.0f;
-        s.weight = specularReflectance_ * fresnelConductor(wo.z, ior_.eta, ior_.k);
+        s.weight = specularReflectance_->eval(uv) * fresnelConductor(wo.z, ior_.eta, ior_.k);
         s.lobe = BsdfLobe::Reflection | BsdfLobe::Specular;
         return s;
     }
 
 private:
     ConductorIor ior_;
-    Rgb specularReflectance_;
+    std::shared_ptr<Texture> specularReflectance_;
 };
 
 // ---------------------------------------------------------------------------
 
 class RoughConductorBsdf final : public Bsdf {
 public:
-    RoughConductorBsdf(const ConductorIor& ior, float alpha, const Rgb& specularReflectance)
-        : ior_(ior), ggx_(alpha), specularReflectance_(specularReflectance) {}
+    RoughConductorBsdf(const ConductorIor& ior, float alpha, std::shared_ptr<Texture> specularReflectance)
+        : ior_(ior), ggx_(alpha), specularReflectance_(std::move(specularReflectance)) {}
 
     std::uint32_t lobes() const override { return BsdfLobe::Reflection | BsdfLobe::Glossy; }
 
-    Rgb eval(const Vec3& wo, const Vec3& wi, const Vec2&, TransportMode) const override {
+    Rgb eval(const Vec3& wo, const Vec3& wi, const Vec2& uv, TransportMode) const override {
         if (wo.z <= 0.0f || wi.z <= 0.0f) return Rgb(0.0f);
         const Vec3 sum = wo + wi;
         if (glm::dot(sum, sum) == 0.0f) return Rgb(0.0f);
         const Vec3 m = glm::normalize(sum);
         const Rgb fresnel = fresnelConductor(glm::dot(wo, m), ior_.eta, ior_.k);
         // D G F / (4 cos_o cos_i), times cos_i.
-        return specularReflectance_ * fresnel * (ggx_.D(m) * ggx_.G(wo, wi) / (4.0f * wo.z));
+        return specularReflectance_->eval(uv) * fresnel * (ggx_.D(m) * ggx_.G(wo, wi) / (4.0f * wo.z));
     }
 
     float pdf(const Vec3& wo, const Vec3& wi, const Vec2&) const override {
@@ -221,7 +223,7 @@ public:
         return ggx_.visibleNormalPdf(wo, m) / (4.0f * cosOM);
     }
 
-    std::optional<BsdfSample> sample(const Vec3& wo, const Vec2&, float, const Vec2& u,
+    std::optional<BsdfSample> sample(const Vec3& wo, const Vec2& uv, float, const Vec2& u,
                                      TransportMode) const override {
         if (wo.z <= 0.0f) return std::nullopt;
         const Vec3 m = ggx_.sampleVisibleNormal(wo, u);
@@ -233,7 +235,7 @@ public:
         s.pdf = ggx_.visibleNormalPdf(wo, m) / (4.0f * cosOM);
         if (!(s.pdf > 0.0f)) return std::nullopt;
         // eval / pdf: D and G1(wo) cancel against the visible-normal density.
-        s.weight = specularReflectance_ * fresnelConductor(cosOM, ior_.eta, ior_.k) * ggx_.G1(s.wi);
+        s.weight = specularReflectance_->eval(uv) * fresnelConductor(cosOM, ior_.eta, ior_.k) * ggx_.G1(s.wi);
         s.lobe = BsdfLobe::Reflection | BsdfLobe::Glossy;
         return s;
     }
@@ -241,7 +243,7 @@ public:
 private:
     ConductorIor ior_;
     GgxDistribution ggx_;
-    Rgb specularReflectance_;
+    std::shared_ptr<Texture> specularReflectance_;
 };
 
 // ---------------------------------------------------------------------------
@@ -623,17 +625,31 @@ std::shared_ptr<Bsdf> makeDiffuse(std::shared_ptr<Texture> reflectance) {
 }
 
 std::shared_ptr<Bsdf> makeDielectric(float eta, const Rgb& specularReflectance, const Rgb& specularTransmittance) {
-    return std::make_shared<DielectricBsdf>(eta, specularReflectance, specularTransmittance);
+    return makeDielectric(eta, makeConstantTexture(specularReflectance), makeConstantTexture(specularTransmittance));
+}
+
+std::shared_ptr<Bsdf> makeDielectric(float eta, std::shared_ptr<Texture> specularReflectance,
+                                     std::shared_ptr<Texture> specularTransmittance) {
+    return std::make_shared<DielectricBsdf>(eta, std::move(specularReflectance), std::move(specularTransmittance));
 }
 
 std::shared_ptr<Bsdf> makeThinDielectric(float eta) { return std::make_shared<ThinDielectricBsdf>(eta); }
 
 std::shared_ptr<Bsdf> makeConductor(const ConductorIor& ior, const Rgb& specularReflectance) {
-    return std::make_shared<ConductorBsdf>(ior, specularReflectance);
+    return makeConductor(ior, makeConstantTexture(specularReflectance));
+}
+
+std::shared_ptr<Bsdf> makeConductor(const ConductorIor& ior, std::shared_ptr<Texture> specularReflectance) {
+    return std::make_shared<ConductorBsdf>(ior, std::move(specularReflectance));
 }
 
 std::shared_ptr<Bsdf> makeRoughConductor(const ConductorIor& ior, float alpha, const Rgb& specularReflectance) {
-    return std::make_shared<RoughConductorBsdf>(ior, alpha, specularReflectance);
+    return makeRoughConductor(ior, alpha, makeConstantTexture(specularReflectance));
+}
+
+std::shared_ptr<Bsdf> makeRoughConductor(const ConductorIor& ior, float alpha,
+                                         std::shared_ptr<Texture> specularReflectance) {
+    return std::make_shared<RoughConductorBsdf>(ior, alpha, std::move(specularReflectance));
 }
 
 std::shared_ptr<Bsdf> makeRoughDielectric(float eta, float alpha) {

@@ -89,11 +89,15 @@ std::shared_ptr<Bsdf> makeDiffuse(std::shared_ptr<Texture> reflectance);
 // eta = interior IOR / exterior IOR. The interior is the side the normal points away from.
 std::shared_ptr<Bsdf> makeDielectric(float eta, const Rgb& specularReflectance = Rgb(1.0f),
                                      const Rgb& specularTransmittance = Rgb(1.0f));
+std::shared_ptr<Bsdf> makeDielectric(float eta, std::shared_ptr<Texture> specularReflectance,
+                                     std::shared_ptr<Texture> specularTransmittance);
 std::shared_ptr<Bsdf> makeThinDielectric(float eta);
 std::shared_ptr<Bsdf> makeConductor(const ConductorIor& ior, const Rgb& specularReflectance = Rgb(1.0f));
+std::shared_ptr<Bsdf> makeConductor(const ConductorIor& ior, std::shared_ptr<Texture> specularReflectance);
 // GGX microfacet conductor, alpha = GGX roughness (Mitsuba's `alpha`), sampled
 // with the distribution of visible normals (Heitz 2018).
 std::shared_ptr<Bsdf> makeRoughConductor(const ConductorIor& ior, float alpha, const Rgb& specularReflectance = Rgb(1.0f));
+std::shared_ptr<Bsdf> makeRoughConductor(const ConductorIor& ior, float alpha, std::shared_ptr<Texture> specularReflectance);
 std::shared_ptr<Bsdf> makeRoughDielectric(float eta, float alpha);
 // Smooth dielectric coating (IOR eta) over a diffuse base, Mitsuba's `plastic`.
 std::shared_ptr<Bsdf> makePlastic(std::shared_ptr<Texture> diffuseReflectance, float eta, bool nonlinear = false);
