@@ -19,6 +19,8 @@
 // Mitsuba computes them.
 #include "engine/scene/scene_xml.h"
 
+#include "engine/shading/bsdf_adapters.h"
+
 #include "engine/core/error.h"
 #include "engine/core/text_input.h"
 #include "engine/scene/spectrum.h"
@@ -1294,6 +1296,7 @@ private:
             return makePlastic(std::move(diffuse), eta, p.boolean("nonlinear", false));
         }
         if (type == "null") return makeNull();
+        if (type == "mask" || type == "bumpmap" || type == "normalmap") return makeAdapterBsdf(p);
         if (type == "twosided") {
             const std::vector<Entry*> inner = p.objects("bsdf");
             if (inner.size() != 1) {
@@ -1303,7 +1306,42 @@ private:
             return makeTwoSided(scene_.bsdfs[static_cast<std::size_t>(bsdfIndex(*inner[0]->node))]);
         }
         p.fail("unknown bsdf type (supported: diffuse, dielectric, thindielectric, roughdielectric, conductor, roughconductor, "
-               "plastic, null, twosided)");
+               "plastic, null, twosided, mask, bumpmap, normalmap)");
+    }
+
+    // The one material a mask, bump map or normal map wraps.
+    std::shared_ptr<Bsdf> nestedBsdf(Props& p) {
+        const std::vector<Entry*> inner = p.objects("bsdf");
+        if (inner.size() != 1) p.fail(inner.empty() ? p.node() : inner[1]->site(), "takes exactly one nested bsdf");
+        return scene_.bsdfs[static_cast<std::size_t>(bsdfIndex(*inner[0]->node))];
+    }
+
+    // The one texture a bump or normal map reads, whatever its name.
+    std::shared_ptr<Texture> nestedTexture(Props& p) {
+        const std::vector<Entry*> found = p.objects("texture");
+        if (found.size() != 1) p.fail(found.empty() ? p.node() : found[1]->site(), "takes exactly one nested texture");
+        return texture(*found[0]->node);
+    }
+
+    std::shared_ptr<Bsdf> makeAdapterBsdf(Props& p) {
+        if (p.type() == "mask") {
+            auto opacity = textureParam(p, "opacity", Rgb(0.5f));
+            return makeMask(nestedBsdf(p), std::move(opacity));
+        }
+        if (p.type() == "bumpmap") {
+            const float scale = p.number("scale", 1.0f);
+            if (!std::isfinite(scale)) p.fail(*p.valueNode("scale"), "scale must be finite");
+            auto height = nestedTexture(p);
+            return makeBumpMap(nestedBsdf(p), std::move(height), scale);
+        }
+        // normalmap: the texture is named "normalmap" in Mitsuba 3; an unnamed one is taken too.
+        std::shared_ptr<Texture> normals;
+        if (Entry* e = p.namedObject("normalmap")) {
+            normals = texture(expectObject(*e, "texture", p.what() + " parameter \"normalmap\""));
+        } else {
+            normals = nestedTexture(p);
+        }
+        return makeNormalMap(nestedBsdf(p), std::move(normals));
     }
 
     // A reflectance that may be a texture: a constant value, or a nested / referenced <texture>.

@@ -476,6 +476,10 @@ public:
     explicit TwoSidedBsdf(std::shared_ptr<Bsdf> inner) : inner_(std::move(inner)) {}
 
     std::uint32_t lobes() const override { return inner_->lobes(); }
+    bool hasOpacity() const override { return inner_->hasOpacity(); }
+    float opacity(const Vec2& uv) const override { return inner_->opacity(uv); }
+    bool perturbsNormal() const override { return inner_->perturbsNormal(); }
+    Vec3 perturbedNormal(const ShadingGeometry& geometry) const override { return inner_->perturbedNormal(geometry); }
 
     Rgb eval(const Vec3& wo, const Vec3& wi, const Vec2& uv, TransportMode mode) const override {
         if (wo.z < 0.0f) return inner_->eval(flipZ(wo), flipZ(wi), uv, mode);

@@ -42,6 +42,18 @@ struct BsdfSample {
     bool isSpecular() const { return (lobe & BsdfLobe::Specular) != 0; }
 };
 
+// Where a material is hit, for the adapters that perturb the shading normal
+// (bump and normal maps): the interpolated shading frame with `s` along the
+// surface's dp/du (Gram-Schmidt against n), the unnormalised derivatives dp/du
+// and dp/dv, the unit geometric normal, all in world space.
+struct ShadingGeometry {
+    Frame frame;
+    Vec3 dpdu{0.0f};
+    Vec3 dpdv{0.0f};
+    Vec3 ng{0.0f, 0.0f, 1.0f};
+    Vec2 uv{0.0f};
+};
+
 class Bsdf {
 public:
     virtual ~Bsdf() = default;
@@ -60,6 +72,20 @@ public:
         (void)uv;
         return std::nullopt;
     }
+
+    // Mitsuba's mask: a ray passes through the surface with probability
+    // 1 - opacity(uv), as through a null boundary (not counted as a bounce), and
+    // scatters by this material otherwise; shadow rays are attenuated by 1 - opacity.
+    virtual bool hasOpacity() const { return false; }
+    virtual float opacity(const Vec2& uv) const {
+        (void)uv;
+        return 1.0f;
+    }
+    // Bump and normal maps: the unit world-space shading normal to use instead
+    // of the interpolated one (geometry.frame.n). Directions given to eval,
+    // pdf and sample are then local to a frame around that normal.
+    virtual bool perturbsNormal() const { return false; }
+    virtual Vec3 perturbedNormal(const ShadingGeometry& geometry) const { return geometry.frame.n; }
 
     bool isNull() const { return lobes() == BsdfLobe::Null; }
     bool hasSmoothLobe() const { return (lobes() & (BsdfLobe::Diffuse | BsdfLobe::Glossy)) != 0; }
