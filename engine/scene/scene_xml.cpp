@@ -1297,6 +1297,7 @@ private:
         }
         if (type == "null") return makeNull();
         if (type == "mask" || type == "bumpmap" || type == "normalmap") return makeAdapterBsdf(p);
+        if (type == "principled" || type == "principledthin") p.fail("the principled BSDF is not supported");
         if (type == "twosided") {
             const std::vector<Entry*> inner = p.objects("bsdf");
             if (inner.size() != 1) {
@@ -1329,8 +1330,13 @@ private:
             return makeMask(nestedBsdf(p), std::move(opacity));
         }
         if (p.type() == "bumpmap") {
-            const float scale = p.number("scale", 1.0f);
-            if (!std::isfinite(scale)) p.fail(*p.valueNode("scale"), "scale must be finite");
+            // Newer Mitsuba 3 releases name the multiplier strength and take a
+            // finite-difference step, epsilon; fluxgraph differentiates the texture exactly.
+            if (p.has("scale") && p.has("strength")) p.fail("give either scale or strength, not both");
+            const char* key = p.has("strength") ? "strength" : "scale";
+            const float scale = p.number(key, 1.0f);
+            if (!std::isfinite(scale)) p.fail(*p.valueNode(key), std::string(key) + " must be finite");
+            p.accept("epsilon", {"float"});
             auto height = nestedTexture(p);
             return makeBumpMap(nestedBsdf(p), std::move(height), scale);
         }
@@ -1426,6 +1432,7 @@ private:
             // Mitsuba's checkerboard has one checker per half unit of uv.
             result = makeCheckerboardTexture(color0, color1, UvTransform::scale(Vec2(2.0f)).after(uvTransform(p)));
         } else {
+            if (p.type() == "mesh_attribute") p.fail("mesh_attribute textures are not supported");
             p.fail("unknown texture type (supported: bitmap, checkerboard)");
         }
         p.finish();
