@@ -121,10 +121,27 @@ public:
                 ray.direction = toPhoton / distance;
                 const float tNear = camera_.nearClip / cosCamera;
                 ray.origin = camera_.eye + tNear * ray.direction;
-                const float rayLength = distance - tNear;
+                float rayLength = distance - tNear;
                 ray.tMax = rayLength + kSameHitTolerance * distance * 2.0f + kRayEpsilon;
-                const Hit hit = rays.intersect(ray);
-                if (!hit.valid() || std::abs(hit.t - rayLength) > kSameHitTolerance * distance + kRayEpsilon) {
+                Hit hit = rays.intersect(ray);
+                // Masked surfaces in front of the photon let 1 - opacity through, as for shadow rays.
+                float maskTransmittance = 1.0f;
+                while (hit.valid() && hit.t < rayLength - (kSameHitTolerance * distance + kRayEpsilon) &&
+                       maskTransmittance > 0.0f) {
+                    const int blockerBsdf = scene.shapes[hit.shape].bsdf;
+                    const Bsdf* blocker = blockerBsdf >= 0 ? scene.bsdfs[static_cast<std::size_t>(blockerBsdf)].get() : nullptr;
+                    if (!blocker || !blocker->hasOpacity()) break;
+                    const SurfacePoint crossed = rays.surface(ray, hit);
+                    maskTransmittance *= 1.0f - blocker->opacity(crossed.uv);
+                    const Vec3 origin = offsetRayOrigin(crossed.p, crossed.ng, ray.direction);
+                    const float advanced = glm::dot(origin - ray.origin, ray.direction);
+                    ray.origin = origin;
+                    rayLength -= advanced;
+                    ray.tMax -= advanced;
+                    hit = rays.intersect(ray);
+                }
+                if (!hit.valid() || maskTransmittance <= 0.0f ||
+                    std::abs(hit.t - rayLength) > kSameHitTolerance * distance + kRayEpsilon) {
                     ++acc.occluded;
                     continue;
                 }
@@ -145,7 +162,7 @@ public:
                                  std::abs(wiLocal.z);
                 const float rasterPerArea =
                     rasterPerImagePlane_ * std::abs(glm::dot(surface.ng, wo)) / (sqr(distance) * cosCamera * sqr(cosCamera));
-                const Rgb value = power[p] * brdf * (rasterPerArea / filterIntegral_);
+                const Rgb value = power[p] * brdf * (maskTransmittance * rasterPerArea / filterIntegral_);
                 if (!isFinite(value) || isBlack(value)) continue;
                 ++acc.connected;
                 const std::ptrdiff_t x0 = std::max<std::ptrdiff_t>(0, static_cast<std::ptrdiff_t>(std::floor(raster.x - reach)));

@@ -371,5 +371,54 @@ TEST(SceneXmlMaterials, MaskLetsThroughOneMinusItsOpacity) {
     EXPECT_NEAR(half.x / open.x, 0.5f, 0.01f);
 }
 
+// The camera looks through a half mask at a floor lit through the same mask:
+// a quarter of the open scene's light, whether paths start at the camera (pt)
+// or at the light (lt: photons cross the mask, their camera connections are
+// attenuated by it).
+std::string seenThroughScene(const std::string& sheet) {
+    return R"(<scene version="3.0.0">
+    <sensor type="perspective">
+        <float name="fov" value="20"/>
+        <transform name="to_world"><lookat origin="0, 0, 3" target="0, 0, 0" up="0, 1, 0"/></transform>
+        <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/></film>
+    </sensor>
+    <shape type="rectangle"><bsdf type="diffuse"><rgb name="reflectance" value="0.8"/></bsdf></shape>
+    <shape type="rectangle">
+        <transform name="to_world"><rotate x="1" angle="180"/><scale value="2"/><translate z="4"/></transform>
+        <emitter type="area"><rgb name="radiance" value="5"/></emitter>
+    </shape>
+    <shape type="rectangle">
+        <transform name="to_world"><scale value="20"/><translate z="2"/></transform>
+)" + sheet + "    </shape>\n</scene>\n";
+}
+
+TEST(SceneXmlMaterials, MaskIsSeenThroughByPathAndLightTracing) {
+    const fs::path dir = scratchDir();
+    const std::string black = "<bsdf type=\"diffuse\"><rgb name=\"reflectance\" value=\"0\"/></bsdf>";
+    const Scene open = loadXmlScene(
+        writeFile(dir / "open.xml", seenThroughScene("<bsdf type=\"mask\"><float name=\"opacity\" value=\"0\"/>" + black + "</bsdf>"))
+            .string());
+    const Scene half = loadXmlScene(
+        writeFile(dir / "half.xml", seenThroughScene("<bsdf type=\"mask\"><float name=\"opacity\" value=\"0.5\"/>" + black + "</bsdf>"))
+            .string());
+    FilmSettings film;
+    film.width = 8;
+    film.height = 8;
+    const std::map<std::string, ParamValue> pt = {{"pt.spp", std::int64_t{512}}, {"pt.max_depth", std::int64_t{1}}};
+    const std::map<std::string, ParamValue> lt = {{"photon.photons", std::int64_t{3000000}},
+                                                  {"photon.store", std::string("global")},
+                                                  {"photon.store_direct", true},
+                                                  {"photon.max_depth", std::int64_t{1}},
+                                                  {"photon.differentials", false}};
+    const Rgb ptOpen = test::renderPipeline(open, "pt", pt, film, 1).mean();
+    const Rgb ptHalf = test::renderPipeline(half, "pt", pt, film, 2).mean();
+    const Rgb ltOpen = test::renderPipeline(open, "lt", lt, film, 3).mean();
+    const Rgb ltHalf = test::renderPipeline(half, "lt", lt, film, 4).mean();
+    ASSERT_GT(ptOpen.x, 0.05f);
+    EXPECT_NEAR(ptHalf.x / ptOpen.x, 0.25f, 0.01f);
+    EXPECT_NEAR(ltOpen.x / ptOpen.x, 1.0f, 0.03f);
+    EXPECT_NEAR(ltHalf.x / ltOpen.x, 0.25f, 0.0125f);  // about four standard errors
+}
+
 }  // namespace
 }  // namespace fg
