@@ -24,6 +24,7 @@
 #include <stdexcept>
 #include <string>
 #include <unordered_map>
+#include <tuple>
 #include <vector>
 
 namespace fg {
@@ -406,11 +407,13 @@ void RayQuery::occluded(std::span<const Ray> rays, std::span<std::uint8_t> occlu
     }
 }
 
-SurfacePoint RayQuery::surface(const Ray& ray, const Hit& hit) const {
+namespace {
+
+SurfacePoint interpolatedSurface(const Scene& scene, const Ray& ray, const Hit& hit) {
     SurfacePoint sp;
     if (!hit.valid()) return sp;
     sp.shape = hit.shape;
-    const Shape& shape = scene_.shapes[hit.shape];
+    const Shape& shape = scene.shapes[hit.shape];
     if (const auto* sphere = std::get_if<Sphere>(&shape.geometry)) {
         // The float t of a distant hit carries an error of about |t| * 2^-24, which
         // can be large against a small radius; the crossing is solved again in double
@@ -454,6 +457,60 @@ SurfacePoint RayQuery::surface(const Ray& ray, const Hit& hit) const {
     }
     // Without texture coordinates the barycentrics serve as a per-triangle parametrisation.
     sp.uv = c.hasUvs ? b0 * c.uv[0] + b1 * c.uv[1] + b2 * c.uv[2] : Vec2(b1, b2);
+    return sp;
+}
+
+// dp/du and dp/dv of the parametrisation surface() reports uv in: Mitsuba's
+// sphere (u = phi / 2pi, v = theta / pi), a mesh's texture coordinates, or the
+// barycentrics of meshes without them.
+std::pair<Vec3, Vec3> surfaceDerivatives(const Shape& shape, const Hit& hit, const SurfacePoint& sp) {
+    if (const auto* sphere = std::get_if<Sphere>(&shape.geometry)) {
+        const Vec3 local = (sp.p - sphere->center) / sphere->radius;
+        const float sinTheta = std::sqrt(std::max(0.0f, 1.0f - local.z * local.z));
+        const float phi = 2.0f * kPi * sp.uv.x;
+        const Vec3 dpdu = 2.0f * kPi * sphere->radius * Vec3(-local.y, local.x, 0.0f);
+        const Vec3 dpdv = kPi * sphere->radius * Vec3(local.z * std::cos(phi), local.z * std::sin(phi), -sinTheta);
+        return {dpdu, dpdv};
+    }
+    const TriangleMesh& mesh = std::get<TriangleMesh>(shape.geometry);
+    const std::size_t base = 3 * static_cast<std::size_t>(hit.primitive);
+    const std::uint32_t i0 = mesh.indices[base], i1 = mesh.indices[base + 1], i2 = mesh.indices[base + 2];
+    const Vec3 dp1 = mesh.positions[i1] - mesh.positions[i0], dp2 = mesh.positions[i2] - mesh.positions[i0];
+    if (mesh.uvs.empty()) return {dp1, dp2};
+    const Vec2 duv1 = mesh.uvs[i1] - mesh.uvs[i0], duv2 = mesh.uvs[i2] - mesh.uvs[i0];
+    const float determinant = duv1.x * duv2.y - duv1.y * duv2.x;
+    if (!(std::abs(determinant) > 1e-12f)) {
+        const Frame any(sp.ns);
+        return {any.s, any.t};
+    }
+    // Solve [dp1 dp2] = [dpdu dpdv] [duv1 duv2] for the two tangents.
+    return {(duv2.y * dp1 - duv1.y * dp2) / determinant, (duv1.x * dp2 - duv2.x * dp1) / determinant};
+}
+
+// Bump and normal maps replace the interpolated shading normal (Bsdf::perturbedNormal).
+void applyNormalPerturbation(const Scene& scene, const Hit& hit, SurfacePoint& sp) {
+    const Shape& shape = scene.shapes[hit.shape];
+    if (shape.bsdf < 0) return;
+    const Bsdf& bsdf = *scene.bsdfs[static_cast<std::size_t>(shape.bsdf)];
+    if (!bsdf.perturbsNormal()) return;
+    ShadingGeometry geometry;
+    std::tie(geometry.dpdu, geometry.dpdv) = surfaceDerivatives(shape, hit, sp);
+    geometry.frame = Frame(sp.ns);
+    const Vec3 s = geometry.dpdu - glm::dot(geometry.dpdu, sp.ns) * sp.ns;
+    if (const float length = glm::length(s); length > 0.0f) {
+        geometry.frame.s = s / length;
+        geometry.frame.t = glm::cross(sp.ns, geometry.frame.s);
+    }
+    geometry.ng = sp.ng;
+    geometry.uv = sp.uv;
+    sp.ns = bsdf.perturbedNormal(geometry);
+}
+
+}  // namespace
+
+SurfacePoint RayQuery::surface(const Ray& ray, const Hit& hit) const {
+    SurfacePoint sp = interpolatedSurface(scene_, ray, hit);
+    if (hit.valid()) applyNormalPerturbation(scene_, hit, sp);
     return sp;
 }
 

@@ -28,7 +28,7 @@ struct Hit {
 struct SurfacePoint {
     Vec3 p{0.0f};
     Vec3 ng{0.0f};      // unit geometric normal, oriented by the shape (outward / winding, flips applied)
-    Vec3 ns{0.0f};      // unit shading normal, same hemisphere as ng
+    Vec3 ns{0.0f};      // unit shading normal (the material's bump / normal map applied), same hemisphere as ng
     Vec2 uv{0.0f};
     std::uint32_t shape = Hit::kNoShape;
 };
@@ -47,7 +47,8 @@ public:
     void occluded(std::span<const Ray> rays, std::span<std::uint8_t> occludedOut, float tMin = 0.0f) const;
 
     SurfacePoint surface(const Ray& ray, const Hit& hit) const;
-    // Derivative of the unit shading normal (as surface() reports it) when the
+    // Derivative of the unit shading normal (as surface() reports it, except
+    // that bump and normal maps are not differentiated) when the
     // hit point moves by the tangent offset dp: analytic for spheres, from the
     // per-vertex normal interpolation for meshes with normals, zero for flat
     // triangles. Ray differentials at curved specular surfaces need it (Igehy 1999).

@@ -38,8 +38,9 @@
 //          "dielectric"        ior (default 1.5), exterior_ior (default 1.0),
 //                              specular_reflectance, specular_transmittance = rgb in [0, 1] (default 1)
 //          "thindielectric"    ior, exterior_ior
-//          "conductor"         material = preset ("Au", "Ag", "Al", "Cu", "Cr", or "none" for an
-//                              ideal mirror; the default) or eta = rgb and k = rgb;
+//          "conductor"         material = one of Mitsuba's named conductors ("Au", "Ag", "Al",
+//                              "Cu", "Cr", ...; tools/conductor_table.py), or "none" for an
+//                              ideal mirror (the default) or eta = rgb and k = rgb;
 //                              specular_reflectance = rgb in [0, 1] (default 1)
 //          "roughconductor"    as conductor, plus alpha = roughness > 0 (default 0.1) and
 //                              distribution = "ggx" (default) or "beckmann"

@@ -19,6 +19,8 @@
 // Mitsuba computes them.
 #include "engine/scene/scene_xml.h"
 
+#include "engine/shading/bsdf_adapters.h"
+
 #include "engine/core/error.h"
 #include "engine/core/text_input.h"
 #include "engine/scene/spectrum.h"
@@ -1355,7 +1357,7 @@ private:
             const std::optional<ConductorIor> preset = conductorPreset(name);
             if (!preset) {
                 p.fail(*p.valueNode("material"), "conductor material " + inQuotes(name) +
-                                                     " is not available (supported: Au, Ag, Al, Cu, Cr, none)");
+                                                     " is not available (supported: " + conductorNames() + ")");
             }
             ior = *preset;
         }
@@ -1365,14 +1367,20 @@ private:
         return ior;
     }
 
+    static std::string conductorNames() {
+        std::string names;
+        for (std::string_view name : conductorPresetNames()) names += (names.empty() ? "" : ", ") + std::string(name);
+        return names;
+    }
+
     std::shared_ptr<Bsdf> makeBsdf(Props& p) {
         const std::string& type = p.type();
         if (type == "diffuse") return makeDiffuse(textureParam(p, "reflectance", Rgb(0.5f)));
         if (type == "dielectric") {
             const float eta = relativeIor(p, 1.5046f);  // bk7
-            const Rgb r = specular(p, "specular_reflectance");
-            const Rgb t = specular(p, "specular_transmittance");
-            return makeDielectric(eta, r, t);
+            auto reflectance = textureParam(p, "specular_reflectance", Rgb(1.0f));
+            auto transmittance = textureParam(p, "specular_transmittance", Rgb(1.0f));
+            return makeDielectric(eta, std::move(reflectance), std::move(transmittance));
         }
         if (type == "thindielectric") {
             const float eta = relativeIor(p, 1.5046f);
@@ -1389,12 +1397,13 @@ private:
         }
         if (type == "conductor") {
             const ConductorIor ior = readConductor(p);
-            return makeConductor(ior, specular(p, "specular_reflectance"));
+            return makeConductor(ior, textureParam(p, "specular_reflectance", Rgb(1.0f)));
         }
         if (type == "roughconductor") {
             const ConductorIor ior = readConductor(p);
             const Roughness roughness = readRoughness(p);
-            return makeRoughConductor(ior, roughness.alpha, specular(p, "specular_reflectance"), roughness.type);
+            return makeRoughConductor(ior, roughness.alpha, textureParam(p, "specular_reflectance", Rgb(1.0f)),
+                                      roughness.type);
         }
         if (type == "plastic") {
             auto diffuse = textureParam(p, "diffuse_reflectance", Rgb(0.5f));
@@ -1411,6 +1420,8 @@ private:
                                     p.boolean("nonlinear", false), specularReflectance);
         }
         if (type == "null") return makeNull();
+        if (type == "mask" || type == "bumpmap" || type == "normalmap") return makeAdapterBsdf(p);
+        if (type == "principled" || type == "principledthin") p.fail("the principled BSDF is not supported");
         if (type == "twosided") {
             const std::vector<Entry*> inner = p.objects("bsdf");
             if (inner.size() != 1) {
@@ -1420,7 +1431,47 @@ private:
             return makeTwoSided(scene_.bsdfs[static_cast<std::size_t>(bsdfIndex(*inner[0]->node))]);
         }
         p.fail("unknown bsdf type (supported: diffuse, dielectric, thindielectric, roughdielectric, conductor, roughconductor, "
-               "plastic, roughplastic, null, twosided)");
+               "plastic, roughplastic, null, twosided, mask, bumpmap, normalmap)");
+    }
+
+    // The one material a mask, bump map or normal map wraps.
+    std::shared_ptr<Bsdf> nestedBsdf(Props& p) {
+        const std::vector<Entry*> inner = p.objects("bsdf");
+        if (inner.size() != 1) p.fail(inner.empty() ? p.node() : inner[1]->site(), "takes exactly one nested bsdf");
+        return scene_.bsdfs[static_cast<std::size_t>(bsdfIndex(*inner[0]->node))];
+    }
+
+    // The one texture a bump or normal map reads, whatever its name.
+    std::shared_ptr<Texture> nestedTexture(Props& p) {
+        const std::vector<Entry*> found = p.objects("texture");
+        if (found.size() != 1) p.fail(found.empty() ? p.node() : found[1]->site(), "takes exactly one nested texture");
+        return texture(*found[0]->node);
+    }
+
+    std::shared_ptr<Bsdf> makeAdapterBsdf(Props& p) {
+        if (p.type() == "mask") {
+            auto opacity = textureParam(p, "opacity", Rgb(0.5f));
+            return makeMask(nestedBsdf(p), std::move(opacity));
+        }
+        if (p.type() == "bumpmap") {
+            // Newer Mitsuba 3 releases name the multiplier strength and take a
+            // finite-difference step, epsilon; fluxgraph differentiates the texture exactly.
+            if (p.has("scale") && p.has("strength")) p.fail("give either scale or strength, not both");
+            const char* key = p.has("strength") ? "strength" : "scale";
+            const float scale = p.number(key, 1.0f);
+            if (!std::isfinite(scale)) p.fail(*p.valueNode(key), std::string(key) + " must be finite");
+            p.accept("epsilon", {"float"});
+            auto height = nestedTexture(p);
+            return makeBumpMap(nestedBsdf(p), std::move(height), scale);
+        }
+        // normalmap: the texture is named "normalmap" in Mitsuba 3; an unnamed one is taken too.
+        std::shared_ptr<Texture> normals;
+        if (Entry* e = p.namedObject("normalmap")) {
+            normals = texture(expectObject(*e, "texture", p.what() + " parameter \"normalmap\""));
+        } else {
+            normals = nestedTexture(p);
+        }
+        return makeNormalMap(nestedBsdf(p), std::move(normals));
     }
 
     // A reflectance that may be a texture: a constant value, or a nested / referenced <texture>.
@@ -1429,25 +1480,51 @@ private:
         return makeConstantTexture(p.colour(key, ColourUse::Reflectance).value_or(fallback));
     }
 
-    // to_uv (Mitsuba 3) or uscale/vscale/uoffset/voffset (0.x): only scales are representable.
-    Vec2 uvScale(Props& p) {
-        Vec2 scale(1.0f);
+    // to_uv (Mitsuba 3: its 2x2 linear part and x, y translation act on uv) or
+    // uscale/vscale/uoffset/voffset (0.x: uv * scale + offset).
+    UvTransform uvTransform(Props& p) {
+        UvTransform result;
         if (const std::optional<Mat4> m = p.transform("to_uv")) {
             const Mat4& t = *m;
-            const bool scaleOnly = t[1][0] == 0.0f && t[0][1] == 0.0f && t[3][0] == 0.0f && t[3][1] == 0.0f &&
-                                   t[2][0] == 0.0f && t[2][1] == 0.0f && t[0][2] == 0.0f && t[1][2] == 0.0f;
-            if (!scaleOnly) p.fail(*p.valueNode("to_uv"), "to_uv may only scale (offsets and rotations are not supported)");
-            scale = Vec2(t[0][0], t[1][1]);
+            result.linear = glm::mat2(t[0][0], t[0][1], t[1][0], t[1][1]);
+            result.offset = Vec2(t[3][0], t[3][1]);
         }
         if (p.version().legacy()) {
-            scale.x *= p.number("uscale", 1.0f);
-            scale.y *= p.number("vscale", 1.0f);
-            for (const char* key : {"uoffset", "voffset"}) {
-                if (p.number(key).value_or(0.0f) != 0.0f) p.fail(*p.valueNode(key), std::string(key) + " is not supported (only 0)");
-            }
+            const Vec2 scale(p.number("uscale", 1.0f), p.number("vscale", 1.0f));
+            const Vec2 offset(p.number("uoffset", 0.0f), p.number("voffset", 0.0f));
+            result = UvTransform{glm::mat2(scale.x, 0.0f, 0.0f, scale.y), offset}.after(result);
         }
-        if (scale.x == 0.0f || scale.y == 0.0f) p.fail("texture scale must not be zero");
-        return scale;
+        if (glm::determinant(result.linear) == 0.0f) {
+            const Node* toUv = p.valueNode("to_uv");
+            p.fail(toUv ? *toUv : p.node(), "texture coordinate transform must not be singular");
+        }
+        return result;
+    }
+
+    TextureWrap wrapMode(Props& p, std::string_view key, TextureWrap fallback) {
+        const std::optional<std::string> mode = p.string(key);
+        if (!mode) return fallback;
+        if (*mode == "repeat") return TextureWrap::Repeat;
+        if (*mode == "mirror") return TextureWrap::Mirror;
+        if (*mode == "clamp") return TextureWrap::Clamp;
+        p.fail(*p.valueNode(key), std::string(key) + " " + inQuotes(*mode) + " is not supported (repeat, mirror, clamp)");
+    }
+
+    BitmapLookup bitmapLookup(Props& p) {
+        BitmapLookup lookup;
+        std::string filter = p.string("filter_type").value_or("bilinear");
+        // Mitsuba 0.x filters mip-mapped lookups; fluxgraph has one bilinear lookup.
+        if (p.version().legacy() && (filter == "ewa" || filter == "trilinear")) filter = "bilinear";
+        if (filter == "nearest") {
+            lookup.filter = TextureFilter::Nearest;
+        } else if (filter != "bilinear") {
+            p.fail(*p.valueNode("filter_type"), "filter_type " + inQuotes(filter) + " is not supported (bilinear, nearest)");
+        }
+        const TextureWrap both = wrapMode(p, "wrap_mode", TextureWrap::Repeat);
+        lookup.wrapU = wrapMode(p, "wrap_mode_u", both);
+        lookup.wrapV = wrapMode(p, "wrap_mode_v", both);
+        lookup.toUv = uvTransform(p);
+        return lookup;
     }
 
     std::shared_ptr<Texture> texture(const Node& node) {
@@ -1457,20 +1534,11 @@ private:
         std::shared_ptr<Texture> result;
         if (p.type() == "bitmap") {
             const std::string path = resolveFile(p, "filename");
-            std::string filter = p.string("filter_type").value_or("bilinear");
-            // Mitsuba 0.x filters mip-mapped lookups; fluxgraph has one bilinear lookup.
-            if (p.version().legacy() && (filter == "ewa" || filter == "trilinear")) filter = "bilinear";
-            if (filter != "bilinear") p.fail(*p.valueNode("filter_type"), "filter_type " + inQuotes(filter) + " is not supported (bilinear)");
-            for (const char* key : {"wrap_mode", "wrap_mode_u", "wrap_mode_v"}) {
-                if (const std::optional<std::string> mode = p.string(key); mode && *mode != "repeat") {
-                    p.fail(*p.valueNode(key), std::string(key) + " " + inQuotes(*mode) + " is not supported (repeat)");
-                }
-            }
-            if (p.boolean("raw", false)) p.fail(*p.valueNode("raw"), "raw = true is not supported");
-            const Vec2 scale = uvScale(p);
+            const bool raw = p.boolean("raw", false);
+            const BitmapLookup lookup = bitmapLookup(p);
             RgbImage image;
             try {
-                image = readRgbImage(path);
+                image = readRgbImage(path, raw);
             } catch (const InputError& e) {
                 p.fail(*p.valueNode("filename"), e.what());
             }
@@ -1482,13 +1550,14 @@ private:
                 }
             }
             textureResolution_[&node] = {image.width, image.height};
-            result = makeBitmapTexture(std::move(image), scale);
+            result = makeBitmapTexture(std::move(image), lookup);
         } else if (p.type() == "checkerboard") {
             const Rgb color0 = p.colour("color0", ColourUse::Reflectance).value_or(Rgb(0.4f));
             const Rgb color1 = p.colour("color1", ColourUse::Reflectance).value_or(Rgb(0.2f));
             // Mitsuba's checkerboard has one checker per half unit of uv.
-            result = makeCheckerboardTexture(color0, color1, 2.0f * uvScale(p));
+            result = makeCheckerboardTexture(color0, color1, UvTransform::scale(Vec2(2.0f)).after(uvTransform(p)));
         } else {
+            if (p.type() == "mesh_attribute") p.fail("mesh_attribute textures are not supported");
             p.fail("unknown texture type (supported: bitmap, checkerboard)");
         }
         p.finish();

@@ -98,26 +98,34 @@
 // BSDFs
 //   diffuse          reflectance (texture, 0.5)
 //   dielectric       int_ior ("bk7"), ext_ior ("air"), numbers or Mitsuba's names;
-//                    specular_reflectance, specular_transmittance (1)
+//                    specular_reflectance, specular_transmittance (texture, 1)
 //   thindielectric   int_ior, ext_ior; its straight-through transmission is a null event, as
 //                    in Mitsuba 3 (no depth; shadow rays pass with its transmittance)
 //   roughdielectric  int_ior, ext_ior, alpha (0.1) or alpha_u = alpha_v, distribution
-//   conductor        material (preset: Au, Ag, Al, Cu, Cr, none) or eta + k; ext_eta;
-//                    specular_reflectance
+//   conductor        material (any of Mitsuba's named conductors, "Au", "Cu", ..., or
+//                    none; tools/conductor_table.py) or eta + k; ext_eta;
+//                    specular_reflectance (texture, 1)
 //   roughconductor   conductor's parameters plus alpha / alpha_u = alpha_v, distribution
 //   plastic          diffuse_reflectance (texture, 0.5), int_ior (1.49), ext_ior ("air"),
 //                    nonlinear (false); specular_reflectance only 1
 //   roughplastic     plastic's parameters plus alpha / alpha_u = alpha_v, distribution;
 //                    specular_reflectance (1)
 //   null, twosided (one nested bsdf)
+//   mask             opacity (texture, 0.5; its luminance), one nested bsdf
+//   bumpmap          one nested texture (the height; its luminance), scale or strength (1),
+//                    epsilon accepted (the gradient is exact), one nested bsdf
+//   normalmap        normalmap (texture; tangent-space normals, usually raw), one nested bsdf
+//   principled is an error ("not supported")
 //   distribution: beckmann (Mitsuba's default) or ggx. Beckmann's Smith masking is the
 //   exact one, where Mitsuba uses Walter's rational fit (within 0.35 %).
 //   sample_visible is accepted, no effect (sampling strategy only).
 // Textures
-//   bitmap        filename, filter_type bilinear (0.x: ewa and trilinear are read as
-//                 bilinear), wrap_mode repeat, raw false; to_uv (scale only; 0.x:
-//                 uscale, vscale, uoffset = voffset = 0)
-//   checkerboard  color0 (0.4), color1 (0.2), to_uv (scale only; 0.x: uscale, vscale)
+//   bitmap        filename, filter_type bilinear or nearest (0.x: ewa and trilinear are
+//                 read as bilinear), wrap_mode / wrap_mode_u / wrap_mode_v repeat, mirror
+//                 or clamp, raw (false); to_uv (its 2x2 linear part and x, y translation;
+//                 0.x: uscale, vscale, uoffset, voffset)
+//   checkerboard  color0 (0.4), color1 (0.2), to_uv as bitmap
+//   mesh_attribute is an error ("not supported")
 //
 // Emitters
 //   area          radiance (colour or texture over the shape's uv); inside a shape, or

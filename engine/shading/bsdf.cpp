@@ -28,6 +28,7 @@
 #include <complex>
 #include <map>
 #include <mutex>
+#include <span>
 #include <utility>
 
 namespace fg {
@@ -91,8 +92,10 @@ private:
 
 class DielectricBsdf final : public Bsdf {
 public:
-    DielectricBsdf(float eta, const Rgb& specularReflectance, const Rgb& specularTransmittance)
-        : eta_(eta), specularReflectance_(specularReflectance), specularTransmittance_(specularTransmittance) {}
+    DielectricBsdf(float eta, std::shared_ptr<Texture> specularReflectance, std::shared_ptr<Texture> specularTransmittance)
+        : eta_(eta),
+          specularReflectance_(std::move(specularReflectance)),
+          specularTransmittance_(std::move(specularTransmittance)) {}
 
     std::uint32_t lobes() const override {
         return BsdfLobe::Reflection | BsdfLobe::Transmission | BsdfLobe::Specular;
@@ -100,7 +103,7 @@ public:
     Rgb eval(const Vec3&, const Vec3&, const Vec2&, TransportMode) const override { return Rgb(0.0f); }
     float pdf(const Vec3&, const Vec3&, const Vec2&) const override { return 0.0f; }
 
-    std::optional<BsdfSample> sample(const Vec3& wo, const Vec2&, float uLobe, const Vec2&,
+    std::optional<BsdfSample> sample(const Vec3& wo, const Vec2& uv, float uLobe, const Vec2&,
                                      TransportMode mode) const override {
         if (wo.z == 0.0f) return std::nullopt;
         float cosThetaT = 0.0f;
@@ -109,7 +112,7 @@ public:
         if (uLobe < reflectance) {
             s.wi = mirrorReflect(wo);
             s.pdf = reflectance;
-            s.weight = specularReflectance_;
+            s.weight = specularReflectance_->eval(uv);
             s.lobe = BsdfLobe::Reflection | BsdfLobe::Specular;
             return s;
         }
@@ -120,7 +123,7 @@ public:
         // Radiance is compressed into a narrower cone when entering a denser
         // medium; importance (photon flux) is not.
         const float scale = mode == TransportMode::Radiance ? 1.0f / (etaCrossed * etaCrossed) : 1.0f;
-        s.weight = specularTransmittance_ * scale;
+        s.weight = specularTransmittance_->eval(uv) * scale;
         s.eta = etaCrossed;
         s.lobe = BsdfLobe::Transmission | BsdfLobe::Specular;
         return s;
@@ -128,8 +131,8 @@ public:
 
 private:
     float eta_;
-    Rgb specularReflectance_;
-    Rgb specularTransmittance_;
+    std::shared_ptr<Texture> specularReflectance_;
+    std::shared_ptr<Texture> specularTransmittance_;
 };
 
 // ---------------------------------------------------------------------------
@@ -183,26 +186,26 @@ private:
 
 class ConductorBsdf final : public Bsdf {
 public:
-    ConductorBsdf(const ConductorIor& ior, const Rgb& specularReflectance)
-        : ior_(ior), specularReflectance_(specularReflectance) {}
+    ConductorBsdf(const ConductorIor& ior, std::shared_ptr<Texture> specularReflectance)
+        : ior_(ior), specularReflectance_(std::move(specularReflectance)) {}
 
     std::uint32_t lobes() const override { return BsdfLobe::Reflection | BsdfLobe::Specular; }
     Rgb eval(const Vec3&, const Vec3&, const Vec2&, TransportMode) const override { return Rgb(0.0f); }
     float pdf(const Vec3&, const Vec3&, const Vec2&) const override { return 0.0f; }
 
-    std::optional<BsdfSample> sample(const Vec3& wo, const Vec2&, float, const Vec2&, TransportMode) const override {
+    std::optional<BsdfSample> sample(const Vec3& wo, const Vec2& uv, float, const Vec2&, TransportMode) const override {
         if (wo.z <= 0.0f) return std::nullopt;
         BsdfSample s;
         s.wi = mirrorReflect(wo);
         s.pdf = 1.0f;
-        s.weight = specularReflectance_ * fresnelConductor(wo.z, ior_.eta, ior_.k);
+        s.weight = specularReflectance_->eval(uv) * fresnelConductor(wo.z, ior_.eta, ior_.k);
         s.lobe = BsdfLobe::Reflection | BsdfLobe::Specular;
         return s;
     }
 
 private:
     ConductorIor ior_;
-    Rgb specularReflectance_;
+    std::shared_ptr<Texture> specularReflectance_;
 };
 
 // ---------------------------------------------------------------------------
@@ -210,19 +213,19 @@ private:
 template <class Distribution>
 class RoughConductorBsdf final : public Bsdf {
 public:
-    RoughConductorBsdf(const ConductorIor& ior, float alpha, const Rgb& specularReflectance)
-        : ior_(ior), distribution_(alpha), specularReflectance_(specularReflectance) {}
+    RoughConductorBsdf(const ConductorIor& ior, float alpha, std::shared_ptr<Texture> specularReflectance)
+        : ior_(ior), distribution_(alpha), specularReflectance_(std::move(specularReflectance)) {}
 
     std::uint32_t lobes() const override { return BsdfLobe::Reflection | BsdfLobe::Glossy; }
 
-    Rgb eval(const Vec3& wo, const Vec3& wi, const Vec2&, TransportMode) const override {
+    Rgb eval(const Vec3& wo, const Vec3& wi, const Vec2& uv, TransportMode) const override {
         if (wo.z <= 0.0f || wi.z <= 0.0f) return Rgb(0.0f);
         const Vec3 sum = wo + wi;
         if (glm::dot(sum, sum) == 0.0f) return Rgb(0.0f);
         const Vec3 m = glm::normalize(sum);
         const Rgb fresnel = fresnelConductor(glm::dot(wo, m), ior_.eta, ior_.k);
         // D G F / (4 cos_o cos_i), times cos_i.
-        return specularReflectance_ * fresnel * (distribution_.D(m) * distribution_.G(wo, wi) / (4.0f * wo.z));
+        return specularReflectance_->eval(uv) * fresnel * (distribution_.D(m) * distribution_.G(wo, wi) / (4.0f * wo.z));
     }
 
     float pdf(const Vec3& wo, const Vec3& wi, const Vec2&) const override {
@@ -236,7 +239,7 @@ public:
         return distribution_.visibleNormalPdf(wo, m) / (4.0f * cosOM);
     }
 
-    std::optional<BsdfSample> sample(const Vec3& wo, const Vec2&, float, const Vec2& u,
+    std::optional<BsdfSample> sample(const Vec3& wo, const Vec2& uv, float, const Vec2& u,
                                      TransportMode) const override {
         if (wo.z <= 0.0f) return std::nullopt;
         const Vec3 m = distribution_.sampleVisibleNormal(wo, u);
@@ -248,7 +251,7 @@ public:
         s.pdf = distribution_.visibleNormalPdf(wo, m) / (4.0f * cosOM);
         if (!(s.pdf > 0.0f)) return std::nullopt;
         // eval / pdf: D and G1(wo) cancel against the visible-normal density.
-        s.weight = specularReflectance_ * fresnelConductor(cosOM, ior_.eta, ior_.k) * distribution_.G1(s.wi);
+        s.weight = specularReflectance_->eval(uv) * fresnelConductor(cosOM, ior_.eta, ior_.k) * distribution_.G1(s.wi);
         s.lobe = BsdfLobe::Reflection | BsdfLobe::Glossy;
         return s;
     }
@@ -256,7 +259,7 @@ public:
 private:
     ConductorIor ior_;
     Distribution distribution_;
-    Rgb specularReflectance_;
+    std::shared_ptr<Texture> specularReflectance_;
 };
 
 // ---------------------------------------------------------------------------
@@ -698,6 +701,10 @@ public:
     Rgb nullTransmission(const Vec3& w, const Vec2& uv) const override {
         return inner_->nullTransmission(w.z < 0.0f ? flipZ(w) : w, uv);
     }
+    bool hasOpacity() const override { return inner_->hasOpacity(); }
+    float opacity(const Vec2& uv) const override { return inner_->opacity(uv); }
+    bool perturbsNormal() const override { return inner_->perturbsNormal(); }
+    Vec3 perturbedNormal(const ShadingGeometry& geometry) const override { return inner_->perturbedNormal(geometry); }
 
     Rgb eval(const Vec3& wo, const Vec3& wi, const Vec2& uv, TransportMode mode) const override {
         if (wo.z < 0.0f) return inner_->eval(flipZ(wo), flipZ(wi), uv, mode);
@@ -720,6 +727,21 @@ public:
 private:
     std::shared_ptr<Bsdf> inner_;
 };
+
+struct ConductorTableEntry {
+    std::string_view name;
+    Rgb eta;
+    Rgb k;
+};
+
+// Mitsuba's named conductors: its spectral eta/k tables (mostly the luxpop.com
+// database, some Palik) reduced to RGB by tools/conductor_table.py.
+std::span<const ConductorTableEntry> conductorTable() {
+    static const ConductorTableEntry kTable[] = {
+#include "engine/shading/conductor_table.inc"
+    };
+    return kTable;
+}
 
 }  // namespace
 
@@ -773,26 +795,19 @@ Rgb fresnelConductor(float cosThetaI, const Rgb& eta, const Rgb& k) {
 }
 
 std::optional<ConductorIor> conductorPreset(std::string_view name) {
-    // Measured optical constants (luxpop.com database, as distributed with
-    // Mitsuba 0.5's data/ior/*.spd; Palik for Cr), linearly interpolated at the
-    // wavelengths 650 nm (R), 550 nm (G) and 450 nm (B).
-    struct Entry {
-        std::string_view name;
-        ConductorIor ior;
-    };
-    static const std::array<Entry, 6> kPresets = {{
-        {"Au", {Rgb(0.1678f, 0.3504f, 1.5085f), Rgb(3.1378f, 2.7141f, 1.8788f)}},
-        {"Ag", {Rgb(0.1394f, 0.1248f, 0.1517f), Rgb(4.1288f, 3.3396f, 2.4704f)}},
-        {"Al", {Rgb(1.4748f, 0.9586f, 0.6180f), Rgb(7.7941f, 6.6870f, 5.4694f)}},
-        {"Cu", {Rgb(0.2166f, 0.9582f, 1.1658f), Rgb(3.6377f, 2.5771f, 2.3939f)}},
-        {"Cr", {Rgb(3.6375f, 3.1158f, 1.9277f), Rgb(4.3644f, 4.4228f, 4.1675f)}},
-        // Mitsuba's "none": a perfect mirror; with eta = 0, k = 1 the exact
-        // conductor Fresnel term is 1 at every angle.
-        {"none", {Rgb(0.0f), Rgb(1.0f)}},
-    }};
-    for (const Entry& e : kPresets)
-        if (e.name == name) return e.ior;
+    // Mitsuba's "none": a perfect mirror; with eta = 0, k = 1 the exact
+    // conductor Fresnel term is 1 at every angle.
+    if (name == "none") return ConductorIor{Rgb(0.0f), Rgb(1.0f)};
+    for (const ConductorTableEntry& e : conductorTable())
+        if (e.name == name) return ConductorIor{e.eta, e.k};
     return std::nullopt;
+}
+
+std::vector<std::string_view> conductorPresetNames() {
+    std::vector<std::string_view> names;
+    for (const ConductorTableEntry& e : conductorTable()) names.push_back(e.name);
+    names.push_back("none");
+    return names;
 }
 
 std::optional<float> dielectricIorPreset(std::string_view name) {
@@ -839,20 +854,34 @@ std::shared_ptr<Bsdf> makeDiffuse(std::shared_ptr<Texture> reflectance) {
 }
 
 std::shared_ptr<Bsdf> makeDielectric(float eta, const Rgb& specularReflectance, const Rgb& specularTransmittance) {
-    return std::make_shared<DielectricBsdf>(eta, specularReflectance, specularTransmittance);
+    return makeDielectric(eta, makeConstantTexture(specularReflectance), makeConstantTexture(specularTransmittance));
+}
+
+std::shared_ptr<Bsdf> makeDielectric(float eta, std::shared_ptr<Texture> specularReflectance,
+                                     std::shared_ptr<Texture> specularTransmittance) {
+    return std::make_shared<DielectricBsdf>(eta, std::move(specularReflectance), std::move(specularTransmittance));
 }
 
 std::shared_ptr<Bsdf> makeThinDielectric(float eta) { return std::make_shared<ThinDielectricBsdf>(eta); }
 
 std::shared_ptr<Bsdf> makeConductor(const ConductorIor& ior, const Rgb& specularReflectance) {
-    return std::make_shared<ConductorBsdf>(ior, specularReflectance);
+    return makeConductor(ior, makeConstantTexture(specularReflectance));
+}
+
+std::shared_ptr<Bsdf> makeConductor(const ConductorIor& ior, std::shared_ptr<Texture> specularReflectance) {
+    return std::make_shared<ConductorBsdf>(ior, std::move(specularReflectance));
 }
 
 std::shared_ptr<Bsdf> makeRoughConductor(const ConductorIor& ior, float alpha, const Rgb& specularReflectance,
                                          MicrofacetType type) {
+    return makeRoughConductor(ior, alpha, makeConstantTexture(specularReflectance), type);
+}
+
+std::shared_ptr<Bsdf> makeRoughConductor(const ConductorIor& ior, float alpha,
+                                         std::shared_ptr<Texture> specularReflectance, MicrofacetType type) {
     if (type == MicrofacetType::Beckmann)
-        return std::make_shared<RoughConductorBsdf<BeckmannDistribution>>(ior, alpha, specularReflectance);
-    return std::make_shared<RoughConductorBsdf<GgxDistribution>>(ior, alpha, specularReflectance);
+        return std::make_shared<RoughConductorBsdf<BeckmannDistribution>>(ior, alpha, std::move(specularReflectance));
+    return std::make_shared<RoughConductorBsdf<GgxDistribution>>(ior, alpha, std::move(specularReflectance));
 }
 
 std::shared_ptr<Bsdf> makeRoughDielectric(float eta, float alpha, MicrofacetType type) {

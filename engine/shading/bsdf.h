@@ -19,6 +19,7 @@
 #include <memory>
 #include <optional>
 #include <string_view>
+#include <vector>
 
 namespace fg {
 
@@ -40,6 +41,18 @@ struct BsdfSample {
     float eta = 1.0f;   // relative IOR crossed (1 for reflection)
     std::uint32_t lobe = 0;
     bool isSpecular() const { return (lobe & BsdfLobe::Specular) != 0; }
+};
+
+// Where a material is hit, for the adapters that perturb the shading normal
+// (bump and normal maps): the interpolated shading frame with `s` along the
+// surface's dp/du (Gram-Schmidt against n), the unnormalised derivatives dp/du
+// and dp/dv, the unit geometric normal, all in world space.
+struct ShadingGeometry {
+    Frame frame;
+    Vec3 dpdu{0.0f};
+    Vec3 dpdv{0.0f};
+    Vec3 ng{0.0f, 0.0f, 1.0f};
+    Vec2 uv{0.0f};
 };
 
 class Bsdf {
@@ -71,6 +84,19 @@ public:
         (void)uv;
         return Rgb(0.0f);
     }
+    // Mitsuba's mask: a ray passes through the surface with probability
+    // 1 - opacity(uv), as through a null boundary (not counted as a bounce), and
+    // scatters by this material otherwise; shadow rays are attenuated by 1 - opacity.
+    virtual bool hasOpacity() const { return false; }
+    virtual float opacity(const Vec2& uv) const {
+        (void)uv;
+        return 1.0f;
+    }
+    // Bump and normal maps: the unit world-space shading normal to use instead
+    // of the interpolated one (geometry.frame.n). Directions given to eval,
+    // pdf and sample are then local to a frame around that normal.
+    virtual bool perturbsNormal() const { return false; }
+    virtual Vec3 perturbedNormal(const ShadingGeometry& geometry) const { return geometry.frame.n; }
 
     bool isNull() const { return lobes() == BsdfLobe::Null; }
     // Some of the light may pass as a null event (thindielectric, null).
@@ -89,9 +115,12 @@ struct ConductorIor {
     Rgb eta;
     Rgb k;
 };
-// Complex IOR presets at the RGB primaries' wavelengths (names as Mitsuba: "Au",
-// "Ag", "Al", "Cu", plus "Cr", "none" = perfect mirror with eta=0,k=1 semantics handled by caller).
+// Mitsuba's named conductor materials ("Au", "Cu", "Ag", ... as in its ior
+// tables, integrated to RGB as Mitsuba's RGB mode does), and "none", a perfect
+// mirror (eta = 0, k = 1).
 std::optional<ConductorIor> conductorPreset(std::string_view name);
+// Every name conductorPreset knows, in table order, "none" last.
+std::vector<std::string_view> conductorPresetNames();
 // Named dielectric IORs ("vacuum", "air", "water", "bk7", "glass", "diamond", ...).
 std::optional<float> dielectricIorPreset(std::string_view name);
 
@@ -99,14 +128,19 @@ std::shared_ptr<Bsdf> makeDiffuse(std::shared_ptr<Texture> reflectance);
 // eta = interior IOR / exterior IOR. The interior is the side the normal points away from.
 std::shared_ptr<Bsdf> makeDielectric(float eta, const Rgb& specularReflectance = Rgb(1.0f),
                                      const Rgb& specularTransmittance = Rgb(1.0f));
+std::shared_ptr<Bsdf> makeDielectric(float eta, std::shared_ptr<Texture> specularReflectance,
+                                     std::shared_ptr<Texture> specularTransmittance);
 // Thin slab of IOR eta, Mitsuba's `thindielectric`: its straight-through
 // transmission is a null event (BsdfLobe::Null, nullTransmission = 1 - R of the
 // slab), as Mitsuba 3 flags it.
 std::shared_ptr<Bsdf> makeThinDielectric(float eta);
 std::shared_ptr<Bsdf> makeConductor(const ConductorIor& ior, const Rgb& specularReflectance = Rgb(1.0f));
+std::shared_ptr<Bsdf> makeConductor(const ConductorIor& ior, std::shared_ptr<Texture> specularReflectance);
 // Microfacet conductor, alpha = roughness of the GGX or Beckmann distribution
 // (Mitsuba's `alpha`), sampled with the distribution of visible normals.
 std::shared_ptr<Bsdf> makeRoughConductor(const ConductorIor& ior, float alpha, const Rgb& specularReflectance = Rgb(1.0f),
+                                         MicrofacetType type = MicrofacetType::Ggx);
+std::shared_ptr<Bsdf> makeRoughConductor(const ConductorIor& ior, float alpha, std::shared_ptr<Texture> specularReflectance,
                                          MicrofacetType type = MicrofacetType::Ggx);
 std::shared_ptr<Bsdf> makeRoughDielectric(float eta, float alpha, MicrofacetType type = MicrofacetType::Ggx);
 // Smooth dielectric coating (IOR eta) over a diffuse base, Mitsuba's `plastic`.

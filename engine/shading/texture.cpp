@@ -5,6 +5,7 @@
 
 #include <OpenImageIO/imageio.h>
 
+#include <algorithm>
 #include <cmath>
 
 namespace fg {
@@ -16,6 +17,7 @@ public:
     explicit ConstantTexture(const Rgb& v) : value_(v) {}
     Rgb eval(const Vec2&) const override { return value_; }
     Rgb mean() const override { return value_; }
+    Vec2 scalarGradient(const Vec2&) const override { return Vec2(0.0f); }
 
 private:
     Rgb value_;
@@ -23,46 +25,100 @@ private:
 
 class CheckerboardTexture final : public Texture {
 public:
-    CheckerboardTexture(const Rgb& even, const Rgb& odd, const Vec2& scale) : even_(even), odd_(odd), scale_(scale) {}
-    Rgb eval(const Vec2& uv) const override {
-        const auto cx = static_cast<long>(std::floor(uv.x * scale_.x));
-        const auto cy = static_cast<long>(std::floor(uv.y * scale_.y));
+    CheckerboardTexture(const Rgb& even, const Rgb& odd, const UvTransform& toCells)
+        : even_(even), odd_(odd), toCells_(toCells) {}
+    Rgb eval(const Vec2& uvIn) const override {
+        const Vec2 uv = toCells_.apply(uvIn);
+        const auto cx = static_cast<long>(std::floor(uv.x));
+        const auto cy = static_cast<long>(std::floor(uv.y));
         return ((cx + cy) & 1) == 0 ? even_ : odd_;
     }
     Rgb mean() const override { return 0.5f * (even_ + odd_); }
+    Vec2 scalarGradient(const Vec2&) const override { return Vec2(0.0f); }
 
 private:
     Rgb even_, odd_;
-    Vec2 scale_;
+    UvTransform toCells_;
 };
+
+int wrapTexel(long index, int size, TextureWrap mode) {
+    switch (mode) {
+        case TextureWrap::Clamp: return static_cast<int>(std::clamp<long>(index, 0, size - 1));
+        case TextureWrap::Mirror: {
+            const long period = 2L * size;
+            const long m = ((index % period) + period) % period;
+            return static_cast<int>(m < size ? m : period - 1 - m);
+        }
+        case TextureWrap::Repeat: break;
+    }
+    return static_cast<int>(((index % size) + size) % size);
+}
 
 class BitmapTexture final : public Texture {
 public:
-    BitmapTexture(RgbImage image, const Vec2& uvScale) : image_(std::move(image)), uvScale_(uvScale) {
+    BitmapTexture(RgbImage image, const BitmapLookup& lookup) : image_(std::move(image)), lookup_(lookup) {
         Rgb sum(0.0f);
         for (const Rgb& p : image_.pixels) sum += p;
         mean_ = sum / static_cast<float>(std::max<std::size_t>(1, image_.pixels.size()));
     }
+
     Rgb eval(const Vec2& uvIn) const override {
-        // v = 0 is the bottom row of the image (OBJ / Mitsuba convention).
-        const Vec2 uv = uvIn * uvScale_;
-        const float x = (uv.x - std::floor(uv.x)) * static_cast<float>(image_.width) - 0.5f;
-        const float y = (1.0f - (uv.y - std::floor(uv.y))) * static_cast<float>(image_.height) - 0.5f;
-        const int x0 = static_cast<int>(std::floor(x)), y0 = static_cast<int>(std::floor(y));
-        const float fx = x - static_cast<float>(x0), fy = y - static_cast<float>(y0);
-        auto texel = [&](int px, int py) {
-            px = ((px % image_.width) + image_.width) % image_.width;
-            py = ((py % image_.height) + image_.height) % image_.height;
-            return image_.at(px, py);
-        };
-        return (1 - fx) * (1 - fy) * texel(x0, y0) + fx * (1 - fy) * texel(x0 + 1, y0) +
-               (1 - fx) * fy * texel(x0, y0 + 1) + fx * fy * texel(x0 + 1, y0 + 1);
+        const Corners c = corners(uvIn);
+        if (lookup_.filter == TextureFilter::Nearest) return c.texel[0];
+        return (1 - c.fx) * (1 - c.fy) * c.texel[0] + c.fx * (1 - c.fy) * c.texel[1] + (1 - c.fx) * c.fy * c.texel[2] +
+               c.fx * c.fy * c.texel[3];
     }
+
+    Vec2 scalarGradient(const Vec2& uvIn) const override {
+        if (lookup_.filter == TextureFilter::Nearest) return Vec2(0.0f);
+        const Corners c = corners(uvIn);
+        float value[4];
+        for (int i = 0; i < 4; ++i) value[i] = luminance(c.texel[i]);
+        // Derivatives of the bilinear interpolant in texel units, then through
+        // x = u' W - 1/2, y = (1 - v') H - 1/2 and uv' = linear * uv + offset.
+        const float dx = (1 - c.fy) * (value[1] - value[0]) + c.fy * (value[3] - value[2]);
+        const float dy = (1 - c.fx) * (value[2] - value[0]) + c.fx * (value[3] - value[1]);
+        const Vec2 gradientMapped(dx * static_cast<float>(image_.width), -dy * static_cast<float>(image_.height));
+        return glm::transpose(lookup_.toUv.linear) * gradientMapped;
+    }
+
     Rgb mean() const override { return mean_; }
 
 private:
+    // The texels a lookup blends (nearest: only texel[0]) and the weights of the second column / row.
+    struct Corners {
+        Rgb texel[4];
+        float fx = 0.0f, fy = 0.0f;
+    };
+
+    Corners corners(const Vec2& uvIn) const {
+        // v = 0 is the bottom row of the image (OBJ / Mitsuba convention).
+        const Vec2 uv = lookup_.toUv.apply(uvIn);
+        float x = uv.x * static_cast<float>(image_.width);
+        float y = (1.0f - uv.y) * static_cast<float>(image_.height);
+        Corners c;
+        if (lookup_.filter == TextureFilter::Nearest) {
+            c.texel[0] = texel(static_cast<long>(std::floor(x)), static_cast<long>(std::floor(y)));
+            return c;
+        }
+        x -= 0.5f;
+        y -= 0.5f;
+        const auto x0 = static_cast<long>(std::floor(x)), y0 = static_cast<long>(std::floor(y));
+        c.fx = x - static_cast<float>(x0);
+        c.fy = y - static_cast<float>(y0);
+        c.texel[0] = texel(x0, y0);
+        c.texel[1] = texel(x0 + 1, y0);
+        c.texel[2] = texel(x0, y0 + 1);
+        c.texel[3] = texel(x0 + 1, y0 + 1);
+        return c;
+    }
+
+    const Rgb& texel(long x, long y) const {
+        return image_.at(wrapTexel(x, image_.width, lookup_.wrapU), wrapTexel(y, image_.height, lookup_.wrapV));
+    }
+
     RgbImage image_;
-    Vec2 uvScale_;
+    BitmapLookup lookup_;
     Rgb mean_{0.0f};
 };
 
@@ -72,19 +128,37 @@ float srgbToLinear(float v) { return v <= 0.04045f ? v / 12.92f : std::pow((v + 
 
 std::shared_ptr<Texture> makeConstantTexture(const Rgb& value) { return std::make_shared<ConstantTexture>(value); }
 
+Vec2 Texture::scalarGradient(const Vec2& uv) const {
+    // Central differences over a step well below any texel of the textures in use.
+    constexpr float kStep = 1e-3f;
+    return Vec2(evalScalar(uv + Vec2(kStep, 0.0f)) - evalScalar(uv - Vec2(kStep, 0.0f)),
+                evalScalar(uv + Vec2(0.0f, kStep)) - evalScalar(uv - Vec2(0.0f, kStep))) /
+           (2.0f * kStep);
+}
+
 std::shared_ptr<Texture> makeCheckerboardTexture(const Rgb& even, const Rgb& odd, const Vec2& scale) {
-    return std::make_shared<CheckerboardTexture>(even, odd, scale);
+    return std::make_shared<CheckerboardTexture>(even, odd, UvTransform::scale(scale));
+}
+
+std::shared_ptr<Texture> makeCheckerboardTexture(const Rgb& even, const Rgb& odd, const UvTransform& toCells) {
+    return std::make_shared<CheckerboardTexture>(even, odd, toCells);
 }
 
 std::shared_ptr<Texture> loadBitmapTexture(const std::string& path, const Vec2& uvScale) {
-    return std::make_shared<BitmapTexture>(readRgbImage(path), uvScale);
+    return makeBitmapTexture(readRgbImage(path), uvScale);
 }
 
 std::shared_ptr<Texture> makeBitmapTexture(RgbImage image, const Vec2& uvScale) {
-    return std::make_shared<BitmapTexture>(std::move(image), uvScale);
+    BitmapLookup lookup;
+    lookup.toUv = UvTransform::scale(uvScale);
+    return std::make_shared<BitmapTexture>(std::move(image), lookup);
 }
 
-RgbImage readRgbImage(const std::string& path) {
+std::shared_ptr<Texture> makeBitmapTexture(RgbImage image, const BitmapLookup& lookup) {
+    return std::make_shared<BitmapTexture>(std::move(image), lookup);
+}
+
+RgbImage readRgbImage(const std::string& path, bool raw) {
     CapturedStderr libraryMessages;
     auto input = OIIO::ImageInput::open(path);
     if (!input) throw InputError(path, 0, "cannot read image: " + imageReadFailure(OIIO::geterror(), libraryMessages));
@@ -97,7 +171,7 @@ RgbImage readRgbImage(const std::string& path) {
     // 8/16-bit images are display-encoded unless they say otherwise; float formats are linear.
     const std::string colorSpace = spec.get_string_attribute("oiio:ColorSpace");
     const bool encoded = spec.format.basetype == OIIO::TypeDesc::UINT8 || spec.format.basetype == OIIO::TypeDesc::UINT16;
-    const bool linearise = encoded && colorSpace != "Linear" && colorSpace != "linear";
+    const bool linearise = !raw && encoded && colorSpace != "Linear" && colorSpace != "linear";
     RgbImage image;
     image.width = spec.width;
     image.height = spec.height;

@@ -66,6 +66,12 @@ Rgb traceEyeSample(const PathTracerScene& pts, const Camera& camera, Ray ray, jo
             const Bsdf* bsdf = shape.bsdf >= 0 ? scene.bsdfs[static_cast<std::size_t>(shape.bsdf)].get() : nullptr;
             if (bsdf && bsdf->hasSmoothLobe()) {
                 const SurfacePoint sp = pts.rays.surface(state.ray, hit);
+                // The transparent part of a mask is crossed as a null boundary.
+                if (passesThroughMask(bsdf, sp.uv, rng)) {
+                    crossSurface(shape, sp, state);
+                    continue;
+                }
+                history.maskResolved = bsdf->hasOpacity();
                 vertex.get<EyePosition>() = sp.p;
                 vertex.get<EyeNormal>() = sp.ns;
                 vertex.get<EyeGeometricNormal>() = sp.ng;

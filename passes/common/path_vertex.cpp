@@ -71,7 +71,12 @@ bool russianRoulette(const PathLimits& limits, PathVertexState& s) {
 PathTracerScene::PathTracerScene(const Scene& s, const RayQuery& r) : scene(s), rays(r), infiniteLights(s.infiniteLights()) {
     shadowsNeedTransmittance = !s.media.empty();
     for (const Shape& shape : s.shapes) {
-        if (shape.bsdf < 0 || s.bsdfs[static_cast<std::size_t>(shape.bsdf)]->hasNullLobe()) shadowsNeedTransmittance = true;
+        if (shape.bsdf < 0) {
+            shadowsNeedTransmittance = true;
+            continue;
+        }
+        const Bsdf& bsdf = *s.bsdfs[static_cast<std::size_t>(shape.bsdf)];
+        if (bsdf.hasNullLobe() || bsdf.hasOpacity()) shadowsNeedTransmittance = true;
     }
 }
 
@@ -154,11 +159,14 @@ bool advancePathAtSurface(const PathTracerScene& pts, const PathLimits& limits, 
     }
 
     const Bsdf* bsdf = shape.bsdf >= 0 ? scene.bsdfs[static_cast<std::size_t>(shape.bsdf)].get() : nullptr;
-    if (!bsdf || bsdf->isNull()) {
-        // Index-matched boundary: the ray goes straight on into the next medium;
-        // the previous vertex stays the reference for MIS.
-        h.medium = mediumAfterCrossing(shape, sp.ng, s.ray.direction, h.medium);
-        s.ray = Ray{offsetRayOrigin(sp.p, sp.ng, s.ray.direction), s.ray.direction, kInfinity};
+    const bool maskDecided = h.maskResolved;
+    h.maskResolved = false;
+    if (!bsdf || bsdf->isNull() || (!maskDecided && passesThroughMask(bsdf, sp.uv, s.rng))) {
+        // Index-matched boundary or the transparent part of a mask: the ray goes
+        // straight on into the next medium; the previous vertex stays the
+        // reference for MIS. Passing a mask with probability 1 - opacity and
+        // weight 1 estimates the transmitted 1 - opacity without bias.
+        crossSurface(shape, sp, s);
         return true;
     }
 
@@ -246,11 +254,13 @@ Rgb shadowTransmittance(const PathTracerScene& pts, const ShadowRequest& shadow)
         if (!hit.valid() || isBlack(transmittance)) return transmittance;
         const Shape& shape = scene.shapes[hit.shape];
         const Bsdf* bsdf = shape.bsdf >= 0 ? scene.bsdfs[static_cast<std::size_t>(shape.bsdf)].get() : nullptr;
-        if (bsdf && !bsdf->hasNullLobe()) return Rgb(0.0f);
+        if (bsdf && !bsdf->hasNullLobe() && !bsdf->hasOpacity()) return Rgb(0.0f);
         const SurfacePoint sp = pts.rays.surface(ray, hit);
-        // What passes a surface with null events is the light its null event lets through.
+        // A mask lets 1 - opacity through; a surface with null events (null,
+        // thindielectric) the light its null event lets through.
         if (bsdf) {
-            transmittance *= bsdf->nullTransmission(Frame(sp.ns).toLocal(ray.direction), sp.uv);
+            transmittance *= bsdf->hasOpacity() ? Rgb(1.0f - bsdf->opacity(sp.uv))
+                                                : bsdf->nullTransmission(Frame(sp.ns).toLocal(ray.direction), sp.uv);
             if (isBlack(transmittance)) return transmittance;
         }
         medium = mediumAfterCrossing(shape, sp.ng, ray.direction, medium);

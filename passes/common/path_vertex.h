@@ -39,6 +39,9 @@ struct PathHistory {
     int medium = -1;
     int depth = 0;             // scattering events so far
     bool specular = true;      // previous vertex was the camera or a specular event: no MIS for emission
+    // The caller has already drawn the mask decision (Bsdf::opacity) for the
+    // surface this path reaches next and found it opaque; cleared when used.
+    bool maskResolved = false;
 
     static PathHistory atCamera(int cameraMedium) {
         PathHistory h;
@@ -72,7 +75,13 @@ bool advancePath(const PathTracerScene& pts, const PathLimits& limits, const Hit
 bool advancePathAtSurface(const PathTracerScene& pts, const PathLimits& limits, const Hit& hit,
                           PathVertexState& state, ShadowRequest& shadow);
 
-// Transmittance along a shadow ray: 0 if blocked by a non-null surface.
+// Masked materials (Bsdf::hasOpacity): whether a ray passes through the surface
+// at uv, with probability 1 - opacity. Draws a random number only for masked materials.
+inline bool passesThroughMask(const Bsdf* bsdf, const Vec2& uv, jobs::Rng& rng) {
+    return bsdf && bsdf->hasOpacity() && rng.uniform() >= bsdf->opacity(uv);
+}
+
+// Transmittance along a shadow ray: 0 if blocked by a non-null surface, 1 - opacity through a masked one.
 Rgb shadowTransmittance(const PathTracerScene& pts, const ShadowRequest& shadow);
 
 // Camera paths of the eye passes: their specular chains end by the depth limit,
@@ -105,6 +114,13 @@ inline Rgb segmentTransmittance(const HomogeneousMedium& medium, float distance)
 inline int mediumAfterCrossing(const Shape& shape, const Vec3& ng, const Vec3& dir, int current) {
     if (shape.interiorMedium < 0 && shape.exteriorMedium < 0) return current;
     return glm::dot(dir, ng) < 0.0f ? shape.interiorMedium : shape.exteriorMedium;
+}
+
+// Continues the path straight through the surface at sp (a null boundary or
+// the transparent part of a mask) into the medium on the other side.
+inline void crossSurface(const Shape& shape, const SurfacePoint& sp, PathVertexState& s) {
+    s.history.medium = mediumAfterCrossing(shape, sp.ng, s.ray.direction, s.history.medium);
+    s.ray = Ray{offsetRayOrigin(sp.p, sp.ng, s.ray.direction), s.ray.direction, kInfinity};
 }
 
 }  // namespace fg

@@ -269,7 +269,8 @@ public:
             previous = sp.p;
             const Shape& shape = scene_.shapes[sp.shape];
             const Bsdf* bsdf = shape.bsdf >= 0 ? scene_.bsdfs[static_cast<std::size_t>(shape.bsdf)].get() : nullptr;
-            if (!bsdf || bsdf->isNull()) {
+            // The transparent part of a mask is crossed as a null boundary (probability 1 - opacity).
+            if (!bsdf || bsdf->isNull() || passesThroughMask(bsdf, sp.uv, rng)) {
                 if (++nullCrossings > kMaxNullCrossings) return;
                 medium = mediumAfterCrossing(shape, sp.ng, direction, medium);
                 ray = Ray{offsetRayOrigin(sp.p, sp.ng, direction), direction, kInfinity};

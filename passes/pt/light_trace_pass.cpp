@@ -131,16 +131,21 @@ public:
                 ray.tMax = rayLength + kSameHitTolerance * distance * 2.0f + kRayEpsilon;
                 Hit hit = rays.intersect(ray);
                 // Surfaces with null events in front of the photon (a thin glass pane, a
-                // null boundary) let the connection through with their transmittance.
+                // null boundary) let the connection through with their transmittance; a
+                // mask lets 1 - opacity through, as for shadow rays.
                 Rgb transmittance(1.0f);
                 for (int crossing = 0; crossing < kMaxConnectionCrossings && hit.valid() &&
-                                       hit.t < rayLength - kSameHitTolerance * distance - kRayEpsilon;
+                                       hit.t < rayLength - kSameHitTolerance * distance - kRayEpsilon && !isBlack(transmittance);
                      ++crossing) {
                     const SurfacePoint blocker = rays.surface(ray, hit);
                     const int blockerBsdf = scene.shapes[blocker.shape].bsdf;
                     const Bsdf* bsdf = blockerBsdf >= 0 ? scene.bsdfs[static_cast<std::size_t>(blockerBsdf)].get() : nullptr;
-                    if (bsdf && !bsdf->hasNullLobe()) break;
-                    if (bsdf) transmittance *= bsdf->nullTransmission(Frame(blocker.ns).toLocal(ray.direction), blocker.uv);
+                    if (bsdf && !bsdf->hasNullLobe() && !bsdf->hasOpacity()) break;
+                    if (bsdf) {
+                        transmittance *= bsdf->hasOpacity()
+                                             ? Rgb(1.0f - bsdf->opacity(blocker.uv))
+                                             : bsdf->nullTransmission(Frame(blocker.ns).toLocal(ray.direction), blocker.uv);
+                    }
                     const Vec3 origin = offsetRayOrigin(blocker.p, blocker.ng, ray.direction);
                     const float advanced = glm::dot(origin - ray.origin, ray.direction);
                     ray.origin = origin;
@@ -148,7 +153,8 @@ public:
                     ray.tMax -= advanced;
                     hit = rays.intersect(ray);
                 }
-                if (!hit.valid() || std::abs(hit.t - rayLength) > kSameHitTolerance * distance + kRayEpsilon) {
+                if (!hit.valid() || isBlack(transmittance) ||
+                    std::abs(hit.t - rayLength) > kSameHitTolerance * distance + kRayEpsilon) {
                     ++acc.occluded;
                     continue;
                 }

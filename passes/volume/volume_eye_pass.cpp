@@ -91,8 +91,15 @@ public:
             if (hit.valid()) {
                 const Shape& shape = scene.shapes[hit.shape];
                 const Bsdf* bsdf = shape.bsdf >= 0 ? scene.bsdfs[static_cast<std::size_t>(shape.bsdf)].get() : nullptr;
+                const SurfacePoint sp = bsdf && bsdf->hasSmoothLobe() ? pts_.rays.surface(state.ray, hit) : SurfacePoint{};
+                // The transparent part of a mask is crossed as a null boundary.
+                if (bsdf && bsdf->hasSmoothLobe() && passesThroughMask(bsdf, sp.uv, rng)) {
+                    if (++nullCrossings > kMaxNullCrossings) return radiance;
+                    crossSurface(shape, sp, state);
+                    continue;
+                }
                 if (bsdf && bsdf->hasSmoothLobe()) {
-                    const SurfacePoint sp = pts_.rays.surface(state.ray, hit);
+                    history.maskResolved = bsdf->hasOpacity();
                     vertex.get<EyePosition>() = sp.p;
                     vertex.get<EyeNormal>() = sp.ns;
                     vertex.get<EyeGeometricNormal>() = sp.ng;

@@ -825,7 +825,7 @@ TEST(SceneXml, ErrorsNameFileLineAndPlugin) {
     const fs::path dir = scratchDir();
     writeFile(dir / "quad.obj", kQuadObj);
     // Unknown plugin type.
-    expectErrorAt(dir, sceneText("    <bsdf type=\"mask\" id=\"m\"/>\n"), "mask", "bsdf 'mask'", "plugin.xml");
+    expectErrorAt(dir, sceneText("    <bsdf type=\"hair\" id=\"m\"/>\n"), "hair", "bsdf 'hair'", "plugin.xml");
     expectErrorAt(dir, sceneText("    <shape type=\"serialized\"/>\n"), "serialized", "shape 'serialized'", "plugin2.xml");
     expectErrorAt(dir, sceneText("    <emitter type=\"sunsky\"/>\n"), "sunsky", "emitter 'sunsky'", "plugin3.xml");
     // Unknown parameter of a supported plugin, reported at the parameter's own line.

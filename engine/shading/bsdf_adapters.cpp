@@ -1,0 +1,133 @@
+// Mask, bump map and normal map adapters (bsdf_adapters.h).
+//
+// Bump mapping follows Blinn 1978, "Simulation of Wrinkled Surfaces": for a
+// surface p(u, v) displaced along its normal n by a height h(u, v), the
+// displaced tangents are, to first order in h,
+//   p'_u = p_u + h_u n,   p'_v = p_v + h_v n
+// (the terms h n_u, h n_v are dropped, as Blinn does for small h). As Mitsuba's
+// bumpmap the tangents are first made perpendicular to the shading normal
+// (p_u - (n.p_u) n), which is what they already are on flat geometry, and the
+// result is turned to the geometric normal's side.
+#include "engine/shading/bsdf_adapters.h"
+
+#include <algorithm>
+#include <utility>
+
+namespace fg {
+
+namespace {
+
+// Everything the wrapped material does, unchanged.
+class ForwardingBsdf : public Bsdf {
+public:
+    explicit ForwardingBsdf(std::shared_ptr<Bsdf> inner) : inner_(std::move(inner)) {}
+
+    std::uint32_t lobes() const override { return inner_->lobes(); }
+    Rgb eval(const Vec3& wo, const Vec3& wi, const Vec2& uv, TransportMode mode) const override {
+        return inner_->eval(wo, wi, uv, mode);
+    }
+    float pdf(const Vec3& wo, const Vec3& wi, const Vec2& uv) const override { return inner_->pdf(wo, wi, uv); }
+    std::optional<BsdfSample> sample(const Vec3& wo, const Vec2& uv, float uLobe, const Vec2& u,
+                                     TransportMode mode) const override {
+        return inner_->sample(wo, uv, uLobe, u, mode);
+    }
+    std::optional<Rgb> constantReflectance(const Vec2& uv) const override { return inner_->constantReflectance(uv); }
+    bool hasOpacity() const override { return inner_->hasOpacity(); }
+    float opacity(const Vec2& uv) const override { return inner_->opacity(uv); }
+    bool perturbsNormal() const override { return inner_->perturbsNormal(); }
+    Vec3 perturbedNormal(const ShadingGeometry& geometry) const override { return inner_->perturbedNormal(geometry); }
+
+protected:
+    std::shared_ptr<Bsdf> inner_;
+};
+
+class MaskBsdf final : public ForwardingBsdf {
+public:
+    MaskBsdf(std::shared_ptr<Bsdf> inner, std::shared_ptr<Texture> opacity)
+        : ForwardingBsdf(std::move(inner)), opacity_(std::move(opacity)) {}
+
+    bool hasOpacity() const override { return true; }
+    float opacity(const Vec2& uv) const override {
+        // A mask around a masked material: both must let the ray pass.
+        return clamp01(opacity_->evalScalar(uv)) * inner_->opacity(uv);
+    }
+
+private:
+    std::shared_ptr<Texture> opacity_;
+};
+
+// A normal on the geometric normal's side; a degenerate one keeps the interpolated normal.
+Vec3 orientedNormal(const Vec3& candidate, const ShadingGeometry& geometry) {
+    const float length = glm::length(candidate);
+    if (!(length > 0.0f) || !std::isfinite(length)) return geometry.frame.n;
+    const Vec3 n = candidate / length;
+    return glm::dot(n, geometry.ng) < 0.0f ? -n : n;
+}
+
+// The wrapped material's own perturbation applies first, so that nesting two
+// maps composes them (the outer one sees the inner one's normal as its frame).
+ShadingGeometry innerGeometry(const Bsdf& inner, const ShadingGeometry& geometry) {
+    if (!inner.perturbsNormal()) return geometry;
+    ShadingGeometry result = geometry;
+    const Vec3 n = inner.perturbedNormal(geometry);
+    const Vec3 s = geometry.frame.s - glm::dot(geometry.frame.s, n) * n;
+    const float sLength = glm::length(s);
+    result.frame = Frame(n);
+    if (sLength > 0.0f) {
+        result.frame.s = s / sLength;
+        result.frame.t = glm::cross(n, result.frame.s);
+    }
+    return result;
+}
+
+class BumpMapBsdf final : public ForwardingBsdf {
+public:
+    BumpMapBsdf(std::shared_ptr<Bsdf> inner, std::shared_ptr<Texture> height, float scale)
+        : ForwardingBsdf(std::move(inner)), height_(std::move(height)), scale_(scale) {}
+
+    bool perturbsNormal() const override { return true; }
+    Vec3 perturbedNormal(const ShadingGeometry& outer) const override {
+        const ShadingGeometry g = innerGeometry(*inner_, outer);
+        const Vec2 gradient = scale_ * height_->scalarGradient(g.uv);
+        const Vec3& n = g.frame.n;
+        const Vec3 dpdu = g.dpdu + (gradient.x - glm::dot(n, g.dpdu)) * n;
+        const Vec3 dpdv = g.dpdv + (gradient.y - glm::dot(n, g.dpdv)) * n;
+        return orientedNormal(glm::cross(dpdu, dpdv), g);
+    }
+
+private:
+    std::shared_ptr<Texture> height_;
+    float scale_;
+};
+
+class NormalMapBsdf final : public ForwardingBsdf {
+public:
+    NormalMapBsdf(std::shared_ptr<Bsdf> inner, std::shared_ptr<Texture> normals)
+        : ForwardingBsdf(std::move(inner)), normals_(std::move(normals)) {}
+
+    bool perturbsNormal() const override { return true; }
+    Vec3 perturbedNormal(const ShadingGeometry& outer) const override {
+        const ShadingGeometry g = innerGeometry(*inner_, outer);
+        const Vec3 local = 2.0f * normals_->eval(g.uv) - Vec3(1.0f);
+        return orientedNormal(g.frame.toWorld(local), g);
+    }
+
+private:
+    std::shared_ptr<Texture> normals_;
+};
+
+}  // namespace
+
+std::shared_ptr<Bsdf> makeMask(std::shared_ptr<Bsdf> inner, std::shared_ptr<Texture> opacity) {
+    return std::make_shared<MaskBsdf>(std::move(inner), std::move(opacity));
+}
+
+std::shared_ptr<Bsdf> makeBumpMap(std::shared_ptr<Bsdf> inner, std::shared_ptr<Texture> height, float scale) {
+    return std::make_shared<BumpMapBsdf>(std::move(inner), std::move(height), scale);
+}
+
+std::shared_ptr<Bsdf> makeNormalMap(std::shared_ptr<Bsdf> inner, std::shared_ptr<Texture> normals) {
+    return std::make_shared<NormalMapBsdf>(std::move(inner), std::move(normals));
+}
+
+}  // namespace fg
