@@ -6,6 +6,9 @@
 #include <OpenImageIO/imageio.h>
 
 #include <cmath>
+#include <cstdint>
+#include <memory>
+#include <string>
 
 namespace fg {
 
@@ -66,6 +69,9 @@ private:
     Rgb mean_{0.0f};
 };
 
+// 16384 x 8192, the largest environment maps in common use.
+constexpr std::int64_t kMaxImagePixels = std::int64_t{1} << 27;
+
 float srgbToLinear(float v) { return v <= 0.04045f ? v / 12.92f : std::pow((v + 0.055f) / 1.055f, 2.4f); }
 
 }  // namespace
@@ -89,9 +95,21 @@ RgbImage readRgbImage(const std::string& path) {
     auto input = OIIO::ImageInput::open(path);
     if (!input) throw InputError(path, 0, "cannot read image: " + imageReadFailure(OIIO::geterror(), libraryMessages));
     const OIIO::ImageSpec& spec = input->spec();
-    const int channels = spec.nchannels;
-    std::vector<float> data(static_cast<std::size_t>(spec.width) * spec.height * channels);
-    if (!input->read_image(0, 0, 0, channels, OIIO::TypeDesc::FLOAT, data.data())) {
+    // The size is the header's claim: a few bytes can announce 100000 x 100000
+    // pixels, which would be allocated here before the read finds the data
+    // missing. The buffer is also left uninitialised, so that a header that
+    // lies within the bound costs address space, not memory.
+    if (spec.width <= 0 || spec.height <= 0 || spec.depth != 1 || spec.nchannels <= 0)
+        throw InputError(path, 0, "image has no pixels, no channels or more than two dimensions");
+    const std::int64_t pixelCount = std::int64_t{spec.width} * spec.height;
+    if (pixelCount > kMaxImagePixels)
+        throw InputError(path, 0, "image of " + std::to_string(spec.width) + " x " + std::to_string(spec.height) +
+                                      " pixels is over the limit of " + std::to_string(kMaxImagePixels) +
+                                      " (16384 x 8192)");
+    // Only red, green and blue (or grey) are used; alpha and further channels are not read.
+    const int channels = spec.nchannels >= 3 ? 3 : 1;
+    const std::unique_ptr<float[]> data(new float[static_cast<std::size_t>(pixelCount) * channels]);
+    if (!input->read_image(0, 0, 0, channels, OIIO::TypeDesc::FLOAT, data.get())) {
         throw InputError(path, 0, "cannot decode image: " + imageReadFailure(input->geterror(), libraryMessages));
     }
     // 8/16-bit images are display-encoded unless they say otherwise; float formats are linear.
