@@ -7,6 +7,9 @@
 
 #include <cmath>
 #include <cstdint>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
 #include <memory>
 #include <string>
 
@@ -74,6 +77,53 @@ constexpr std::int64_t kMaxImagePixels = std::int64_t{1} << 27;
 
 float srgbToLinear(float v) { return v <= 0.04045f ? v / 12.92f : std::pow((v + 0.055f) / 1.055f, 2.4f); }
 
+// OpenEXR 3.1 allocates each header attribute at the size the file states
+// (up to 2 GB for a string) before it reads the value, so a damaged header of
+// a few bytes costs gigabytes. The attribute list is simple enough to walk
+// first (OpenEXR file layout: magic, version, then per part the attributes as
+// name NUL, type NUL, int32 size, value, ended by an empty name; multi-part
+// files end the list of parts with one more empty name): every size must fit
+// in what is left of the file. Checked by signature, whatever the file's name,
+// because OpenImageIO tries the EXR reader on any file the named reader refuses.
+void checkExrAttributeSizes(const std::string& path) {
+    std::ifstream in(path, std::ios::binary);
+    char start[8] = {};
+    if (!in.read(start, sizeof start) || std::memcmp(start, "\x76\x2f\x31\x01", 4) != 0) return;
+    const bool multiPart = (static_cast<unsigned char>(start[5]) & 0x10) != 0;
+    std::error_code ec;
+    const std::uintmax_t fileSize = std::filesystem::file_size(path, ec);
+    if (ec) return;  // the reader reports it
+    const auto refuse = [&](const std::string& why) { throw InputError(path, 0, "cannot read image: " + why); };
+    const auto readName = [&](std::string& name) {
+        name.clear();
+        for (char c; in.get(c) && c != '\0';) {
+            name += c;
+            if (name.size() > 255) refuse("EXR header holds a name longer than 255 bytes");
+        }
+        if (!in) refuse("EXR header ends early");
+    };
+    std::string name, type;
+    bool partEnded = false;
+    while (true) {
+        readName(name);
+        if (name.empty()) {
+            if (!multiPart || partEnded) return;  // the end of the header (of the list of parts)
+            partEnded = true;
+            continue;
+        }
+        partEnded = false;
+        readName(type);
+        unsigned char sizeBytes[4];
+        if (!in.read(reinterpret_cast<char*>(sizeBytes), 4)) refuse("EXR header ends early");
+        const std::int64_t size = static_cast<std::int32_t>(sizeBytes[0] | (sizeBytes[1] << 8) | (sizeBytes[2] << 16) |
+                                                            (std::uint32_t{sizeBytes[3]} << 24));
+        const auto position = static_cast<std::int64_t>(in.tellg());
+        if (size < 0 || position < 0 || static_cast<std::uintmax_t>(position + size) > fileSize)
+            refuse("EXR attribute '" + name + "' claims " + std::to_string(size) + " bytes, more than the file holds");
+        in.seekg(size, std::ios::cur);
+    }
+}
+
 }  // namespace
 
 std::shared_ptr<Texture> makeConstantTexture(const Rgb& value) { return std::make_shared<ConstantTexture>(value); }
@@ -91,6 +141,7 @@ std::shared_ptr<Texture> makeBitmapTexture(RgbImage image, const Vec2& uvScale) 
 }
 
 RgbImage readRgbImage(const std::string& path) {
+    checkExrAttributeSizes(path);
     CapturedStderr libraryMessages;
     auto input = OIIO::ImageInput::open(path);
     if (!input) throw InputError(path, 0, "cannot read image: " + imageReadFailure(OIIO::geterror(), libraryMessages));
