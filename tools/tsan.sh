@@ -37,7 +37,7 @@ if [ ! -f "$prefix/lib/cmake/TBB/TBBConfig.cmake" ]; then
   CC=clang CXX=clang++ cmake -S "$source_dir" -B "$cache_dir/onetbb-build" -DCMAKE_BUILD_TYPE=RelWithDebInfo \
     -DCMAKE_C_FLAGS="$tsan_flags" -DCMAKE_CXX_FLAGS="$tsan_flags" -DCMAKE_EXE_LINKER_FLAGS=-fsanitize=thread \
     -DCMAKE_SHARED_LINKER_FLAGS=-fsanitize=thread -DTBB_TEST=OFF -DTBB_STRICT=OFF -DTBBMALLOC_BUILD=OFF \
-    -DCMAKE_INSTALL_PREFIX="$prefix"
+    -DCMAKE_INSTALL_PREFIX="$prefix" -DCMAKE_INSTALL_LIBDIR=lib
   nice -n 10 cmake --build "$cache_dir/onetbb-build" -j2
   cmake --install "$cache_dir/onetbb-build"
 fi
