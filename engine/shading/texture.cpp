@@ -124,6 +124,31 @@ void checkExrAttributeSizes(const std::string& path) {
     }
 }
 
+// libpng likewise allocates a chunk (tEXt and others) at its stated length,
+// up to 2 GB, before reading it. A PNG's chunks (length, type, data, CRC;
+// PNG specification section 5.3) are walked first: each must fit in the file.
+void checkPngChunkSizes(const std::string& path) {
+    std::ifstream in(path, std::ios::binary);
+    char signature[8] = {};
+    if (!in.read(signature, sizeof signature) || std::memcmp(signature, "\x89PNG\r\n\x1a\n", 8) != 0) return;
+    std::error_code ec;
+    const std::uintmax_t fileSize = std::filesystem::file_size(path, ec);
+    if (ec) return;  // the reader reports it
+    std::uintmax_t position = 8;
+    unsigned char header[8];
+    while (position + 8 <= fileSize && in.read(reinterpret_cast<char*>(header), 8)) {
+        const std::uintmax_t length = (std::uintmax_t{header[0]} << 24) | (std::uintmax_t{header[1]} << 16) |
+                                      (std::uintmax_t{header[2]} << 8) | header[3];
+        const std::string type(reinterpret_cast<const char*>(header + 4), 4);
+        if (position + 12 + length > fileSize)
+            throw InputError(path, 0, "cannot read image: PNG chunk " + type + " claims " + std::to_string(length) +
+                                          " bytes, more than the file holds");
+        if (type == "IEND") return;
+        position += 12 + length;
+        in.seekg(static_cast<std::streamoff>(position));
+    }
+}
+
 }  // namespace
 
 std::shared_ptr<Texture> makeConstantTexture(const Rgb& value) { return std::make_shared<ConstantTexture>(value); }
@@ -142,6 +167,7 @@ std::shared_ptr<Texture> makeBitmapTexture(RgbImage image, const Vec2& uvScale) 
 
 RgbImage readRgbImage(const std::string& path) {
     checkExrAttributeSizes(path);
+    checkPngChunkSizes(path);
     CapturedStderr libraryMessages;
     auto input = OIIO::ImageInput::open(path);
     if (!input) throw InputError(path, 0, "cannot read image: " + imageReadFailure(OIIO::geterror(), libraryMessages));
