@@ -7,6 +7,7 @@ packages=(
   libtomlplusplus-dev libtinyobjloader-dev libpugixml-dev libassimp-dev libcli11-dev zlib1g-dev
   libgtest-dev libbenchmark-dev python3 python3-numpy python3-skimage python3-matplotlib
   slurm-wlm munge   # the Slurm test's local cluster (tools/slurm_local.sh)
+  clang libfuzzer-14-dev   # tools/test.sh --sanitize: ASan/UBSan build and fuzz targets (clang 14)
 )
 missing=()
 for p in "${packages[@]}"; do

@@ -183,13 +183,15 @@ private:
         const int index = static_cast<int>(passes.size());
         for (const auto& [slot, buffer] : node.inputBindings) {
             (void)buffer;
-            const bool known = std::any_of(spec.inputs.begin(), spec.inputs.end(), [&](const SlotSpec& s) { return s.name == slot; }) ||
+            // Named init-captures: clang before 16 cannot capture structured bindings.
+            const bool known = std::any_of(spec.inputs.begin(), spec.inputs.end(), [&name = slot](const SlotSpec& s) { return s.name == name; }) ||
                                isInout(spec, slot);
             if (!known) fail(planned.source, "pass '" + node.instance + "' has no input slot '" + slot + "'");
         }
         for (const auto& [slot, buffer] : node.outputBindings) {
             (void)buffer;
-            if (std::none_of(spec.outputs.begin(), spec.outputs.end(), [&](const SlotSpec& s) { return s.name == slot; }))
+            if (std::none_of(spec.outputs.begin(), spec.outputs.end(),
+                             [&name = slot](const SlotSpec& s) { return s.name == name; }))
                 fail(planned.source, "pass '" + node.instance + "' has no output slot '" + slot + "'");
         }
         for (const SlotSpec* in : readSlots(spec)) {
@@ -350,7 +352,7 @@ ExecutionPlan ExecutionPlan::build(const Pipeline& pipeline, const JobParams& pa
         if (const auto it = params.values.find(planned.paramsKey); it != params.values.end()) {
             for (const auto& [key, setting] : it->second) {
                 const auto found = std::find_if(spec.params.begin(), spec.params.end(),
-                                                [&](const ParamSpec& p) { return p.name == key; });
+                                                [&name = key](const ParamSpec& p) { return p.name == name; });
                 if (found == spec.params.end()) {
                     std::string known;
                     for (const auto& p : spec.params) known += (known.empty() ? "" : ", ") + p.name;

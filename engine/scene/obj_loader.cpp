@@ -12,6 +12,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <sstream>
 #include <unordered_map>
 
@@ -34,7 +35,8 @@ struct CornerKeyHash {
 };
 
 // tinyobjloader reads a coordinate it cannot parse ("nan", "inf", "x") as 0, so
-// vertex positions are checked on the text: each must be a finite number.
+// vertex positions are checked on the text: each must be a finite number, and
+// finite as a float too (it stores them as float: 1e39 would become inf).
 void checkVertexPositions(const std::string& text, const std::string& path) {
     std::size_t start = 0;
     int line = 0;
@@ -54,7 +56,8 @@ void checkVertexPositions(const std::string& text, const std::string& path) {
             const char* last = word.data() + word.size();
             double value = 0.0;
             const auto [stop, error] = std::from_chars(first, last, value);
-            if (error != std::errc() || stop != last || !std::isfinite(value)) {
+            if (error != std::errc() || stop != last || !std::isfinite(value) ||
+                std::abs(value) > std::numeric_limits<float>::max()) {
                 throw InputError(path, line, "vertex " + std::to_string(vertex) + " has a coordinate '" + word +
                                                  "' that is not a finite number");
             }

@@ -122,6 +122,10 @@ void checkPlyHeader(const std::string& data, const std::string& path) {
             }
             ++element.valueCount;
         } else if (keyword == "end_header") {
+            // Only a bare end_header: with other bytes after it on the line
+            // (end_header\v...), Assimp's parser does not stop.
+            if (text.find_last_not_of(' ') + 1 != std::string_view("end_header").size() || text.find("end_header") != 0)
+                fail("PLY end_header line must hold nothing else");
             ended = true;
         } else {
             fail("unexpected line in PLY header: '" + text + "'");
