@@ -59,7 +59,47 @@ struct PlyElement {
     int line = 0;
     std::uint64_t fixedBytes = 0;  // scalars, plus the count field of each list (its items vary)
     std::uint64_t valueCount = 0;  // scalars and lists (at least their count) per record
+    std::vector<bool> propertyIsList;  // per property, in the order of the header
 };
+
+// Walks an ASCII body value by value along the header's elements and
+// properties. Assimp reserves a list's items by the count it reads, so a
+// count of 40 digits would be a 19 GB allocation before the data is found
+// missing; here every list count must be an integer no larger than the
+// number of values the rest of the file could still hold.
+void checkPlyAsciiBody(std::string_view body, const std::vector<PlyElement>& elements, const std::string& path) {
+    std::size_t position = 0;
+    const auto isSpace = [](char c) { return c == ' ' || c == '\t' || c == '\n' || c == '\r' || c == '\v' || c == '\f'; };
+    const auto nextValue = [&]() -> std::optional<std::string_view> {
+        while (position < body.size() && isSpace(body[position])) ++position;
+        if (position == body.size()) return std::nullopt;
+        const std::size_t start = position;
+        while (position < body.size() && !isSpace(body[position])) ++position;
+        return body.substr(start, position - start);
+    };
+    for (const PlyElement& element : elements) {
+        for (std::uint64_t record = 0; record < element.count; ++record) {
+            for (const bool isList : element.propertyIsList) {
+                const std::optional<std::string_view> value = nextValue();
+                const auto where = [&] { return "PLY element '" + element.name + "' record " + std::to_string(record); };
+                if (!value) throw InputError(path, element.line, where() + ": the file ends before its values do");
+                if (!isList) continue;
+                std::uint64_t items = 0;
+                const auto [end, error] = std::from_chars(value->data(), value->data() + value->size(), items);
+                // Every further value takes at least one character and a separator.
+                const std::uint64_t room = (body.size() - position) / 2 + 1;
+                if (error != std::errc() || end != value->data() + value->size() || items > room) {
+                    throw InputError(path, element.line,
+                                     where() + ": list count '" + std::string(value->substr(0, 24)) +
+                                         (value->size() > 24 ? "..." : "") + "' is not a count the file can hold");
+                }
+                for (std::uint64_t item = 0; item < items; ++item) {
+                    if (!nextValue()) throw InputError(path, element.line, where() + ": the file ends inside a list");
+                }
+            }
+        }
+    }
+}
 
 // Checks the header of `data` (which starts with "ply") and that the element
 // counts fit the file's size; throws an InputError naming path:line otherwise.
@@ -114,11 +154,13 @@ void checkPlyHeader(const std::string& data, const std::string& path) {
                 if (!countSize || !isIntegerType(rest[1])) fail("PLY list count type must be an integer type, not '" + rest[1] + "'");
                 if (!scalarSize(rest[2])) fail("unknown PLY property type '" + rest[2] + "'");
                 element.fixedBytes += *countSize;
+                element.propertyIsList.push_back(true);
             } else {
                 if (rest.size() != 2) fail("PLY property line must be 'property <type> <name>'");
                 const std::optional<std::uint64_t> size = scalarSize(rest[0]);
                 if (!size) fail("unknown PLY property type '" + rest[0] + "'");
                 element.fixedBytes += *size;
+                element.propertyIsList.push_back(false);
             }
             ++element.valueCount;
         } else if (keyword == "end_header") {
@@ -151,6 +193,7 @@ void checkPlyHeader(const std::string& data, const std::string& path) {
         }
         needed += element.count * recordBytes;
     }
+    if (ascii) checkPlyAsciiBody(std::string_view(data).substr(position), elements, path);
 }
 
 }  // namespace

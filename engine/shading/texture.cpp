@@ -13,6 +13,7 @@
 #include <fstream>
 #include <memory>
 #include <string>
+#include <string_view>
 
 namespace fg {
 
@@ -257,6 +258,20 @@ RgbImage readRgbImage(const std::string& path, bool raw) {
         throw InputError(path, 0, "image of " + std::to_string(spec.width) + " x " + std::to_string(spec.height) +
                                       " pixels is over the limit of " + std::to_string(kMaxImagePixels) +
                                       " (16384 x 8192)");
+    // Uncompressed formats store every sample: a header that claims more
+    // pixels than the file holds made OpenImageIO's PFM reader grow past 2 GB
+    // before failing. PFM stores 4 bytes a sample; PNM at least one.
+    const std::string_view formatName = input->format_name();
+    const std::uint64_t bytesPerSample = formatName == "pfm" ? 4 : formatName == "pnm" ? 1 : 0;
+    if (bytesPerSample > 0) {
+        std::error_code error;
+        const std::uintmax_t fileBytes = std::filesystem::file_size(path, error);
+        const std::uint64_t dataBytes = static_cast<std::uint64_t>(pixelCount) * static_cast<std::uint64_t>(spec.nchannels) * bytesPerSample;
+        if (!error && fileBytes < dataBytes)
+            throw InputError(path, 0, "image of " + std::to_string(spec.width) + " x " + std::to_string(spec.height) +
+                                          " pixels needs " + std::to_string(dataBytes) + " bytes of data, the file has " +
+                                          std::to_string(fileBytes));
+    }
     // Only red, green and blue (or grey) are used; alpha and further channels are not read.
     const int channels = spec.nchannels >= 3 ? 3 : 1;
     const std::unique_ptr<float[]> data(new float[static_cast<std::size_t>(pixelCount) * channels]);
