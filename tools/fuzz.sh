@@ -31,7 +31,11 @@ for target in "${targets[@]}"; do
   status=0
   # -timeout: a hang is one input over 10 s; -rss_limit_mb and -malloc_limit_mb:
   # a process over 2 GB, or one allocation over 2 GB, is a finding.
-  "$binary" -max_total_time="$seconds" -timeout=10 -rss_limit_mb=2048 -malloc_limit_mb=2048 \
+  # FLUXGRAPH_FUZZ_SEED fixes libFuzzer's random choices, so that a run of
+  # the suite (tools/test.sh --sanitize) tries the same inputs every time.
+  seed_option=()
+  [ -z "${FLUXGRAPH_FUZZ_SEED:-}" ] || seed_option=(-seed="$FLUXGRAPH_FUZZ_SEED")
+  "$binary" "${seed_option[@]}" -max_total_time="$seconds" -timeout=10 -rss_limit_mb=2048 -malloc_limit_mb=2048 \
     -print_final_stats=1 -artifact_prefix="$findings/" \
     "$work" "tests/fuzz/corpus/$target" "tests/fuzz/regressions/$target" >"$log" 2>&1 || status=$?
   runs=$(sed -n 's/^stat::number_of_executed_units: *//p' "$log" | tail -1)

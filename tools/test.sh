@@ -41,5 +41,5 @@ nice -n 10 cmake --build "$build_dir" -j2
 built=$(date +%s)
 (cd "$build_dir" && nice -n 10 ctest -L sanitize -j2 --output-on-failure)
 tested=$(date +%s)
-tools/fuzz.sh "$build_dir" "${FLUXGRAPH_FUZZ_SECONDS:-20}"
+FLUXGRAPH_FUZZ_SEED="${FLUXGRAPH_FUZZ_SEED:-1}" tools/fuzz.sh "$build_dir" "${FLUXGRAPH_FUZZ_SECONDS:-20}"
 echo "test.sh --sanitize: build $((built - start)) s, tests $((tested - built)) s, fuzzing $(( $(date +%s) - tested )) s"

@@ -77,6 +77,16 @@ void checkPlyAsciiBody(std::string_view body, const std::vector<PlyElement>& ele
         while (position < body.size() && !isSpace(body[position])) ++position;
         return body.substr(start, position - start);
     };
+    // Assimp reads an ASCII body as C text: a NUL ends its values where this
+    // walk would not, so the two would disagree on which value is a count.
+    for (std::size_t offset = 0; offset < body.size(); ++offset) {
+        const auto byte = static_cast<unsigned char>(body[offset]);
+        if ((byte < 0x20 && !isSpace(body[offset])) || byte >= 0x7f) {
+            throw InputError(path, 0, "PLY ascii data holds the byte 0x" + std::string(1, "0123456789abcdef"[byte >> 4]) +
+                                          std::string(1, "0123456789abcdef"[byte & 15]) + " at data offset " +
+                                          std::to_string(offset) + ", which is not text");
+        }
+    }
     for (const PlyElement& element : elements) {
         for (std::uint64_t record = 0; record < element.count; ++record) {
             for (const bool isList : element.propertyIsList) {
