@@ -13,6 +13,7 @@
 
 #include "engine/core/error.h"
 #include "engine/image/image_diagnostics.h"
+#include "engine/image/image_guard.h"
 
 #include <OpenImageIO/imageio.h>
 
@@ -227,6 +228,7 @@ void writeRelativeErrorHeatmap(const std::string& path, const ImageChannels& tes
 ImageChannels readImageLinear(const std::string& path) {
     bool srgbEncoded = false;
     {
+        checkImageStructure(path);
         CapturedStderr libraryMessages;
         std::unique_ptr<OIIO::ImageInput> input = OIIO::ImageInput::open(path);
         if (!input) throw InputError(path, 0, "cannot read image: " + imageReadFailure(OIIO::geterror(), libraryMessages));

@@ -7,6 +7,7 @@
 
 #include "engine/core/error.h"
 #include "engine/image/image_diagnostics.h"
+#include "engine/image/image_guard.h"
 
 #include <OpenImageIO/filesystem.h>
 #include <OpenImageIO/imageio.h>
@@ -128,10 +129,12 @@ void writePngPreview(const std::string& path, const ImageChannels& image, float 
 }
 
 ImageChannels readExr(const std::string& path, Metadata* metadata) {
+    checkImageStructure(path);
     CapturedStderr libraryMessages;
     std::unique_ptr<OIIO::ImageInput> input = OIIO::ImageInput::open(path);
     if (!input) throw InputError(path, 0, "cannot read image: " + imageReadFailure(OIIO::geterror(), libraryMessages));
     const OIIO::ImageSpec& spec = input->spec();
+    checkImageHeader(path, input->format_name(), spec.width, spec.height, spec.depth, spec.nchannels);
     const int channels = spec.nchannels;
     ImageChannels image;
     image.width = spec.width;

@@ -1,6 +1,7 @@
 #include "engine/image/image_io.h"
 
 #include "engine/core/error.h"
+#include "engine/image/image_compare.h"
 
 #include <OpenImageIO/imageio.h>
 #include <gtest/gtest.h>
@@ -239,6 +240,42 @@ TEST(ImageIo, WritingIntoAReadOnlyDirectoryThrowsAndLeavesNothing) {
 TEST(ImageIo, ReadingAMissingFileThrowsInputError) {
     const fs::path dir = scratchDirectory();
     EXPECT_THROW(readExr((dir / "absent.exr").string()), InputError);
+}
+
+// The damaged images found by fuzzing the texture reader (tests/fuzz/regressions/image/)
+// reach the readers of references and of `fluxgraph compare` too: each must be
+// refused with an InputError, and those whose header or structure claims more
+// than the file holds by the size checks, before anything is allocated at the
+// claimed size.
+TEST(ImageIo, DamagedImagesAreRefusedBeforeTheirClaimedSizesAreAllocated) {
+    const fs::path regressions = fs::path(FLUXGRAPH_SOURCE_DIR) / "tests" / "fuzz" / "regressions" / "image";
+    std::size_t checked = 0;
+    for (const fs::directory_entry& entry : fs::directory_iterator(regressions)) {
+        const std::string name = entry.path().filename().string();
+        if (name.rfind("bad-", 0) != 0) continue;
+        const bool sizeClaim = name.find("attribute") != std::string::npos || name.find("huge") != std::string::npos ||
+                               name.find("chunk") != std::string::npos || name.find("claims") != std::string::npos;
+        for (const bool linear : {false, true}) {
+            SCOPED_TRACE(name + (linear ? " (readImageLinear)" : " (readExr)"));
+            try {
+                if (linear)
+                    readImageLinear(entry.path().string());
+                else
+                    readExr(entry.path().string());
+                ADD_FAILURE() << "accepted";
+            } catch (const InputError& error) {
+                const std::string message = error.what();
+                if (sizeClaim) {
+                    EXPECT_TRUE(message.find("more than the file holds") != std::string::npos ||
+                                message.find("over the limit") != std::string::npos ||
+                                message.find("bytes of data, the file has") != std::string::npos)
+                        << message;
+                }
+            }
+        }
+        ++checked;
+    }
+    EXPECT_GE(checked, 10u);
 }
 
 }  // namespace
