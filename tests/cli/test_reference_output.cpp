@@ -4,6 +4,7 @@
 #include "engine/core/error.h"
 #include "engine/image/image_io.h"
 #include "engine/core/job.h"
+#include "tests/support/cli_helpers.h"
 
 #include <OpenImageIO/imageio.h>
 #include <gtest/gtest.h>
@@ -21,13 +22,7 @@ namespace {
 
 namespace fs = std::filesystem;
 
-fs::path scratchDirectory() {
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    const fs::path dir = fs::path(FLUXGRAPH_TEST_TMP) / "reference-output" / info->name();
-    fs::remove_all(dir);
-    fs::create_directories(dir);
-    return dir;
-}
+fs::path scratchDirectory() { return test::scratchDirectory("reference-output"); }
 
 TEST(ReferenceOutput, HalfIsParsedAndOffByDefault) {
     const std::string base = "scene = \"s.toml\"\npipeline = \"pt\"\n";

@@ -44,7 +44,7 @@ void writeText(const fs::path& path, const std::string& text) {
 
 fs::path scratchDirectory(const std::string& group) {
     const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    const fs::path dir = fs::path(FLUXGRAPH_TEST_TMP) / group / info->name();
+    const fs::path dir = fs::path(FLUXGRAPH_TEST_TMP) / group / (std::string(info->test_suite_name()) + "." + info->name());
     fs::remove_all(dir);
     fs::create_directories(dir);
     return dir;

@@ -18,8 +18,8 @@ std::string readText(const std::filesystem::path& path);
 // Writes `text` to `path`, making its directory if needed (a failed write fails
 // the calling test).
 void writeText(const std::filesystem::path& path, const std::string& text);
-// A fresh, empty directory FLUXGRAPH_TEST_TMP/<group>/<test name> (ctest runs
-// tests as separate processes, in parallel).
+// A fresh, empty directory FLUXGRAPH_TEST_TMP/<group>/<suite>.<test name> (ctest
+// runs tests as separate processes, in parallel).
 std::filesystem::path scratchDirectory(const std::string& group);
 // Runs the binary with `dir` as working directory, so that anything written to
 // a relative path lands in the scratch directory; stdout and stderr are

@@ -9,6 +9,7 @@
 #include "engine/buffers/photon_buffers.h"
 #include "engine/core/error.h"
 #include "engine/image/film.h"
+#include "tests/support/cli_helpers.h"
 
 #include <gtest/gtest.h>
 
@@ -29,14 +30,7 @@ namespace {
 namespace fs = std::filesystem;
 
 // A fresh, empty directory per test.
-fs::path scratchDirectory() {
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    const fs::path dir =
-        fs::path(FLUXGRAPH_TEST_TMP) / "codec" / (std::string(info->test_suite_name()) + "." + info->name());
-    fs::remove_all(dir);
-    fs::create_directories(dir);
-    return dir;
-}
+fs::path scratchDirectory() { return test::scratchDirectory("codec"); }
 
 std::string readBytes(const fs::path& path) {
     std::ifstream in(path, std::ios::binary);

@@ -6,6 +6,7 @@
 #include "engine/image/image_compare.h"
 
 #include "engine/core/error.h"
+#include "tests/support/cli_helpers.h"
 
 #include <gtest/gtest.h>
 
@@ -19,13 +20,7 @@ namespace {
 
 namespace fs = std::filesystem;
 
-fs::path scratchDirectory() {
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    const fs::path dir = fs::path(FLUXGRAPH_TEST_TMP) / "image_compare" / info->name();
-    fs::remove_all(dir);
-    fs::create_directories(dir);
-    return dir;
-}
+fs::path scratchDirectory() { return test::scratchDirectory("image_compare"); }
 
 ImageChannels filled(int width, int height, const Rgb& value) {
     ImageChannels image;

@@ -2,6 +2,7 @@
 
 #include "engine/core/error.h"
 #include "engine/image/image_compare.h"
+#include "tests/support/cli_helpers.h"
 
 #include <OpenImageIO/imageio.h>
 #include <gtest/gtest.h>
@@ -19,13 +20,7 @@ namespace {
 namespace fs = std::filesystem;
 
 // A fresh, empty directory per test.
-fs::path scratchDirectory() {
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    const fs::path dir = fs::path(FLUXGRAPH_TEST_TMP) / "image_io" / info->name();
-    fs::remove_all(dir);
-    fs::create_directories(dir);
-    return dir;
-}
+fs::path scratchDirectory() { return test::scratchDirectory("image_io"); }
 
 std::vector<std::string> listDirectory(const fs::path& dir) {
     std::vector<std::string> names;

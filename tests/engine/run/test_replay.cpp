@@ -8,6 +8,7 @@
 #include "engine/core/error.h"
 #include "engine/core/job.h"
 #include "engine/core/render.h"
+#include "tests/support/cli_helpers.h"
 
 #include <gtest/gtest.h>
 
@@ -25,13 +26,7 @@ namespace fs = std::filesystem;
 
 std::string sourcePath(const std::string& relative) { return (fs::path(FLUXGRAPH_SOURCE_DIR) / relative).string(); }
 
-fs::path scratchDirectory() {
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    const fs::path dir = fs::path(FLUXGRAPH_TEST_TMP) / "replay" / info->name();
-    fs::remove_all(dir);
-    fs::create_directories(dir);
-    return dir;
-}
+fs::path scratchDirectory() { return test::scratchDirectory("replay"); }
 
 Job smallJob(const std::string& relativePath, std::vector<std::string> sets) {
     JobOverrides overrides;

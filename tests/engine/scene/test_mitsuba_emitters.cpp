@@ -3,6 +3,7 @@
 #include "engine/core/error.h"
 #include "engine/image/image_io.h"
 #include "engine/scene/scene_xml.h"
+#include "tests/support/cli_helpers.h"
 
 #include <gtest/gtest.h>
 
@@ -16,17 +17,10 @@ namespace {
 
 namespace fs = std::filesystem;
 
-fs::path scratchDir() {
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    const fs::path dir =
-        fs::path(FLUXGRAPH_TEST_TMP) / "mitsuba_emitters" / (std::string(info->test_suite_name()) + "." + info->name());
-    fs::remove_all(dir);
-    fs::create_directories(dir);
-    return dir;
-}
+fs::path scratchDir() { return test::scratchDirectory("mitsuba_emitters"); }
 
 fs::path writeFile(const fs::path& path, const std::string& text) {
-    std::ofstream(path) << text;
+    test::writeText(path, text);
     return path;
 }
 

@@ -7,6 +7,7 @@
 #include "engine/scene/scene_xml.h"
 #include "engine/shading/light.h"
 #include "tests/support/chi2.h"
+#include "tests/support/cli_helpers.h"
 
 #include <glm/gtc/matrix_transform.hpp>
 #include <gtest/gtest.h>
@@ -24,18 +25,10 @@ namespace {
 
 namespace fs = std::filesystem;
 
-fs::path scratchDir() {
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    const fs::path dir =
-        fs::path(FLUXGRAPH_TEST_TMP) / "mitsuba_shapes" / (std::string(info->test_suite_name()) + "." + info->name());
-    fs::remove_all(dir);
-    fs::create_directories(dir);
-    return dir;
-}
+fs::path scratchDir() { return test::scratchDirectory("mitsuba_shapes"); }
 
 fs::path writeFile(const fs::path& path, const std::string& text) {
-    fs::create_directories(path.parent_path());
-    std::ofstream(path, std::ios::binary) << text;
+    test::writeText(path, text);
     return path;
 }
 

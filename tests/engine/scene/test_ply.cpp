@@ -2,6 +2,7 @@
 // attributes and winding; damaged or non-mesh files are errors naming the file.
 #include "engine/core/error.h"
 #include "engine/scene/shape.h"
+#include "tests/support/cli_helpers.h"
 
 #include <gtest/gtest.h>
 
@@ -23,13 +24,7 @@ namespace {
 
 namespace fs = std::filesystem;
 
-fs::path scratchDir() {
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    const fs::path dir = fs::path(FLUXGRAPH_TEST_TMP) / "ply" / (std::string(info->test_suite_name()) + "." + info->name());
-    fs::remove_all(dir);
-    fs::create_directories(dir);
-    return dir;
-}
+fs::path scratchDir() { return test::scratchDirectory("ply"); }
 
 // A unit square in the z = 1 plane as one quad plus a triangle hanging below it,
 // with normals and texture coordinates.

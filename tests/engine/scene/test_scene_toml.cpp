@@ -4,6 +4,7 @@
 #include "engine/accel/ray_query.h"
 #include "engine/scene/scene_loader.h"
 #include "engine/shading/bsdf.h"
+#include "tests/support/cli_helpers.h"
 
 #include <gtest/gtest.h>
 
@@ -21,13 +22,7 @@ const std::string kCornellBox = std::string(FLUXGRAPH_SOURCE_DIR) + "/data/corne
 const std::string kMediumBox = std::string(FLUXGRAPH_SOURCE_DIR) + "/data/medium-box/medium-box.toml";
 
 // A fresh directory per test under the build tree's test scratch space.
-fs::path scratchDir() {
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    const fs::path dir = fs::path(FLUXGRAPH_TEST_TMP) / "scene_toml" / (std::string(info->test_suite_name()) + "." + info->name());
-    fs::remove_all(dir);
-    fs::create_directories(dir);
-    return dir;
-}
+fs::path scratchDir() { return test::scratchDirectory("scene_toml"); }
 
 void writeFile(const fs::path& path, const std::string& text) {
     fs::create_directories(path.parent_path());

@@ -11,6 +11,7 @@
 #include "engine/scene/scene_toml.h"
 #include "engine/scene/spectrum.h"
 #include "tests/support/render_helpers.h"
+#include "tests/support/cli_helpers.h"
 
 #include <glm/gtc/matrix_transform.hpp>
 #include <gtest/gtest.h>
@@ -34,17 +35,10 @@ const std::string kTomlCornellBox = std::string(FLUXGRAPH_SOURCE_DIR) + "/data/c
                      << " (the shared scenes checkout next to the repository)";                            \
     }
 
-fs::path scratchDir() {
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    const fs::path dir = fs::path(FLUXGRAPH_TEST_TMP) / "scene_xml" / (std::string(info->test_suite_name()) + "." + info->name());
-    fs::remove_all(dir);
-    fs::create_directories(dir);
-    return dir;
-}
+fs::path scratchDir() { return test::scratchDirectory("scene_xml"); }
 
 fs::path writeFile(const fs::path& path, const std::string& text) {
-    fs::create_directories(path.parent_path());
-    std::ofstream(path) << text;
+    test::writeText(path, text);
     return path;
 }
 

@@ -8,6 +8,7 @@
 #include "engine/scene/spectrum.h"
 #include "engine/shading/bsdf.h"
 #include "tests/support/render_helpers.h"
+#include "tests/support/cli_helpers.h"
 
 #include <gtest/gtest.h>
 
@@ -23,18 +24,10 @@ namespace {
 
 namespace fs = std::filesystem;
 
-fs::path scratchDir() {
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    const fs::path dir =
-        fs::path(FLUXGRAPH_TEST_TMP) / "scene_xml_materials" / (std::string(info->test_suite_name()) + "." + info->name());
-    fs::remove_all(dir);
-    fs::create_directories(dir);
-    return dir;
-}
+fs::path scratchDir() { return test::scratchDirectory("scene_xml_materials"); }
 
 fs::path writeFile(const fs::path& path, const std::string& text) {
-    fs::create_directories(path.parent_path());
-    std::ofstream(path) << text;
+    test::writeText(path, text);
     return path;
 }
 
