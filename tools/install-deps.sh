@@ -4,7 +4,7 @@ set -euo pipefail
 packages=(
   build-essential cmake pkg-config
   libembree-dev libtbb-dev libopenimageio-dev libopenexr-dev libglm-dev
-  libtomlplusplus-dev libtinyobjloader-dev libpugixml-dev libassimp-dev libcli11-dev zlib1g-dev
+  libtomlplusplus-dev libtinyobjloader-dev libpugixml-dev libcli11-dev zlib1g-dev
   libgtest-dev libbenchmark-dev python3 python3-numpy python3-skimage python3-matplotlib
   slurm-wlm munge   # the Slurm test's local cluster (tools/slurm_local.sh)
   clang libfuzzer-14-dev   # tools/test.sh --sanitize: ASan/UBSan build and fuzz targets (clang 14)

@@ -1,31 +1,32 @@
-// Stanford PLY meshes (Turk 1994; ASCII, binary little- and big-endian)
-// through the Open Asset Import Library. Assimp does the parse because it
-// reads every property layout and list encoding; but it trusts the header: a
-// header without end_header makes its parser loop forever (or, in a binary
-// file, read out of bounds), and a huge element count makes it allocate for
-// that count before it notices the file is short. So the header is checked
-// here first: magic, end_header within a bound, known format and property
-// types, and element counts that the file's size can hold. Only a file that
-// passes is given to Assimp.
-// Assimp only parses and validates (indices in range): its other
-// post-processing steps assert, and abort the program, on legal but
-// degenerate input such as an empty face. Polygons are therefore
-// fan-triangulated here (as convex, like Mitsuba's loader does with quads)
-// and faces with fewer than three corners are errors. Normals and texture
-// coordinates are kept only when every vertex has them.
+// Stanford PLY meshes (Turk 1994; ASCII, binary little- and big-endian), read
+// here rather than through a library. Debian's only PLY reader was Assimp's,
+// and fuzzing showed it unfit for files from elsewhere: it trusts the header
+// (a missing end_header made it loop, a huge count allocate gigabytes, a list
+// count of 40 digits 19 GB), and on one fuzzed file it corrupted the heap
+// (AddressSanitizer's allocator found its own metadata overwritten). It also
+// drops vertex colours. The format is small: a header of elements with typed
+// scalar and list properties, then the records in that order.
+//
+// Every size is checked before it is used: the header must end within 64 KiB
+// with a bare end_header, element counts must fit the file's size, and a list's
+// items are read one by one (never reserved by their count), so a file can
+// cost no more memory than its own size in vertices and indices. Polygons are
+// fan-triangulated (as convex, like Mitsuba's loader does with quads); faces
+// with fewer than three corners are errors. Normals, texture coordinates and
+// colours are kept when the vertex element has them.
 #include "engine/core/error.h"
 #include "engine/scene/shape.h"
 
-#include <assimp/Importer.hpp>
-#include <assimp/postprocess.h>
-#include <assimp/scene.h>
-
 #include <algorithm>
+#include <array>
+#include <bit>
 #include <charconv>
 #include <cstdint>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <limits>
 #include <optional>
 #include <sstream>
 #include <string_view>
@@ -39,85 +40,91 @@ namespace {
 // without end_header from being scanned to its end as header text.
 constexpr std::size_t kMaxHeaderBytes = 64 * 1024;
 
-// Size in bytes of a PLY scalar type (both the 1994 names and the sized aliases).
-std::optional<std::uint64_t> scalarSize(std::string_view type) {
-    if (type == "char" || type == "uchar" || type == "int8" || type == "uint8") return 1;
-    if (type == "short" || type == "ushort" || type == "int16" || type == "uint16") return 2;
-    if (type == "int" || type == "uint" || type == "int32" || type == "uint32" || type == "float" || type == "float32")
-        return 4;
-    if (type == "double" || type == "float64") return 8;
+enum class PlyScalar { Int8, Uint8, Int16, Uint16, Int32, Uint32, Float32, Float64 };
+
+// The PLY scalar types by name (both the 1994 names and the sized aliases).
+std::optional<PlyScalar> scalarType(std::string_view type) {
+    if (type == "char" || type == "int8") return PlyScalar::Int8;
+    if (type == "uchar" || type == "uint8") return PlyScalar::Uint8;
+    if (type == "short" || type == "int16") return PlyScalar::Int16;
+    if (type == "ushort" || type == "uint16") return PlyScalar::Uint16;
+    if (type == "int" || type == "int32") return PlyScalar::Int32;
+    if (type == "uint" || type == "uint32") return PlyScalar::Uint32;
+    if (type == "float" || type == "float32") return PlyScalar::Float32;
+    if (type == "double" || type == "float64") return PlyScalar::Float64;
     return std::nullopt;
 }
 
-bool isIntegerType(std::string_view type) {
-    return type != "float" && type != "float32" && type != "double" && type != "float64";
+std::uint64_t scalarBytes(PlyScalar type) {
+    switch (type) {
+        case PlyScalar::Int8:
+        case PlyScalar::Uint8: return 1;
+        case PlyScalar::Int16:
+        case PlyScalar::Uint16: return 2;
+        case PlyScalar::Int32:
+        case PlyScalar::Uint32:
+        case PlyScalar::Float32: return 4;
+        case PlyScalar::Float64: return 8;
+    }
+    return 1;
 }
+
+bool isInteger(PlyScalar type) { return type != PlyScalar::Float32 && type != PlyScalar::Float64; }
+
+// The largest value of an unsigned integer type: colours stored as integers
+// are fractions of it.
+double integerRange(PlyScalar type) {
+    switch (type) {
+        case PlyScalar::Uint8: return 255.0;
+        case PlyScalar::Uint16: return 65535.0;
+        case PlyScalar::Uint32: return 4294967295.0;
+        case PlyScalar::Int8: return 127.0;
+        case PlyScalar::Int16: return 32767.0;
+        case PlyScalar::Int32: return 2147483647.0;
+        default: return 1.0;
+    }
+}
+
+struct PlyProperty {
+    std::string name;
+    PlyScalar type = PlyScalar::Float32;  // of the items, for a list
+    bool isList = false;
+    PlyScalar countType = PlyScalar::Uint8;
+};
 
 struct PlyElement {
     std::string name;
     std::uint64_t count = 0;
     int line = 0;
-    std::uint64_t fixedBytes = 0;  // scalars, plus the count field of each list (its items vary)
-    std::uint64_t valueCount = 0;  // scalars and lists (at least their count) per record
-    std::vector<bool> propertyIsList;  // per property, in the order of the header
+    std::vector<PlyProperty> properties;
+
+    // Bytes of a binary record's fixed part: its scalars and the count field of each list.
+    std::uint64_t fixedBytes() const {
+        std::uint64_t bytes = 0;
+        for (const PlyProperty& p : properties) bytes += scalarBytes(p.isList ? p.countType : p.type);
+        return bytes;
+    }
+    std::optional<std::size_t> find(std::string_view propertyName) const {
+        for (std::size_t i = 0; i < properties.size(); ++i)
+            if (properties[i].name == propertyName) return i;
+        return std::nullopt;
+    }
 };
 
-// Walks an ASCII body value by value along the header's elements and
-// properties. Assimp reserves a list's items by the count it reads, so a
-// count of 40 digits would be a 19 GB allocation before the data is found
-// missing; here every list count must be an integer no larger than the
-// number of values the rest of the file could still hold.
-void checkPlyAsciiBody(std::string_view body, const std::vector<PlyElement>& elements, const std::string& path) {
-    std::size_t position = 0;
-    const auto isSpace = [](char c) { return c == ' ' || c == '\t' || c == '\n' || c == '\r' || c == '\v' || c == '\f'; };
-    const auto nextValue = [&]() -> std::optional<std::string_view> {
-        while (position < body.size() && isSpace(body[position])) ++position;
-        if (position == body.size()) return std::nullopt;
-        const std::size_t start = position;
-        while (position < body.size() && !isSpace(body[position])) ++position;
-        return body.substr(start, position - start);
-    };
-    // Assimp reads an ASCII body as C text: a NUL ends its values where this
-    // walk would not, so the two would disagree on which value is a count.
-    for (std::size_t offset = 0; offset < body.size(); ++offset) {
-        const auto byte = static_cast<unsigned char>(body[offset]);
-        if ((byte < 0x20 && !isSpace(body[offset])) || byte >= 0x7f) {
-            throw InputError(path, 0, "PLY ascii data holds the byte 0x" + std::string(1, "0123456789abcdef"[byte >> 4]) +
-                                          std::string(1, "0123456789abcdef"[byte & 15]) + " at data offset " +
-                                          std::to_string(offset) + ", which is not text");
-        }
-    }
-    for (const PlyElement& element : elements) {
-        for (std::uint64_t record = 0; record < element.count; ++record) {
-            for (const bool isList : element.propertyIsList) {
-                const std::optional<std::string_view> value = nextValue();
-                const auto where = [&] { return "PLY element '" + element.name + "' record " + std::to_string(record); };
-                if (!value) throw InputError(path, element.line, where() + ": the file ends before its values do");
-                if (!isList) continue;
-                std::uint64_t items = 0;
-                const auto [end, error] = std::from_chars(value->data(), value->data() + value->size(), items);
-                // Every further value takes at least one character and a separator.
-                const std::uint64_t room = (body.size() - position) / 2 + 1;
-                if (error != std::errc() || end != value->data() + value->size() || items > room) {
-                    throw InputError(path, element.line,
-                                     where() + ": list count '" + std::string(value->substr(0, 24)) +
-                                         (value->size() > 24 ? "..." : "") + "' is not a count the file can hold");
-                }
-                for (std::uint64_t item = 0; item < items; ++item) {
-                    if (!nextValue()) throw InputError(path, element.line, where() + ": the file ends inside a list");
-                }
-            }
-        }
-    }
-}
+struct PlyHeader {
+    bool ascii = false;
+    bool bigEndian = false;
+    std::vector<PlyElement> elements;
+    std::size_t bodyOffset = 0;
+};
 
-// Checks the header of `data` (which starts with "ply") and that the element
-// counts fit the file's size; throws an InputError naming path:line otherwise.
-void checkPlyHeader(const std::string& data, const std::string& path) {
+// Parses the header of `data` (which starts with "ply") and checks that the
+// element counts fit the file's size; throws an InputError naming path:line otherwise.
+PlyHeader parsePlyHeader(const std::string& data, const std::string& path) {
     std::size_t position = 0;
     int line = 0;
     std::string format;
-    std::vector<PlyElement> elements;
+    PlyHeader header;
     bool ended = false;
     while (!ended) {
         const std::size_t newline = std::string_view(data).substr(0, kMaxHeaderBytes).find('\n', position);
@@ -154,28 +161,27 @@ void checkPlyHeader(const std::string& data, const std::string& path) {
                 fail("PLY element '" + element.name + "' has an impossibly large count " + count);
             if (error != std::errc() || end != count.data() + count.size())
                 fail("PLY element '" + element.name + "' has a count that is not a non-negative integer: '" + count + "'");
-            elements.push_back(element);
+            header.elements.push_back(element);
         } else if (keyword == "property") {
-            if (elements.empty()) fail("PLY property before any element");
-            PlyElement& element = elements.back();
+            if (header.elements.empty()) fail("PLY property before any element");
+            PlyProperty property;
             if (!rest.empty() && rest[0] == "list") {
                 if (rest.size() != 4) fail("PLY list property must be 'property list <count type> <item type> <name>'");
-                const std::optional<std::uint64_t> countSize = scalarSize(rest[1]);
-                if (!countSize || !isIntegerType(rest[1])) fail("PLY list count type must be an integer type, not '" + rest[1] + "'");
-                if (!scalarSize(rest[2])) fail("unknown PLY property type '" + rest[2] + "'");
-                element.fixedBytes += *countSize;
-                element.propertyIsList.push_back(true);
+                const std::optional<PlyScalar> countType = scalarType(rest[1]);
+                if (!countType || !isInteger(*countType))
+                    fail("PLY list count type must be an integer type, not '" + rest[1] + "'");
+                const std::optional<PlyScalar> itemType = scalarType(rest[2]);
+                if (!itemType) fail("unknown PLY property type '" + rest[2] + "'");
+                property = PlyProperty{rest[3], *itemType, true, *countType};
             } else {
                 if (rest.size() != 2) fail("PLY property line must be 'property <type> <name>'");
-                const std::optional<std::uint64_t> size = scalarSize(rest[0]);
-                if (!size) fail("unknown PLY property type '" + rest[0] + "'");
-                element.fixedBytes += *size;
-                element.propertyIsList.push_back(false);
+                const std::optional<PlyScalar> type = scalarType(rest[0]);
+                if (!type) fail("unknown PLY property type '" + rest[0] + "'");
+                property = PlyProperty{rest[1], *type, false, PlyScalar::Uint8};
             }
-            ++element.valueCount;
+            header.elements.back().properties.push_back(property);
         } else if (keyword == "end_header") {
-            // Only a bare end_header: with other bytes after it on the line
-            // (end_header\v...), Assimp's parser does not stop.
+            // Only a bare end_header (some parsers do not stop at end_header\v...).
             if (text.find_last_not_of(' ') + 1 != std::string_view("end_header").size() || text.find("end_header") != 0)
                 fail("PLY end_header line must hold nothing else");
             ended = true;
@@ -184,18 +190,21 @@ void checkPlyHeader(const std::string& data, const std::string& path) {
         }
     }
     if (format.empty()) throw InputError(path, 0, "PLY header has no format line");
+    header.ascii = format == "ascii";
+    header.bigEndian = format == "binary_big_endian";
+    header.bodyOffset = position;
 
     // The smallest body the header allows: in binary the fixed part of every
     // record; in ASCII every value takes at least one character and a separator
     // (the last one may end the file without its separator).
     const std::uint64_t bodyBytes = data.size() - position;
-    const bool ascii = format == "ascii";
-    const std::uint64_t available = bodyBytes + (ascii ? 1 : 0);
+    const std::uint64_t available = bodyBytes + (header.ascii ? 1 : 0);
     std::uint64_t needed = 0;
-    for (const PlyElement& element : elements) {
+    for (const PlyElement& element : header.elements) {
         // An element without properties still counts a byte per record, so that
         // its count is bounded too.
-        const std::uint64_t recordBytes = std::max<std::uint64_t>(1, ascii ? 2 * element.valueCount : element.fixedBytes);
+        const std::uint64_t recordBytes =
+            std::max<std::uint64_t>(1, header.ascii ? 2 * element.properties.size() : element.fixedBytes());
         if (element.count > available / recordBytes || needed + element.count * recordBytes > available) {
             throw InputError(path, element.line,
                              "PLY element '" + element.name + "' has " + std::to_string(element.count) +
@@ -203,7 +212,131 @@ void checkPlyHeader(const std::string& data, const std::string& path) {
         }
         needed += element.count * recordBytes;
     }
-    if (ascii) checkPlyAsciiBody(std::string_view(data).substr(position), elements, path);
+    return header;
+}
+
+// Reads the body's values one at a time, as text or as binary scalars of
+// either byte order; every read is bounded by the end of the data.
+class PlyBodyReader {
+public:
+    PlyBodyReader(std::string_view body, const PlyHeader& header, const std::string& path)
+        : body_(body), ascii_(header.ascii), swap_(header.bigEndian != (std::endian::native == std::endian::big)),
+          path_(path) {}
+
+    void startRecord(const PlyElement& element, std::uint64_t record) {
+        element_ = &element;
+        record_ = record;
+    }
+
+    double scalar(PlyScalar type) { return ascii_ ? textValue(type) : binaryValue(type); }
+
+    // A list's item count: a non-negative integer no larger than the number of
+    // items the rest of the data could still hold.
+    std::uint64_t listCount(PlyScalar countType, PlyScalar itemType) {
+        const double count = scalar(countType);
+        const std::uint64_t room = ascii_ ? (body_.size() - position_) / 2 + 1 : (body_.size() - position_) / scalarBytes(itemType);
+        if (!(count >= 0.0) || count > static_cast<double>(room))
+            fail("list count " + std::to_string(static_cast<long long>(count)) + " is more than the file can hold");
+        return static_cast<std::uint64_t>(count);
+    }
+
+private:
+    [[noreturn]] void fail(const std::string& what) const {
+        throw InputError(path_, element_->line,
+                         "cannot parse PLY file: element '" + element_->name + "' record " + std::to_string(record_) + ": " + what);
+    }
+
+    double textValue(PlyScalar type) {
+        const auto isSpace = [](char c) { return c == ' ' || c == '\t' || c == '\n' || c == '\r' || c == '\v' || c == '\f'; };
+        while (position_ < body_.size() && isSpace(body_[position_])) ++position_;
+        if (position_ == body_.size()) fail("the file ends before its values do");
+        const std::size_t start = position_;
+        while (position_ < body_.size() && !isSpace(body_[position_])) ++position_;
+        const std::string_view token = body_.substr(start, position_ - start);
+        const auto printable = [&] {
+            std::string shown;
+            for (char c : token.substr(0, 24)) shown += (c >= 0x20 && c < 0x7f) ? c : '?';
+            return "'" + shown + (token.size() > 24 ? "...'" : "'");
+        };
+        if (isInteger(type)) {
+            long long value = 0;
+            const auto [end, error] = std::from_chars(token.data(), token.data() + token.size(), value);
+            if (error != std::errc() || end != token.data() + token.size()) fail(printable() + " is not an integer");
+            return static_cast<double>(value);
+        }
+        double value = 0.0;
+        const auto [end, error] = std::from_chars(token.data(), token.data() + token.size(), value);
+        if (error != std::errc() || end != token.data() + token.size()) fail(printable() + " is not a number");
+        return value;
+    }
+
+    template <typename T>
+    T readBinary() {
+        if (body_.size() - position_ < sizeof(T)) fail("the file ends before its values do");
+        std::array<char, sizeof(T)> bytes;
+        std::memcpy(bytes.data(), body_.data() + position_, sizeof(T));
+        position_ += sizeof(T);
+        if (swap_) std::reverse(bytes.begin(), bytes.end());
+        return std::bit_cast<T>(bytes);
+    }
+
+    double binaryValue(PlyScalar type) {
+        switch (type) {
+            case PlyScalar::Int8: return readBinary<std::int8_t>();
+            case PlyScalar::Uint8: return readBinary<std::uint8_t>();
+            case PlyScalar::Int16: return readBinary<std::int16_t>();
+            case PlyScalar::Uint16: return readBinary<std::uint16_t>();
+            case PlyScalar::Int32: return readBinary<std::int32_t>();
+            case PlyScalar::Uint32: return readBinary<std::uint32_t>();
+            case PlyScalar::Float32: return readBinary<float>();
+            case PlyScalar::Float64: return readBinary<double>();
+        }
+        return 0.0;
+    }
+
+    std::string_view body_;
+    std::size_t position_ = 0;
+    bool ascii_;
+    bool swap_;
+    const std::string& path_;
+    const PlyElement* element_ = nullptr;
+    std::uint64_t record_ = 0;
+};
+
+// Where the vertex attributes sit among the vertex element's properties.
+struct VertexLayout {
+    std::array<std::size_t, 3> position{};
+    std::optional<std::array<std::size_t, 3>> normal;
+    std::optional<std::array<std::size_t, 2>> uv;
+    std::optional<std::array<std::size_t, 3>> color;
+};
+
+template <std::size_t N>
+std::optional<std::array<std::size_t, N>> findAll(const PlyElement& element, const std::array<std::string_view, N>& names) {
+    std::array<std::size_t, N> found{};
+    for (std::size_t i = 0; i < N; ++i) {
+        const std::optional<std::size_t> index = element.find(names[i]);
+        if (!index || element.properties[*index].isList) return std::nullopt;
+        found[i] = *index;
+    }
+    return found;
+}
+
+VertexLayout vertexLayout(const PlyElement& vertices, const std::string& path) {
+    VertexLayout layout;
+    const auto position = findAll<3>(vertices, {"x", "y", "z"});
+    if (!position) throw InputError(path, vertices.line, "PLY vertex element has no x, y and z properties");
+    layout.position = *position;
+    layout.normal = findAll<3>(vertices, {"nx", "ny", "nz"});
+    // The names exporters use for texture coordinates, in order of preference.
+    for (const auto& names : {std::array<std::string_view, 2>{"u", "v"}, std::array<std::string_view, 2>{"s", "t"},
+                              std::array<std::string_view, 2>{"texture_u", "texture_v"},
+                              std::array<std::string_view, 2>{"texture_s", "texture_t"}}) {
+        if ((layout.uv = findAll<2>(vertices, names))) break;
+    }
+    layout.color = findAll<3>(vertices, {"red", "green", "blue"});
+    if (!layout.color) layout.color = findAll<3>(vertices, {"r", "g", "b"});
+    return layout;
 }
 
 }  // namespace
@@ -218,57 +351,85 @@ TriangleMesh loadPlyMesh(const std::string& path) {
     if (data.size() < 4 || data.compare(0, 3, "ply") != 0 || (data[3] != '\n' && data[3] != '\r')) {
         throw InputError(path, 0, "not a PLY file (it must start with the line 'ply')");
     }
-    checkPlyHeader(data, path);
+    const PlyHeader header = parsePlyHeader(data, path);
 
-    Assimp::Importer importer;
-    const unsigned flags = aiProcess_ValidateDataStructure;
-    const aiScene* scene = importer.ReadFileFromMemory(data.data(), data.size(), flags, "ply");
-    if (!scene) throw InputError(path, 0, std::string("cannot parse PLY file: ") + importer.GetErrorString());
-    if (scene->mNumMeshes == 0) throw InputError(path, 0, "PLY file contains no faces");
+    const PlyElement* vertexElement = nullptr;
+    for (const PlyElement& element : header.elements)
+        if (element.name == "vertex" && !vertexElement) vertexElement = &element;
+    if (!vertexElement) throw InputError(path, 0, "PLY file has no vertex element");
+    const VertexLayout layout = vertexLayout(*vertexElement, path);
 
-    bool allNormals = true, allUvs = true;
-    for (unsigned m = 0; m < scene->mNumMeshes; ++m) {
-        const aiMesh* mesh = scene->mMeshes[m];
-        allNormals = allNormals && mesh->HasNormals();
-        allUvs = allUvs && mesh->HasTextureCoords(0);
-    }
-
-    TriangleMesh result;
-    for (unsigned m = 0; m < scene->mNumMeshes; ++m) {
-        const aiMesh* mesh = scene->mMeshes[m];
-        const auto base = static_cast<std::uint32_t>(result.positions.size());
-        for (unsigned v = 0; v < mesh->mNumVertices; ++v) {
-            const aiVector3D& p = mesh->mVertices[v];
-            result.positions.emplace_back(p.x, p.y, p.z);
-            if (allNormals) {
-                const aiVector3D& n = mesh->mNormals[v];
-                const Vec3 normal(n.x, n.y, n.z);
+    TriangleMesh mesh;
+    std::vector<double> values;
+    std::vector<std::uint32_t> corners;
+    PlyBodyReader reader(std::string_view(data).substr(header.bodyOffset), header, path);
+    std::uint64_t faceCount = 0;
+    for (const PlyElement& element : header.elements) {
+        const bool isVertex = &element == vertexElement;
+        const bool isFace = element.name == "face";
+        // The face's list of corner indices; other elements have none.
+        std::size_t indexList = element.properties.size();
+        if (isFace) {
+            std::optional<std::size_t> found = element.find("vertex_indices");
+            if (!found) found = element.find("vertex_index");
+            if (found && element.properties[*found].isList) indexList = *found;
+        }
+        values.resize(element.properties.size());
+        for (std::uint64_t record = 0; record < element.count; ++record) {
+            reader.startRecord(element, record);
+            for (std::size_t p = 0; p < element.properties.size(); ++p) {
+                const PlyProperty& property = element.properties[p];
+                if (!property.isList) {
+                    values[p] = reader.scalar(property.type);
+                    continue;
+                }
+                const std::uint64_t items = reader.listCount(property.countType, property.type);
+                const bool isIndices = p == indexList;
+                if (isIndices) corners.clear();
+                for (std::uint64_t item = 0; item < items; ++item) {
+                    const double value = reader.scalar(property.type);
+                    if (!isIndices) continue;
+                    if (!(value >= 0.0) || value >= static_cast<double>(vertexElement->count))
+                        throw InputError(path, element.line, "PLY face " + std::to_string(record) + " refers to a vertex that does not exist");
+                    corners.push_back(static_cast<std::uint32_t>(value));
+                }
+                if (!isIndices) continue;
+                if (corners.size() < 3) {
+                    throw InputError(path, element.line, "face " + std::to_string(record) + " has " +
+                                                             std::to_string(corners.size()) +
+                                                             " corners; only polygon meshes are supported");
+                }
+                for (std::size_t c = 1; c + 1 < corners.size(); ++c) {
+                    mesh.indices.push_back(corners[0]);
+                    mesh.indices.push_back(corners[c]);
+                    mesh.indices.push_back(corners[c + 1]);
+                }
+                ++faceCount;
+            }
+            if (!isVertex) continue;
+            const auto vec3 = [&](const std::array<std::size_t, 3>& at) {
+                return Vec3(static_cast<float>(values[at[0]]), static_cast<float>(values[at[1]]),
+                            static_cast<float>(values[at[2]]));
+            };
+            const Vec3 position = vec3(layout.position);
+            if (!isFinite(position))
+                throw InputError(path, element.line, "PLY file contains a vertex position that is not a finite number");
+            mesh.positions.push_back(position);
+            if (layout.normal) {
+                const Vec3 normal = vec3(*layout.normal);
                 const float length = glm::length(normal);
-                result.normals.push_back(length > 0.0f ? normal / length : normal);
+                mesh.normals.push_back(length > 0.0f ? normal / length : normal);
             }
-            if (allUvs) result.uvs.emplace_back(mesh->mTextureCoords[0][v].x, mesh->mTextureCoords[0][v].y);
-        }
-        for (unsigned f = 0; f < mesh->mNumFaces; ++f) {
-            const aiFace& face = mesh->mFaces[f];
-            if (face.mNumIndices < 3) {
-                throw InputError(path, 0, "face " + std::to_string(f) + " has " + std::to_string(face.mNumIndices) +
-                                              " corners; only polygon meshes are supported");
-            }
-            for (unsigned c = 0; c < face.mNumIndices; ++c) {
-                if (face.mIndices[c] >= mesh->mNumVertices) throw InputError(path, 0, "face refers to a vertex that does not exist");
-            }
-            for (unsigned c = 1; c + 1 < face.mNumIndices; ++c) {
-                result.indices.push_back(base + face.mIndices[0]);
-                result.indices.push_back(base + face.mIndices[c]);
-                result.indices.push_back(base + face.mIndices[c + 1]);
+            if (layout.uv)
+                mesh.uvs.emplace_back(static_cast<float>(values[(*layout.uv)[0]]), static_cast<float>(values[(*layout.uv)[1]]));
+            if (layout.color) {
+                const double scale = 1.0 / integerRange(element.properties[(*layout.color)[0]].type);
+                mesh.colors.push_back(vec3(*layout.color) * static_cast<float>(scale));
             }
         }
     }
-    if (result.indices.empty()) throw InputError(path, 0, "PLY file contains no faces");
-    for (const Vec3& p : result.positions) {
-        if (!isFinite(p)) throw InputError(path, 0, "PLY file contains a vertex position that is not a finite number");
-    }
-    return result;
+    if (faceCount == 0 || mesh.indices.empty()) throw InputError(path, 0, "PLY file contains no faces");
+    return mesh;
 }
 
 }  // namespace fg

@@ -19,6 +19,7 @@ struct TriangleMesh {
     std::vector<Vec3> positions;
     std::vector<Vec3> normals;  // per vertex, optional (empty: flat shading)
     std::vector<Vec2> uvs;      // per vertex, optional
+    std::vector<Rgb> colors;    // per vertex, optional (PLY red/green/blue)
     std::vector<std::uint32_t> indices;  // three per triangle
 
     std::size_t triangleCount() const { return indices.size() / 3; }

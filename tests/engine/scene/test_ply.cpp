@@ -130,6 +130,48 @@ TEST(PlyLoader, PositionsOnlyMeshHasNoAttributes) {
     EXPECT_TRUE(mesh.uvs.empty());
 }
 
+// Colours as integers are fractions of the type's range, as floats kept; texture
+// coordinates under the other names exporters use; elements other than vertex
+// and face, and properties the loader does not use, are read past.
+TEST(PlyLoader, ReadsColoursOtherUvNamesAndSkipsUnusedData) {
+    const fs::path dir = scratchDir();
+    const std::string text =
+        "ply\nformat ascii 1.0\nelement material 2\nproperty float shine\nproperty list uchar float tags\n"
+        "element vertex 3\nproperty float x\nproperty float y\nproperty float z\nproperty float s\n"
+        "property float t\nproperty uchar red\nproperty uchar green\nproperty uchar blue\nproperty float weight\n"
+        "element face 1\nproperty uchar flags\nproperty list uchar uint vertex_index\n"
+        "property list uchar float extra\nend_header\n"
+        "0.5 2 1 2\n0.25 0\n"
+        "0 0 0 0.1 0.2 255 0 51 7\n2 0 0 0.3 0.4 0 255 102 7\n0 2 0 0.5 0.6 17 34 0 7\n"
+        "9 3 0 1 2 1 0.5\n";
+    const TriangleMesh mesh = loadPlyMesh(write(dir / "colours.ply", text).string());
+    ASSERT_EQ(mesh.triangleCount(), 1u);
+    EXPECT_NEAR(mesh.area(), 2.0f, 1e-6f);
+    ASSERT_EQ(mesh.uvs.size(), 3u);
+    EXPECT_NEAR(glm::length(mesh.uvs[1] - Vec2(0.3f, 0.4f)), 0.0f, 1e-6f);
+    ASSERT_EQ(mesh.colors.size(), 3u);
+    EXPECT_NEAR(glm::length(mesh.colors[0] - Rgb(1.0f, 0.0f, 0.2f)), 0.0f, 1e-6f);
+    EXPECT_NEAR(glm::length(mesh.colors[2] - Rgb(1.0f / 15.0f, 2.0f / 15.0f, 0.0f)), 0.0f, 1e-6f);
+
+    // The same mesh in big-endian binary with 16-bit colours, double positions and ushort list counts.
+    std::string binary =
+        "ply\nformat binary_big_endian 1.0\nelement vertex 3\nproperty double x\nproperty double y\n"
+        "property double z\nproperty ushort r\nproperty ushort g\nproperty ushort b\n"
+        "element face 1\nproperty list ushort int vertex_indices\nend_header\n";
+    const double positions[3][3] = {{0, 0, 0}, {2, 0, 0}, {0, 2, 0}};
+    for (const auto& p : positions) {
+        for (double c : p) append(binary, c, true);
+        for (std::uint16_t c : {std::uint16_t{65535}, std::uint16_t{0}, std::uint16_t{13107}}) append(binary, c, true);
+    }
+    append(binary, std::uint16_t{3}, true);
+    for (std::int32_t i : {0, 1, 2}) append(binary, i, true);
+    const TriangleMesh fromBinary = loadPlyMesh(write(dir / "colours_be.ply", binary).string());
+    ASSERT_EQ(fromBinary.colors.size(), 3u);
+    EXPECT_NEAR(glm::length(fromBinary.colors[1] - Rgb(1.0f, 0.0f, 0.2f)), 0.0f, 1e-6f);
+    EXPECT_NEAR(fromBinary.area(), 2.0f, 1e-6f);
+    EXPECT_TRUE(fromBinary.uvs.empty());
+}
+
 void expectError(const fs::path& path, const std::string& fragment) {
     try {
         loadPlyMesh(path.string());
@@ -164,6 +206,27 @@ TEST(PlyLoader, BadFilesAreErrorsNamingTheFile) {
         "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
         "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 zero 0\n0 1 0\n3 0 1 2\n";
     expectError(write(dir / "nan.ply", notANumber), "cannot parse PLY file");
+    const std::string noVertex =
+        "ply\nformat ascii 1.0\nelement verTex 3\nproperty float x\nproperty float y\nproperty float z\n"
+        "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n";
+    expectError(write(dir / "novertex.ply", noVertex), "no vertex element");
+    const std::string noZ =
+        "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+        "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0\n1 0\n0 1\n3 0 1 2\n";
+    expectError(write(dir / "noz.ply", noZ), ":3: PLY vertex element has no x, y and z");
+    const std::string fractionalIndex =
+        "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+        "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1.5 2\n";
+    expectError(write(dir / "fraction.ply", fractionalIndex), "'1.5' is not an integer");
+    // A list count beyond what the rest of the file holds is refused before its items are read.
+    const std::string longList =
+        "ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+        "property float z\nelement face 1\nproperty list uint int vertex_indices\nend_header\n";
+    std::string longListData = longList;
+    for (int v = 0; v < 9; ++v) append(longListData, 0.0f, false);
+    append(longListData, std::uint32_t{4000000000u}, false);
+    for (std::int32_t i : {0, 1, 2}) append(longListData, i, false);
+    expectError(write(dir / "longlist.ply", longListData), "list count 4000000000 is more than the file can hold");
 }
 
 // Loads on a detached thread so that a loader that hangs fails the test instead
