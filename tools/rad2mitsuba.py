@@ -988,8 +988,8 @@ def tessellate(prim, options):
                 triangles.append((0, 1 + j, 1 + (j + 1) % n))
             else:
                 a, b, c, d = j, (j + 1) % n, n + (j + 1) % n, n + j
-                triangles.append((a, b, c))
-                triangles.append((a, c, d))
+                triangles.append((a, d, c))
+                triangles.append((a, c, b))
         return points, triangles
     if inward != prim.inverted:
         triangles = [(a, c, b) for a, b, c in triangles]
