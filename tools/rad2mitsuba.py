@@ -33,6 +33,8 @@ Geometry
                      -b B bevels them (the same construction with one segment
                      per quarter circle: 45-degree edge strips and corner
                      triangles, as genbox -b); -i turns the faces inward.
+                     The rounding's segment count follows --max-edge in
+                     genbox's own units, before any xform scales it.
   genprism           N vertices, -l extrusion vector, -c (no closing side),
                      -e (no end caps); -r is refused.
   genworm            spheres and cones along (x(t), y(t), z(t)) of radius
