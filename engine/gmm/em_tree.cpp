@@ -244,4 +244,18 @@ std::vector<std::uint32_t> EmTree::cut(std::size_t cells) const {
     return leaves;
 }
 
+gmm::EmCells cellsOf(const EmTree& tree, std::span<const std::uint32_t> cut) {
+    gmm::EmCells cells;
+    for (const std::uint32_t node : cut) {
+        const EmStatistics s = tree.statistics(node);
+        if (s.count == 0) continue;
+        const double n = static_cast<double>(s.count);
+        cells.count.push_back(n);
+        cells.mean.push_back(s.mean);
+        cells.covariance.push_back(s.scatter * (1.0 / n));
+        cells.power.push_back(s.power);
+    }
+    return cells;
+}
+
 }  // namespace fg

@@ -16,6 +16,7 @@
 #include "engine/core/math.h"
 #include "engine/core/pass.h"
 #include "engine/core/soa.h"
+#include "engine/gmm/em.h"
 #include "engine/gmm/gaussian.h"
 
 #include <cstdint>
@@ -83,5 +84,8 @@ template <>
 struct BufferTypeName<EmTree> {
     static constexpr const char* value = "EmTree";
 };
+
+// The statistics of the cells of a cut, as accelerated EM reads them (empty cells skipped).
+gmm::EmCells cellsOf(const EmTree& tree, std::span<const std::uint32_t> cut);
 
 }  // namespace fg
