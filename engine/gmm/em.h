@@ -1,0 +1,94 @@
+// Accelerated EM on a partition (Jakob et al. 2011 §3.6 and Alg. 1, after
+// Verbeek, Nunnink & Vlassis 2006), with the sparsity of §5.3.
+//
+// Every photon of cell A shares the responsibilities q_A(s). The E-step is
+// Eq. 7 with its lost bracket restored:
+//   q_A(s) = w_s exp<log g_s>_A / Z_A,  Z_A = sum_a w_a exp<log g_a>_A,
+// <log g_s>_A = -1/2 [log|2 pi Sigma_s| + (m_A - mu_s)^T Sigma_s^-1 (m_A - mu_s)
+// + tr(Sigma_s^-1 C_A)], all in the log domain. With this q, Eq. 8 (p(s) = w_s)
+// collapses to F = sum_A n_A log Z_A, a lower bound on the log-likelihood.
+// The M-step is Eq. 9 in centred form,
+//   w_s = sum_A n_A q_A(s) / n,  mu_s = sum_A n_A q_A(s) m_A / (n w_s),
+//   Sigma_s = sum_A n_A q_A(s) [C_A + (m_A - mu_s)(m_A - mu_s)^T] / (n w_s),
+// plus a ridge reg_covar I (the printed <xx^T>_A - mu mu^T cancels
+// catastrophically for cells far from the origin). n_eff(s) = sum_A n_A q_A(s)
+// (Eq. 10) and the component's power Phi_s = sum_A q_A(s) Phi_A.
+//
+// Sparsity (§5.3): for tau > 0 a cell's terms w_s exp<log g_s>_A are visited
+// best first down a hierarchy over the components, bounded per node by
+// max(w N) exp(-|m_A - box of means|^2 / 2 max lambda_max), and the walk stops
+// once the bound on what is left is at most tau times the Z_A found so far;
+// the pruned terms are dropped (their mass <= tau Z_A). tau = 0 visits all pairs.
+//
+// Cells are processed in fixed blocks and the M-step's sums merged in block
+// order, so a fit is bit-identical for any thread count.
+#pragma once
+
+#include "engine/gmm/gaussian.h"
+
+#include <cstdint>
+#include <vector>
+
+namespace fg::gmm {
+
+// The statistics of the cells of a cut: count, mean, covariance C_A = S_A / n_A, power.
+struct EmCells {
+    std::vector<double> count;
+    std::vector<Vec3d> mean;
+    std::vector<Sym3> covariance;
+    std::vector<Vec3d> power;
+    std::size_t size() const { return count.size(); }
+    double totalCount() const;
+};
+
+struct EmComponent {
+    double weight = 0.0;
+    Vec3d power{0.0};
+    Gaussian gaussian;
+    double effectiveCount = 0.0;
+};
+
+struct EmOptions {
+    double tau = 1e-4;         // pruned mass per cell <= tau Z_A; 0: all pairs
+    double regCovar = 0.0;     // ridge added to every covariance's diagonal
+    double epsilon = 1e-4;     // converged when |F/n change| <= epsilon max(1, |F/n|)
+    int maxIterations = 100;
+    double minEffectiveCount = 1.0;  // components explaining fewer photons are dropped
+};
+
+// Sparse responsibilities, cell by cell: entries [offset[A], offset[A + 1]).
+struct Responsibilities {
+    std::vector<std::uint64_t> offset;
+    std::vector<std::uint32_t> component;
+    std::vector<double> q;
+    std::vector<double> logZ;  // log Z_A per cell
+    std::uint64_t pairsKept = 0, pairsPruned = 0;
+    double maxPrunedShare = 0.0;  // the largest pruned mass bound / Z_A over cells
+};
+
+// E-step (Eq. 7) for all cells; returns F = sum_A n_A log Z_A.
+double eStep(const EmCells& cells, const std::vector<EmComponent>& components, double tau, Responsibilities& out);
+// M-step (Eq. 9, centred), n_eff (Eq. 10) and powers from the responsibilities.
+// With updateParameters = false only n_eff and the powers are recomputed.
+void mStep(const EmCells& cells, const Responsibilities& q, double regCovar, std::vector<EmComponent>& components,
+           bool updateParameters = true);
+// Removes components with n_eff below the threshold (or unusable
+// covariances); returns how many were removed. Order is kept.
+std::size_t dropWeakComponents(std::vector<EmComponent>& components, double minEffectiveCount);
+
+struct EmRun {
+    int iterations = 0;
+    bool converged = false;
+    std::vector<double> bounds;  // F after each E-step, the first for the initial guess
+    std::size_t dropped = 0;
+    Responsibilities responsibilities;  // of the final parameters
+};
+// Alg. 1: E- and M-steps until F/n settles; components keep n_eff and powers
+// of the final E-step.
+EmRun runEm(const EmCells& cells, std::vector<EmComponent>& components, const EmOptions& options);
+
+// One Gaussian per cell: the cell's own mean and covariance (plus the ridge),
+// weight n_A / n (§5.4's initial guess from a cut).
+std::vector<EmComponent> componentsFromCells(const EmCells& cells, double regCovar);
+
+}  // namespace fg::gmm

@@ -1,0 +1,255 @@
+// Accelerated EM (Jakob et al. 2011 §3.6, §5.1-5.3) against a plain EM over
+// points written here, against the log-likelihood it bounds, and the
+// statistics tree against itself fed the same photons in other batches.
+#include "engine/gmm/em.h"
+#include "engine/gmm/em_tree.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+#include <vector>
+
+namespace fg::gmm {
+namespace {
+
+struct Sample {
+    std::vector<Vec3> positions;
+    std::vector<Rgb> power;
+};
+
+// Points of a mixture of `clusters` anisotropic Gaussians inside the unit box.
+Sample mixtureSample(std::size_t n, int clusters, std::uint64_t seed, double size = 1.0) {
+    std::mt19937_64 rng(seed);
+    std::uniform_real_distribution<double> uniform(0.0, 1.0);
+    std::normal_distribution<double> normal;
+    std::vector<Vec3d> centres(static_cast<std::size_t>(clusters));
+    std::vector<Mat3d> shapes(static_cast<std::size_t>(clusters));
+    for (int c = 0; c < clusters; ++c) {
+        centres[static_cast<std::size_t>(c)] = Vec3d(0.2 + 0.6 * uniform(rng), 0.2 + 0.6 * uniform(rng), 0.2 + 0.6 * uniform(rng));
+        Mat3d m;
+        for (int i = 0; i < 3; ++i)
+            for (int j = 0; j < 3; ++j) m[i][j] = size * (0.04 * normal(rng) + (i == j ? 0.03 : 0.0));
+        shapes[static_cast<std::size_t>(c)] = m;
+    }
+    Sample s;
+    for (std::size_t i = 0; i < n; ++i) {
+        const std::size_t c = static_cast<std::size_t>(uniform(rng) * clusters) % static_cast<std::size_t>(clusters);
+        const Vec3d x = centres[c] + shapes[c] * Vec3d(normal(rng), normal(rng), normal(rng));
+        s.positions.emplace_back(x);
+        s.power.emplace_back(static_cast<float>(0.5 + uniform(rng)), 1.0f, 0.25f);
+    }
+    return s;
+}
+
+EmCells cellsOf(const EmTree& tree, const std::vector<std::uint32_t>& cut) {
+    EmCells cells;
+    for (const std::uint32_t node : cut) {
+        const EmStatistics s = tree.statistics(node);
+        const double n = static_cast<double>(s.count);
+        cells.count.push_back(n);
+        cells.mean.push_back(s.mean);
+        cells.covariance.push_back(s.scatter * (1.0 / n));
+        cells.power.push_back(s.power);
+    }
+    return cells;
+}
+
+double logLikelihood(const std::vector<EmComponent>& components, const std::vector<Vec3>& points) {
+    double total = 0.0;
+    for (const Vec3& p : points) {
+        double sum = 0.0;
+        for (const EmComponent& c : components) sum += c.weight * c.gaussian.density(Vec3d(p));
+        total += std::log(sum);
+    }
+    return total;
+}
+
+// A plain EM over points, from the textbook: responsibilities from densities
+// computed with GLM's inverse and determinant, raw-sum M-step.
+struct PlainComponent {
+    double weight;
+    Vec3d mean;
+    Mat3d covariance;
+};
+void plainEmIteration(std::vector<PlainComponent>& mixture, const std::vector<Vec3>& points, double regCovar) {
+    const std::size_t k = mixture.size(), n = points.size();
+    std::vector<std::vector<double>> r(n, std::vector<double>(k));
+    for (std::size_t i = 0; i < n; ++i) {
+        std::vector<double> logTerm(k);
+        double top = -1e300;
+        for (std::size_t s = 0; s < k; ++s) {
+            const Vec3d d = Vec3d(points[i]) - mixture[s].mean;
+            logTerm[s] = std::log(mixture[s].weight) - 0.5 * glm::dot(d, glm::inverse(mixture[s].covariance) * d) -
+                         0.5 * std::log(glm::determinant(mixture[s].covariance)) - 1.5 * std::log(2.0 * M_PI);
+            top = std::max(top, logTerm[s]);
+        }
+        double sum = 0.0;
+        for (std::size_t s = 0; s < k; ++s) sum += std::exp(logTerm[s] - top);
+        for (std::size_t s = 0; s < k; ++s) r[i][s] = std::exp(logTerm[s] - top) / sum;
+    }
+    for (std::size_t s = 0; s < k; ++s) {
+        double nk = 0.0;
+        Vec3d mean(0.0);
+        for (std::size_t i = 0; i < n; ++i) {
+            nk += r[i][s];
+            mean += r[i][s] * Vec3d(points[i]);
+        }
+        mean /= nk;
+        Mat3d cov(0.0);
+        for (std::size_t i = 0; i < n; ++i) {
+            const Vec3d d = Vec3d(points[i]) - mean;
+            cov += r[i][s] * glm::outerProduct(d, d);
+        }
+        cov = cov / nk + Mat3d(regCovar);
+        mixture[s] = {nk / static_cast<double>(n), mean, cov};
+    }
+}
+
+TEST(GmmEm, OnePointPerCellEqualsPlainEm) {
+    const Sample sample = mixtureSample(500, 4, 21);
+    EmCells cells;
+    for (const Vec3& p : sample.positions) {
+        cells.count.push_back(1.0);
+        cells.mean.emplace_back(p);
+        cells.covariance.emplace_back();
+        cells.power.emplace_back(1.0);
+    }
+    const double reg = 1e-6;
+    std::vector<EmComponent> components;
+    std::vector<PlainComponent> plain;
+    for (std::size_t s = 0; s < 5; ++s) {
+        const Vec3d mean(sample.positions[s * 97]);
+        const Sym3 covariance = Sym3::identity(0.01);
+        components.push_back({0.2, Vec3d(0.0), Gaussian(mean, covariance), 0.0});
+        plain.push_back({0.2, mean, Mat3d(0.01)});
+    }
+    EmOptions options;
+    options.tau = 0.0;
+    options.regCovar = reg;
+    options.epsilon = 0.0;
+    options.maxIterations = 15;
+    options.minEffectiveCount = 0.0;
+    const EmRun run = runEm(cells, components, options);
+    ASSERT_EQ(run.iterations, 15);
+    for (int i = 0; i < 15; ++i) plainEmIteration(plain, sample.positions, reg);
+    ASSERT_EQ(components.size(), plain.size());
+    for (std::size_t s = 0; s < plain.size(); ++s) {
+        EXPECT_NEAR(components[s].weight, plain[s].weight, 1e-9);
+        for (int i = 0; i < 3; ++i) EXPECT_NEAR(components[s].gaussian.mean[i], plain[s].mean[i], 1e-9);
+        for (int r = 0; r < 3; ++r)
+            for (int c = 0; c < 3; ++c)
+                EXPECT_NEAR(components[s].gaussian.covariance(r, c), plain[s].covariance[c][r],
+                            1e-9 * plain[s].covariance[r][r]);
+    }
+}
+
+TEST(GmmEm, BoundNeverDecreasesAndNeverExceedsLikelihood) {
+    const Sample sample = mixtureSample(20000, 6, 22);
+    EmTree tree;
+    tree.build(sample.positions, sample.power);
+    const EmCells cells = cellsOf(tree, tree.cut(256));
+    std::vector<EmComponent> components = componentsFromCells(cellsOf(tree, tree.cut(16)), 0.0);
+    Responsibilities q;
+    double previous = -1e300;
+    for (int iteration = 0; iteration < 25; ++iteration) {
+        const double bound = eStep(cells, components, 0.0, q);
+        const double likelihood = logLikelihood(components, sample.positions);
+        EXPECT_LE(bound, likelihood + 1e-9 * std::abs(likelihood)) << "iteration " << iteration;
+        EXPECT_GE(bound, previous - 1e-9 * std::abs(previous)) << "iteration " << iteration;
+        previous = bound;
+        mStep(cells, q, 0.0, components);
+    }
+}
+
+TEST(GmmEmTree, LeavesHoldAtMostFourAndRootHoldsAll) {
+    const Sample sample = mixtureSample(5000, 3, 23);
+    EmTree tree;
+    tree.build(sample.positions, sample.power);
+    std::uint64_t leafTotal = 0;
+    for (std::uint32_t node = 0; node < tree.size(); ++node) {
+        if (!tree.isLeaf(node)) {
+            EXPECT_EQ(tree.statistics(node).count,
+                      tree.statistics(tree.left(node)).count + tree.statistics(tree.right(node)).count);
+            continue;
+        }
+        EXPECT_LE(tree.statistics(node).count, 4u);
+        leafTotal += tree.statistics(node).count;
+    }
+    EXPECT_EQ(leafTotal, sample.positions.size());
+    // The root against a direct two-pass computation.
+    Vec3d mean(0.0);
+    for (const Vec3& p : sample.positions) mean += Vec3d(p);
+    mean /= static_cast<double>(sample.positions.size());
+    Sym3 scatter;
+    for (const Vec3& p : sample.positions) scatter += Sym3::outer(Vec3d(p) - mean);
+    const EmStatistics root = tree.statistics(0);
+    for (int i = 0; i < 3; ++i) EXPECT_NEAR(root.mean[i], mean[i], 1e-12);
+    for (std::size_t i = 0; i < 6; ++i) EXPECT_NEAR(root.scatter.v[i], scatter.v[i], 1e-12 * scatter.trace());
+    // A cut of 2^l cells of a balanced tree is its level l.
+    EXPECT_EQ(tree.cut(64).size(), 64u);
+}
+
+TEST(GmmEmTree, StreamedBatchesEqualOneBatch) {
+    const Sample first = mixtureSample(8000, 4, 24);
+    const Sample later = mixtureSample(12000, 4, 25);
+    EmTree streamed, whole;
+    streamed.build(first.positions, first.power);
+    whole.build(first.positions, first.power);
+    for (std::size_t start = 0; start < later.positions.size(); start += 3000) {
+        streamed.update(std::span(later.positions).subspan(start, 3000), std::span(later.power).subspan(start, 3000));
+    }
+    whole.update(later.positions, later.power);
+    ASSERT_EQ(streamed.size(), whole.size());
+    for (std::uint32_t node = 0; node < whole.size(); ++node) {
+        const EmStatistics a = streamed.statistics(node), b = whole.statistics(node);
+        ASSERT_EQ(a.count, b.count);
+        for (int i = 0; i < 3; ++i) {
+            EXPECT_NEAR(a.mean[i], b.mean[i], 1e-12 * std::max(1.0, std::abs(b.mean[i])));
+            EXPECT_NEAR(a.power[i], b.power[i], 1e-12 * std::abs(b.power[i]));
+        }
+        for (std::size_t i = 0; i < 6; ++i)
+            EXPECT_NEAR(a.scatter.v[i], b.scatter.v[i], 1e-12 * std::max(b.scatter.trace(), 1e-300));
+    }
+    // And the fit on the same cut does not depend on the batches.
+    EmOptions options;
+    options.regCovar = 1e-7;
+    std::vector<EmComponent> fitStreamed = componentsFromCells(cellsOf(streamed, streamed.cut(32)), 1e-7);
+    std::vector<EmComponent> fitWhole = componentsFromCells(cellsOf(whole, whole.cut(32)), 1e-7);
+    runEm(cellsOf(streamed, streamed.cut(512)), fitStreamed, options);
+    runEm(cellsOf(whole, whole.cut(512)), fitWhole, options);
+    ASSERT_EQ(fitStreamed.size(), fitWhole.size());
+    for (std::size_t s = 0; s < fitWhole.size(); ++s) {
+        EXPECT_NEAR(fitStreamed[s].weight, fitWhole[s].weight, 1e-9);
+        for (int i = 0; i < 3; ++i) EXPECT_NEAR(fitStreamed[s].gaussian.mean[i], fitWhole[s].gaussian.mean[i], 1e-9);
+    }
+}
+
+TEST(GmmEm, SparseEStepPrunesWithinTolerance) {
+    // Small clusters far apart relative to their size, as a caustic's
+    // Gaussians are relative to a room: most pairs are negligible.
+    const Sample sample = mixtureSample(60000, 48, 26, 0.2);
+    EmTree tree;
+    tree.build(sample.positions, sample.power);
+    const EmCells cells = cellsOf(tree, tree.cut(2048));
+    std::vector<EmComponent> dense = componentsFromCells(cellsOf(tree, tree.cut(256)), 1e-7);
+    std::vector<EmComponent> sparse = dense;
+    EmOptions options;
+    options.regCovar = 1e-7;
+    options.maxIterations = 10;
+    options.epsilon = 0.0;
+    options.tau = 0.0;
+    const EmRun denseRun = runEm(cells, dense, options);
+    options.tau = 1e-4;
+    const EmRun sparseRun = runEm(cells, sparse, options);
+    const double n = cells.totalCount();
+    EXPECT_LE(sparseRun.responsibilities.maxPrunedShare, 1e-4);
+    EXPECT_NEAR(sparseRun.bounds.back() / n, denseRun.bounds.back() / n, 1e-3);
+    const double denseKept = static_cast<double>(denseRun.responsibilities.pairsKept);
+    const double sparseKept = static_cast<double>(sparseRun.responsibilities.pairsKept);
+    std::printf("pairs kept: dense %.0f, tau = 1e-4 %.0f (%.1fx fewer)\n", denseKept, sparseKept, denseKept / sparseKept);
+    EXPECT_LT(sparseKept * 2.0, denseKept);
+}
+
+}  // namespace
+}  // namespace fg::gmm

@@ -1,0 +1,242 @@
+// The Gaussian arithmetic of Jakob et al. 2011 against independent
+// computations: the corrected line integral of Eqs. 16-17 against adaptive
+// quadrature of the density, the closed-form cell average <log g>_A (Eq. 7)
+// against the average over the cell's points, the closed-form KL divergence
+// (Eq. 11) against Monte Carlo, and the merge of Eqs. 12-14 against the
+// moments it must conserve.
+#include "engine/gmm/gaussian.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <limits>
+#include <random>
+#include <vector>
+
+namespace fg::gmm {
+namespace {
+
+// A random rotation (QR of a Gaussian matrix via Gram-Schmidt).
+Mat3d randomRotation(std::mt19937_64& rng) {
+    std::normal_distribution<double> normal;
+    Vec3d a(normal(rng), normal(rng), normal(rng)), b(normal(rng), normal(rng), normal(rng));
+    a = glm::normalize(a);
+    b = glm::normalize(b - glm::dot(a, b) * a);
+    return Mat3d(a, b, glm::cross(a, b));
+}
+
+Sym3 covarianceFrom(const Mat3d& rotation, const Vec3d& eigenvalues) {
+    const Mat3d m = rotation * Mat3d(eigenvalues.x, 0, 0, 0, eigenvalues.y, 0, 0, 0, eigenvalues.z) *
+                    glm::transpose(rotation);
+    return Sym3{{m[0][0], m[1][0], m[2][0], m[1][1], m[2][1], m[2][2]}};
+}
+
+Gaussian randomGaussian(std::mt19937_64& rng, double minEigen, double maxEigen) {
+    std::uniform_real_distribution<double> logEigen(std::log(minEigen), std::log(maxEigen));
+    std::uniform_real_distribution<double> position(-1.0, 1.0);
+    const Vec3d eigen(std::exp(logEigen(rng)), std::exp(logEigen(rng)), std::exp(logEigen(rng)));
+    return Gaussian(Vec3d(position(rng), position(rng), position(rng)), covarianceFrom(randomRotation(rng), eigen));
+}
+
+// Direct evaluation of Eq. 5 from the covariance (inverse and determinant by
+// GLM), independent of the Cholesky factors under test.
+double directDensity(const Gaussian& g, const Vec3d& x) {
+    const Mat3d sigma = g.covariance.toMat3();
+    const Vec3d d = x - g.mean;
+    const double q = glm::dot(d, glm::inverse(sigma) * d);
+    return std::exp(-0.5 * q) / (std::pow(2.0 * M_PI, 1.5) * std::sqrt(glm::determinant(sigma)));
+}
+
+// Composite Simpson over the part of [a, b] where g(x + t w) e^{-sigma t} is not
+// negligible: the integrand is e^{quadratic in t}, so its maximum over [a, b]
+// and its local width bound that part.
+double quadrature(const Gaussian& g, const Vec3d& x, const Vec3d& w, double sigmaT, double a, double b) {
+    const Mat3d precision = glm::inverse(g.covariance.toMat3());
+    const double c2 = 0.5 * glm::dot(w, precision * w);
+    const double c3 = glm::dot(w, precision * (x - g.mean)) + sigmaT;
+    const double peak = -c3 / (2.0 * c2);
+    const double top = std::clamp(peak, a, std::isinf(b) ? peak + 1.0 : b);
+    const double slope = std::abs(2.0 * c2 * (top - peak) + 0.0);
+    const double width = std::min(1.0 / std::sqrt(2.0 * c2), slope > 0.0 ? 1.0 / slope : 1e300);
+    const double lo = std::max(a, top - 60.0 * width);
+    const double hi = std::min(b, top + 60.0 * width);
+    const double normaliser = 1.0 / (std::pow(2.0 * M_PI, 1.5) * std::sqrt(glm::determinant(g.covariance.toMat3())));
+    const int n = 200000;
+    const double h = (hi - lo) / n;
+    double sum = 0.0;
+    for (int i = 0; i <= n; ++i) {
+        const double t = lo + i * h;
+        const double weight = (i == 0 || i == n) ? 1.0 : (i % 2 ? 4.0 : 2.0);
+        const Vec3d d = x + t * w - g.mean;
+        sum += weight * normaliser * std::exp(-0.5 * glm::dot(d, precision * d) - sigmaT * t);
+    }
+    return sum * h / 3.0;
+}
+
+struct SegmentCase {
+    Gaussian gaussian;
+    Vec3d origin, direction;
+    double a, b;
+};
+
+// Segments placed relative to where the ray passes the mean: wholly before
+// it, through it, wholly behind it, and to infinity.
+std::vector<SegmentCase> segmentCases(std::mt19937_64& rng, double minEigen, double maxEigen) {
+    std::vector<SegmentCase> cases;
+    std::normal_distribution<double> normal;
+    for (int i = 0; i < 6; ++i) {
+        const Gaussian g = randomGaussian(rng, minEigen, maxEigen);
+        const Vec3d w = glm::normalize(Vec3d(normal(rng), normal(rng), normal(rng)));
+        // A line at Mahalanobis distance 0.7 from the mean: the quadratic form
+        // of the precision restricted to offsets across the ray sets the scale.
+        const Sym3& p = g.factors.precision;
+        const Vec3d pw = p * w;
+        const double wpw = glm::dot(w, pw);
+        Vec3d offset(normal(rng), normal(rng), normal(rng));
+        const double across = p.quadratic(offset) - glm::dot(pw, offset) * glm::dot(pw, offset) / wpw;
+        offset *= 0.7 / std::sqrt(across);
+        const Vec3d origin = g.mean - 3.0 * w + offset;
+        // Where the density along the line peaks, and its standard deviation there.
+        const double centre = 3.0 - glm::dot(pw, offset) / wpw;
+        const double spread = 1.0 / std::sqrt(wpw);
+        cases.push_back({g, origin, w, centre - 6.0 * spread, centre - 2.5 * spread});  // before
+        cases.push_back({g, origin, w, centre - 0.5 * spread, centre + 1.5 * spread});  // through
+        cases.push_back({g, origin, w, centre + 2.0 * spread, centre + 4.0 * spread});  // behind
+        cases.push_back({g, origin, w, centre - 1.0 * spread, std::numeric_limits<double>::infinity()});
+    }
+    return cases;
+}
+
+void expectSegmentIntegralsMatchQuadrature(double minEigen, double maxEigen, std::uint64_t seed) {
+    std::mt19937_64 rng(seed);
+    for (const SegmentCase& c : segmentCases(rng, minEigen, maxEigen)) {
+        for (const double sigmaT : {0.0, 0.1, 1.0, 10.0}) {
+            const double closed = segmentIntegral(c.gaussian, c.origin, c.direction, sigmaT, c.a, c.b);
+            const double reference = quadrature(c.gaussian, c.origin, c.direction, sigmaT, c.a, c.b);
+            ASSERT_GT(reference, 0.0);
+            EXPECT_NEAR(closed / reference, 1.0, 1e-5)
+                << "a " << c.a << " b " << c.b << " sigma_t " << sigmaT << " closed " << closed << " quadrature "
+                << reference;
+        }
+    }
+}
+
+TEST(GmmSegmentIntegral, MatchesQuadratureForRandomGaussians) {
+    expectSegmentIntegralsMatchQuadrature(0.01, 0.5, 11);
+}
+
+TEST(GmmSegmentIntegral, MatchesQuadratureForNeedleThinGaussians) {
+    // Eigenvalues down to 1e-8: the ray crosses a needle or a sheet.
+    expectSegmentIntegralsMatchQuadrature(1e-8, 0.2, 12);
+}
+
+TEST(GmmSegmentIntegral, TailsNeitherOverflowNorCancel) {
+    // A thin Gaussian the ray passes far from: every erf argument is deep in one
+    // tail, where erf(b) - erf(a) in doubles is 0 and e^{C3^2/4C2} overflows.
+    const Gaussian g(Vec3d(0.0), Sym3{{1e-4, 0, 0, 1e-4, 0, 1e-4}});
+    const Vec3d origin(-5.0, 0.02, 0.0), w(1.0, 0.0, 0.0);
+    for (const double sigmaT : {0.0, 10.0}) {
+        const double behind = segmentIntegral(g, origin, w, sigmaT, 5.3, 5.4);
+        const double before = segmentIntegral(g, origin, w, sigmaT, 4.6, 4.7);
+        EXPECT_NEAR(behind / quadrature(g, origin, w, sigmaT, 5.3, 5.4), 1.0, 1e-5);
+        EXPECT_NEAR(before / quadrature(g, origin, w, sigmaT, 4.6, 4.7), 1.0, 1e-5);
+    }
+    // Along the whole line without extinction: the 2D marginal density at the
+    // ray's perpendicular offset, exp(-r^2 / 2s) / (2 pi s).
+    const double whole = segmentIntegral(g, origin, w, 0.0, -1e3, std::numeric_limits<double>::infinity());
+    EXPECT_NEAR(whole / (std::exp(-0.0004 / 2e-4) / (2.0 * M_PI * 1e-4)), 1.0, 1e-10);
+}
+
+TEST(GmmGaussian, FactorsMatchDirectInverseAndDeterminant) {
+    std::mt19937_64 rng(3);
+    for (int i = 0; i < 20; ++i) {
+        const Gaussian g = randomGaussian(rng, 1e-3, 2.0);
+        ASSERT_TRUE(g.factors.valid);
+        const Vec3d x(0.3, -0.2, 0.5);
+        EXPECT_NEAR(g.density(x) / directDensity(g, x), 1.0, 1e-10);
+        const Mat3d inverse = glm::inverse(g.covariance.toMat3());
+        for (int r = 0; r < 3; ++r)
+            for (int c = 0; c < 3; ++c)
+                EXPECT_NEAR(g.factors.precision(r, c), inverse[c][r], 1e-9 * std::abs(inverse[r][r]));
+    }
+    EXPECT_FALSE(factorise(Sym3{{1, 0, 0, 1, 0, -1e-9}}).valid);
+    EXPECT_FALSE(factorise(Sym3{{1, 1, 0, 1, 0, 1}}).valid);  // singular
+}
+
+TEST(GmmGaussian, LargestEigenvalueOfRotatedDiagonal) {
+    std::mt19937_64 rng(4);
+    for (int i = 0; i < 20; ++i) {
+        const Vec3d eigen(0.1 + i, 0.05, 3.0 + 0.01 * i);
+        const Sym3 s = covarianceFrom(randomRotation(rng), eigen);
+        EXPECT_NEAR(s.largestEigenvalue(), std::max({eigen.x, eigen.y, eigen.z}), 1e-12 * (1.0 + i));
+    }
+}
+
+TEST(GmmGaussian, CellAverageOfLogDensityIsClosedForm) {
+    std::mt19937_64 rng(5);
+    std::normal_distribution<double> normal;
+    for (int trial = 0; trial < 10; ++trial) {
+        const Gaussian g = randomGaussian(rng, 0.01, 1.0);
+        std::vector<Vec3d> points(37 + trial);
+        const Vec3d centre(normal(rng), normal(rng), normal(rng));
+        for (Vec3d& p : points) p = centre + 0.2 * Vec3d(normal(rng), normal(rng), normal(rng));
+        Vec3d mean(0.0);
+        for (const Vec3d& p : points) mean += p;
+        mean /= static_cast<double>(points.size());
+        Sym3 covariance;
+        for (const Vec3d& p : points) covariance += Sym3::outer(p - mean);
+        covariance = covariance * (1.0 / static_cast<double>(points.size()));
+        double average = 0.0;
+        for (const Vec3d& p : points) average += g.logDensity(p);
+        average /= static_cast<double>(points.size());
+        EXPECT_NEAR(g.expectedLogDensity(mean, covariance), average, 1e-10 * std::max(1.0, std::abs(average)));
+    }
+}
+
+TEST(GmmGaussian, KlDivergenceMatchesMonteCarlo) {
+    std::mt19937_64 rng(6);
+    std::normal_distribution<double> normal;
+    for (int trial = 0; trial < 4; ++trial) {
+        const Gaussian a = randomGaussian(rng, 0.1, 1.0);
+        Gaussian b = randomGaussian(rng, 0.1, 1.0);
+        b = Gaussian(a.mean + 0.3 * (b.mean - a.mean), b.covariance);
+        const int n = 1000000;
+        double sum = 0.0, sumSq = 0.0;
+        const Sym3& l = a.factors.cholesky;
+        for (int i = 0; i < n; ++i) {
+            const Vec3d z(normal(rng), normal(rng), normal(rng));
+            const Vec3d x = a.mean + Vec3d(l.v[0] * z.x, l.v[1] * z.x + l.v[3] * z.y,
+                                           l.v[2] * z.x + l.v[4] * z.y + l.v[5] * z.z);
+            const double r = a.logDensity(x) - b.logDensity(x);
+            sum += r;
+            sumSq += r * r;
+        }
+        const double estimate = sum / n;
+        const double standardError = std::sqrt((sumSq / n - estimate * estimate) / n);
+        const double closed = klDivergence(a, b);
+        // 1 % as the issue asks, and never looser than four standard errors.
+        ASSERT_LT(4.0 * standardError, 0.01 * closed);
+        EXPECT_NEAR(closed, estimate, 0.01 * closed);
+        EXPECT_NEAR(klDivergence(a, a), 0.0, 1e-12);
+    }
+}
+
+TEST(GmmGaussian, MergeConservesWeightAndMoments) {
+    std::mt19937_64 rng(7);
+    std::uniform_real_distribution<double> uniform(0.01, 2.0);
+    for (int trial = 0; trial < 10; ++trial) {
+        const Gaussian ga = randomGaussian(rng, 0.01, 1.0), gb = randomGaussian(rng, 0.01, 1.0);
+        const WeightedMoments a{uniform(rng), ga.mean, ga.covariance}, b{uniform(rng), gb.mean, gb.covariance};
+        const WeightedMoments m = merge(a, b);
+        EXPECT_NEAR(m.weight, a.weight + b.weight, 1e-12);
+        const Vec3d first = a.weight * a.mean + b.weight * b.mean;
+        for (int i = 0; i < 3; ++i) EXPECT_NEAR(m.weight * m.mean[i], first[i], 1e-9);
+        const Sym3 second = (a.covariance + Sym3::outer(a.mean)) * a.weight + (b.covariance + Sym3::outer(b.mean)) * b.weight;
+        const Sym3 merged = (m.covariance + Sym3::outer(m.mean)) * m.weight;
+        for (std::size_t i = 0; i < 6; ++i) EXPECT_NEAR(merged.v[i], second.v[i], 1e-9);
+        EXPECT_TRUE(factorise(m.covariance).valid);
+    }
+}
+
+}  // namespace
+}  // namespace fg::gmm
