@@ -4,6 +4,7 @@
 // frustum of §6 (initial bandwidth h_0 and its growth dh per unit length).
 #pragma once
 
+#include "engine/accel/splat_kdtree.h"
 #include "engine/core/math.h"
 #include "engine/core/pass.h"
 #include "engine/core/soa.h"
@@ -53,6 +54,18 @@ struct PhotonRays {
 template <>
 struct BufferTypeName<PhotonRays> {
     static constexpr const char* value = "PhotonRays";
+};
+
+// The splat kd-tree over the eye vertices (§7.1), in the eye buffer's index space.
+struct SplatIndex {
+    SplatKdTree tree;
+    std::size_t bytes() const {
+        return tree.nodes().size() * sizeof(SplatKdNode) + tree.size() * (2 * sizeof(Vec3) + sizeof(std::uint32_t));
+    }
+};
+template <>
+struct BufferTypeName<SplatIndex> {
+    static constexpr const char* value = "SplatIndex";
 };
 
 }  // namespace fg
