@@ -229,15 +229,24 @@ private:
             nodes_.push_back({static_cast<std::uint32_t>(begin), (static_cast<std::uint32_t>(count) << 2) | SplatKdNode::Leaf});
             return;
         }
-        const int axis = extent.x >= extent.y && extent.x >= extent.z ? 0 : (extent.y >= extent.z ? 1 : 2);
-        float split = 0.5f * (lo[axis] + hi[axis]);
         const auto first = ids_.begin() + static_cast<std::ptrdiff_t>(begin);
         const auto last = ids_.begin() + static_cast<std::ptrdiff_t>(end);
-        float pMin = kInfinity, pMax = -kInfinity;
+        Vec3 pointsLo(kInfinity), pointsHi(-kInfinity);
         for (auto it = first; it != last; ++it) {
-            pMin = std::min(pMin, p[*it][axis]);
-            pMax = std::max(pMax, p[*it][axis]);
+            pointsLo = glm::min(pointsLo, p[*it]);
+            pointsHi = glm::max(pointsHi, p[*it]);
         }
+        // The cell's longest axis along which the vertices differ (a split across
+        // an axis where they all agree would not separate them).
+        int axis = -1;
+        for (int a = 0; a < 3; ++a)
+            if (pointsHi[a] > pointsLo[a] && (axis < 0 || extent[a] > extent[axis])) axis = a;
+        if (axis < 0) {  // all at one position
+            nodes_.push_back({static_cast<std::uint32_t>(begin), (static_cast<std::uint32_t>(count) << 2) | SplatKdNode::Leaf});
+            return;
+        }
+        float split = 0.5f * (lo[axis] + hi[axis]);
+        const float pMin = pointsLo[axis], pMax = pointsHi[axis];
         // Sliding midpoint: a plane with all vertices on one side slides to the nearest vertex.
         if (pMin >= split) split = pMin;
         else if (pMax < split) split = pMax;
