@@ -26,6 +26,9 @@ PassRegistration gmmRenderPass();
 PassRegistration lightTracePass();
 PassRegistration filmNoisePass();
 PassRegistration compositePass();
+PassRegistration rayBandwidthPass();
+PassRegistration splatIndexPass();
+PassRegistration raySplatPass();
 
 // The passes and the pipelines of passes/pipelines/*.toml.
 const Registry& builtinRegistry();

@@ -18,6 +18,7 @@ const Registry& builtinRegistry() {
             volumeEyePass(),   photonRadiusPass(), photonBvhPass(), beamQueryPass(), lightTracePass(),
             emStatsPass(),     emFitPass(),  gmmPyramidPass(),   gmmBbhPass(),   gmmRenderPass(),
             filmNoisePass(),   compositePass(),
+            rayBandwidthPass(), splatIndexPass(), raySplatPass(),
         };
         for (const auto& [file, text] : embeddedPipelineFiles()) r.pipelines.push_back(parsePipelineFile(text, file));
         return r;

@@ -70,6 +70,7 @@
 #include "engine/shading/differentials.h"
 #include "engine/core/error.h"
 #include "engine/buffers/photon_buffers.h"
+#include "engine/buffers/photon_ray_buffers.h"
 #include "engine/accel/ray_query.h"
 #include "engine/scene/scene.h"
 #include "jobs/parallel.h"
@@ -109,6 +110,10 @@ struct Settings {
     bool differentials = true;
     float smoothing = 10.0f;
     std::size_t batchSize = 1 << 18;
+    // Photon rays (Herzog et al. 2007, Eq. 7): every segment with its bounded density p~.
+    bool recordRays = false;
+    float clampDistance2 = 0.0f;  // D~^2 of Eq. 7
+    float specularPdf = 100.0f;   // stands in for p_s^perp at specular events, which have no density
 };
 
 // A photon and the path that stored it, for stopping at a photon-count target.
@@ -124,6 +129,7 @@ struct ChunkResult {
     std::vector<PhotonRecord> caustic;
     std::vector<PhotonRecord> global;
     std::vector<VolumePhotonRecord> volume;
+    std::vector<PhotonRayBuffer::Record> rays;
     std::int64_t collapsedCaustic = 0;
     std::int64_t collapsedGlobal = 0;
     std::int64_t segments = 0;
@@ -179,6 +185,29 @@ std::vector<int> lightMedia(const Scene& scene, const RayQuery& rays) {
     return media;
 }
 
+// The photon ray being traced (Herzog et al. 2007, Eq. 7): where it left, and
+// p~ of its origin vertex times the density of the direction it left in, to
+// be divided by D once its length is known.
+struct RayInFlight {
+    Vec3 origin{0.0f};
+    Vec3 originNormal{0.0f};
+    double densityBeforeD = 0.0;
+    double originDensity = 0.0;  // p~(x_i | x_{i-1}); 0 at the light
+    bool divideByD = true;  // infinite lights emit from a disk far away: no distance term
+    std::uint8_t rayClass = PhotonRayClass::Direct;
+    std::uint16_t vertex = 0;
+};
+
+// Where a ray from `origin` (inside the box) leaves it.
+float boxExitDistance(const Vec3& origin, const Vec3& direction, const Vec3& lo, const Vec3& hi) {
+    float exit = kInfinity;
+    for (int a = 0; a < 3; ++a) {
+        if (direction[a] > 0.0f) exit = std::min(exit, (hi[a] - origin[a]) / direction[a]);
+        else if (direction[a] < 0.0f) exit = std::min(exit, (lo[a] - origin[a]) / direction[a]);
+    }
+    return std::max(0.0f, exit);
+}
+
 class PhotonTracer {
 public:
     PhotonTracer(const Scene& scene, const RayQuery& rays, const Settings& settings, std::uint64_t seed,
@@ -217,6 +246,8 @@ public:
         Rgb throughput(1.0f);
         int depth = 0;
         bool specularChain = true;  // every event so far was specular
+        std::optional<RayInFlight> photonRay;
+        if (settings_.recordRays) photonRay = emittedRay(*emission, pmf, scene_.lights[lightIndex]->isInfinite());
         int nullCrossings = 0;
 
         const auto survivesRoulette = [&] {
@@ -250,6 +281,7 @@ public:
                                                                  : PhotonClass::Global;
                     storeVolume(static_cast<std::uint8_t>(PhotonClass::Volume | history), p, direction,
                                 power * throughput, pathIndex, out);
+                    photonRay.reset();  // photon rays are traced between surfaces only
                     if (settings_.causticOnlyPaths || depth >= settings_.maxDepth) return;
                     const PhaseSample ps = m.phase().sample(-direction, rng.uniform2());
                     if (!(ps.pdf > 0.0f)) return;
@@ -262,7 +294,13 @@ public:
                     continue;
                 }
             }
-            if (!hit.valid()) return;
+            if (!hit.valid()) {
+                if (photonRay) {
+                    const float length = boxExitDistance(photonRay->origin, direction, scene_.boundsMin, scene_.boundsMax);
+                    recordRay(*photonRay, direction, length, Vec3(0.0f), power * throughput, pathIndex, out);
+                }
+                return;
+            }
 
             const SurfacePoint sp = rays_.surface(ray, hit);
             if (tracking) transferDifferential(differential, direction, glm::dot(sp.p - previous, direction), sp.ng);
@@ -298,6 +336,11 @@ public:
             }
             nullCrossings = 0;
             ++depth;
+            if (photonRay) {
+                const Vec3 facingRay = glm::dot(direction, sp.ng) < 0.0f ? sp.ng : -sp.ng;
+                recordRay(*photonRay, direction, glm::length(sp.p - photonRay->origin), facingRay, power * throughput,
+                          pathIndex, out);
+            }
 
             if (bsdf->hasSmoothLobe()) {
                 const std::uint8_t photonClass =
@@ -335,6 +378,16 @@ public:
                 tracking = false;  // a differential means nothing after a non-specular event
             }
             if (bs->lobe & BsdfLobe::Transmission) medium = mediumAfterCrossing(shape, sp.ng, wi, medium);
+            if (photonRay) {
+                // p_s^perp = p_s / cos theta' (Eq. 1); a specular event has no density.
+                const double projectedPdf = bs->isSpecular() ? static_cast<double>(settings_.specularPdf)
+                                                             : static_cast<double>(bs->pdf) / std::abs(bs->wi.z);
+                photonRay->densityBeforeD *= projectedPdf;
+                photonRay->divideByD = true;
+                photonRay->origin = sp.p;
+                photonRay->originNormal = glm::dot(wi, sp.ng) > 0.0f ? sp.ng : -sp.ng;
+                photonRay->rayClass = specularChain ? PhotonRayClass::Caustic : PhotonRayClass::Global;
+            }
             direction = wi;
             ray = Ray{offsetRayOrigin(sp.p, sp.ng, wi), wi, kInfinity};
             if (!survivesRoulette()) return;
@@ -342,6 +395,41 @@ public:
     }
 
 private:
+    // Eq. 7, i = 0: p_e = area pdf x projected-solid-angle pdf (times the
+    // light's selection probability); point and spot lights have only the
+    // solid-angle pdf, collimated and other infinite lights only the density
+    // on their emission disk, and no distance term.
+    RayInFlight emittedRay(const EmissionSample& emission, float lightPmf, bool infinite) const {
+        RayInFlight r;
+        r.origin = emission.origin;
+        const bool hasSurface = glm::dot(emission.normal, emission.normal) > 0.0f;
+        r.originNormal = hasSurface ? glm::normalize(emission.normal) : Vec3(0.0f);
+        double pe = static_cast<double>(lightPmf) * static_cast<double>(emission.pdfPosition) *
+                    static_cast<double>(emission.pdfDirection);
+        if (hasSurface) {
+            const float cosine = std::abs(glm::dot(r.originNormal, glm::normalize(emission.direction)));
+            pe = cosine > 0.0f ? pe / static_cast<double>(cosine) : 0.0;
+        }
+        r.divideByD = !infinite;
+        r.densityBeforeD = pe;
+        return r;
+    }
+
+    void recordRay(RayInFlight& r, const Vec3& direction, float length, const Vec3& endNormal, const Rgb& power,
+                   std::uint64_t path, ChunkResult& out) const {
+        const double d = std::max(static_cast<double>(settings_.clampDistance2), static_cast<double>(length) * length);
+        const double density = r.divideByD ? r.densityBeforeD / d : r.densityBeforeD;
+        if (length > 0.0f && !isBlack(power) && isFinite(power) && std::isfinite(density)) {
+            out.rays.push_back(PhotonRayBuffer::Record{r.origin, direction, length, power, 0.0f, 0.0f,
+                                                       static_cast<float>(density), static_cast<float>(r.originDensity),
+                                                       r.rayClass, r.originNormal,
+                                                       endNormal, path, r.vertex});
+        }
+        r.densityBeforeD = density;
+        r.originDensity = density;
+        r.vertex = static_cast<std::uint16_t>(std::min<int>(r.vertex + 1, 65535));
+    }
+
     void store(std::uint8_t photonClass, const SurfacePoint& sp, const Vec3& direction, const Rgb& power,
                const PhotonDifferential* differential, std::uint64_t path, ChunkResult& out) const {
         const bool wanted = photonClass == PhotonClass::Direct    ? settings_.storeDirect
@@ -422,6 +510,12 @@ public:
         settings.differentials = params.getBool("differentials");
         settings.smoothing = static_cast<float>(params.getFloat("smoothing"));
         settings.batchSize = static_cast<std::size_t>(params.getInt("batch_size"));
+        settings.recordRays = params.getBool("photon_rays");
+        const float clampDistance = params.getFloat("clamp_distance") > 0.0
+                                        ? static_cast<float>(params.getFloat("clamp_distance"))
+                                        : 0.01f * glm::length(scene.boundsMax - scene.boundsMin);
+        settings.clampDistance2 = clampDistance * clampDistance;
+        settings.specularPdf = static_cast<float>(params.getFloat("specular_pdf"));
         // An own seed gives an independent photon set at the same eye vertices (the job's
         // seed keys the camera paths): what variance measurements and comparisons against a
         // reference rendered with the job's seed need.
@@ -450,6 +544,7 @@ public:
         PhotonMap* globalMap = openMap(globalBatch, "global_photons");
         VolumePhotonMap* volumeMap = openMap(volumeBatch, "volume_photons");
         causticMap->hasDifferentials = settings.differentials;
+        PhotonRays& photonRays = ctx.createOutput<PhotonRays>("photon_rays");
         // Demand-driven streams: once every reader of every streamed map has said
         // it needs no more, tracing stops at this batch boundary. Stored maps then
         // hold the photons of the paths traced, renormalised to that count; the
@@ -525,6 +620,11 @@ public:
                 append(causticMap->photons, chunk.caustic, takeCaustic);
                 append(globalMap->photons, chunk.global, takeGlobal);
                 append(volumeMap->photons, chunk.volume, takeVolume);
+                const std::size_t takeRays = static_cast<std::size_t>(
+                    std::partition_point(chunk.rays.begin(), chunk.rays.end(),
+                                         [&](const PhotonRayBuffer::Record& r) { return r.get<RayPath>() <= lastPath; }) -
+                    chunk.rays.begin());
+                append(photonRays.rays, chunk.rays, takeRays);
                 causticMap->collapsedFootprints += static_cast<std::uint64_t>(chunk.collapsedCaustic);
                 globalMap->collapsedFootprints += static_cast<std::uint64_t>(chunk.collapsedGlobal);
                 collapsed += static_cast<std::uint64_t>(chunk.collapsedCaustic + chunk.collapsedGlobal);
@@ -565,6 +665,13 @@ public:
         }
         renormalise(*volumeMap, settings.photons, emitted);
         volumeMap->emitted = emitted;
+        if (emitted > 0 && emitted != settings.photons) {
+            const float powerScale = static_cast<float>(static_cast<double>(settings.photons) / static_cast<double>(emitted));
+            for (Rgb& p : photonRays.rays.column<RayPower>()) p *= powerScale;
+        }
+        photonRays.emitted = emitted;
+        photonRays.clampDistance = clampDistance;
+        ctx.addCounter("photon_rays", static_cast<std::int64_t>(photonRays.rays.size()));
         handOver();
 
         ctx.addCounter("caustic_photons", storedCaustic);
@@ -592,6 +699,9 @@ PassRegistration photonPass() {
          "photons at smooth surfaces after a non-specular event (and direct photons with store_direct)", true},
         {"volume_photons", "VolumePhotonMap",
          "photons at scattering events in media (class Volume); power includes sigma_s: Eq. 3 needs no sigma_s", true},
+        {"photon_rays", "PhotonRays",
+         "with photon_rays = true: every path segment between surfaces with its bounded density (Herzog et al. 2007, "
+         "Eq. 7); empty otherwise"},
     };
     spec.params = {
         {"photons", ParamType::Int, std::int64_t{1000000}, 1, 1e15, {},
@@ -602,9 +712,9 @@ PassRegistration photonPass() {
          "maximum scattering events (surface or medium) per photon path; 1 = only the first event"},
         {"rr_depth", ParamType::Int, std::int64_t{5}, 1, 4096, {},
          "scattering events before Russian roulette may end a photon path"},
-        {"store", ParamType::String, std::string("all"), 0, 0, {"caustic", "global", "surface", "volume", "all"},
+        {"store", ParamType::String, std::string("all"), 0, 0, {"caustic", "global", "surface", "volume", "all", "none"},
          "which photons to keep: caustic (L S+ D), global (after a non-specular event), surface (both), "
-         "volume (medium events), or all"},
+         "volume (medium events), all, or none (photon rays only)"},
         {"store_direct", ParamType::Bool, false, 0, 0, {},
          "also keep direct photons (L D) in global_photons; usually next-event estimation covers them"},
         {"store_single_scattering", ParamType::Bool, true, 0, 0, {},
@@ -618,6 +728,12 @@ PassRegistration photonPass() {
         {"batch_size", ParamType::Int, std::int64_t{1 << 18}, 1, 1 << 26, {},
          "photon paths per batch (memory vs. parallelism; a streamed map is handed over per batch); does not "
          "change the photons"},
+        {"photon_rays", ParamType::Bool, false, 0, 0, {},
+         "record every path segment as a photon ray with Eq. 7's bounded density (photon ray splatting)"},
+        {"clamp_distance", ParamType::Float, 0.0, 0.0, 1e30, {},
+         "D~ of Eq. 7: segment lengths below it count as this long in the density (0 = 0.01 x scene diagonal)"},
+        {"specular_pdf", ParamType::Float, 100.0, 1e-6, 1e30, {},
+         "p_s^perp (1/sr) used at specular events in Eq. 7, which have no density: large = small caustic bandwidths"},
         {"seed", ParamType::Int, std::int64_t{0}, 0, 1e15, {},
          "seed of the photon paths' random streams (0 = the job's seed); another seed traces an independent "
          "photon set at the same eye vertices"},

@@ -1,0 +1,276 @@
+// The splat kd-tree of photon ray splatting (Herzog et al. 2007, §7): an
+// axis-aligned kd-tree over eye vertices built with the sliding-midpoint rule,
+// in 8-byte nodes of four kinds (§7.1): interior (splitting plane, axis,
+// offset of the right child; the left child follows its parent), leaf (first
+// vertex in tree order, count), empty, and backface-culling nodes (octahedral
+// reference normal and C_max = sin δ for the subtree's largest deviation δ
+// from it), one above each topmost subtree whose normals deviate by at most
+// `maxCullDeviation`. It answers the conical-frustum queries of §7.2
+// (Algorithm 1): every vertex whose leaf a photon ray's frustum may reach,
+// minus the subtrees all of whose vertices face away from the ray.
+//
+// Algorithm 1's gaps, filled here: the radius at the far end, R1 = R(t1), is
+// the largest along [t0, t1] because R grows with t (dh >= 0); the child
+// first along the ray (by the sign of dir[a]) gets [t0, min(t1, t + Δt)] and
+// the other [max(t0, t - Δt), t1], Δt = R1 / |dir[a]|; a ray parallel to the
+// plane visits a child iff it lies within R1 of the child's half-space, over
+// the whole interval. Built the same for any thread count (built serially).
+#pragma once
+
+#include "engine/core/math.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <numeric>
+#include <span>
+#include <vector>
+
+namespace fg {
+
+struct SplatKdNode {
+    enum Kind : std::uint32_t { Interior = 0, Leaf = 1, Empty = 2, Cull = 3 };
+    std::uint32_t a = 0;  // interior: plane (float bits); leaf: first vertex; cull: octahedral normal
+    std::uint32_t b = 0;  // low 2 bits: kind; interior: axis (2 bits), right-child offset; leaf: count; cull: C_max bits
+    Kind kind() const { return static_cast<Kind>(b & 3u); }
+};
+static_assert(sizeof(SplatKdNode) == 8);
+
+// A conical frustum along a ray: radius R(t) = h0 + dh min(t, tCap) for t in [0, tMax].
+struct SplatCone {
+    Vec3 origin{0.0f};
+    Vec3 direction{0.0f, 0.0f, 1.0f};
+    float h0 = 0.0f;
+    float dh = 0.0f;
+    float tCap = 0.0f;
+    float tMax = 0.0f;
+    float radius(float t) const { return h0 + dh * std::min(t, tCap); }
+};
+
+struct SplatKdTreeOptions {
+    std::uint32_t maxLeafSize = 16;   // leaves hold fewer than this many vertices (§7.1)
+    float minCellDiagonal = 0.0f;     // cells smaller than this become leaves (§7.1: 0.1 % of the scene diagonal)
+    float maxCullDeviationDegrees = 45.0f;  // 0 or less: no backface-culling nodes
+};
+
+class SplatKdTree {
+public:
+    SplatKdTree() = default;
+    SplatKdTree(std::span<const Vec3> positions, std::span<const Vec3> normals, const SplatKdTreeOptions& options = {}) {
+        build(positions, normals, options);
+    }
+
+    void build(std::span<const Vec3> positions, std::span<const Vec3> normals, const SplatKdTreeOptions& options = {}) {
+        options_ = options;
+        nodes_.clear();
+        ids_.resize(positions.size());
+        std::iota(ids_.begin(), ids_.end(), 0u);
+        lo_ = Vec3(kInfinity);
+        hi_ = Vec3(-kInfinity);
+        for (const Vec3& p : positions) {
+            lo_ = glm::min(lo_, p);
+            hi_ = glm::max(hi_, p);
+        }
+        if (positions.empty()) lo_ = hi_ = Vec3(0.0f);
+        const float cosLimit = std::cos(glm::radians(std::max(0.0f, options.maxCullDeviationDegrees)));
+        buildNode(positions, normals, 0, ids_.size(), lo_, hi_, options.maxCullDeviationDegrees > 0.0f, cosLimit, 0);
+        positions_.resize(ids_.size());
+        normals_.resize(ids_.size());
+        for (std::size_t i = 0; i < ids_.size(); ++i) {
+            positions_[i] = positions[ids_[i]];
+            normals_[i] = normals[ids_[i]];
+        }
+    }
+
+    std::size_t size() const { return ids_.size(); }
+    std::span<const SplatKdNode> nodes() const { return nodes_; }
+    // Tree order: slot -> vertex index, and the vertices' data in that order.
+    std::uint32_t vertexOf(std::uint32_t slot) const { return ids_[slot]; }
+    const Vec3& slotPosition(std::uint32_t slot) const { return positions_[slot]; }
+    const Vec3& slotNormal(std::uint32_t slot) const { return normals_[slot]; }
+    Vec3 boundsMin() const { return lo_; }
+    Vec3 boundsMax() const { return hi_; }
+
+    static Vec3 decodeNormal(std::uint32_t packed) {
+        const float u = static_cast<float>(packed & 0xffffu) / 65535.0f * 2.0f - 1.0f;
+        const float v = static_cast<float>(packed >> 16) / 65535.0f * 2.0f - 1.0f;
+        Vec3 n(u, v, 1.0f - std::abs(u) - std::abs(v));
+        if (n.z < 0.0f) {
+            const float x = (1.0f - std::abs(v)) * (u >= 0.0f ? 1.0f : -1.0f);
+            const float y = (1.0f - std::abs(u)) * (v >= 0.0f ? 1.0f : -1.0f);
+            n.x = x;
+            n.y = y;
+        }
+        return glm::normalize(n);
+    }
+    static float decodeFloat(std::uint32_t bits) {
+        float f;
+        std::memcpy(&f, &bits, sizeof f);
+        return f;
+    }
+
+    // Calls visit(slot) for every vertex of every leaf the cone may reach,
+    // except in subtrees culled because all their normals face along the ray;
+    // set useCullNodes = false to ignore the culling nodes.
+    template <class Visit>
+    void forEachCandidate(const SplatCone& cone, Visit&& visit, bool useCullNodes = true) const {
+        if (nodes_.empty()) return;
+        // Clip [0, tMax] to the root box grown by the largest radius.
+        const float grow = cone.radius(cone.tMax);
+        float t0 = 0.0f, t1 = cone.tMax;
+        for (int a = 0; a < 3; ++a) {
+            const float lo = lo_[a] - grow, hi = hi_[a] + grow;
+            const float o = cone.origin[a], d = cone.direction[a];
+            if (d == 0.0f) {
+                if (o < lo || o > hi) return;
+                continue;
+            }
+            float ta = (lo - o) / d, tb = (hi - o) / d;
+            if (ta > tb) std::swap(ta, tb);
+            t0 = std::max(t0, ta);
+            t1 = std::min(t1, tb);
+        }
+        if (t0 > t1) return;
+        struct Entry {
+            std::uint32_t node;
+            float t0, t1;
+        };
+        Entry stack[128];
+        int top = 0;
+        stack[top++] = {0, t0, t1};
+        while (top > 0) {
+            const Entry e = stack[--top];
+            const SplatKdNode node = nodes_[e.node];
+            switch (node.kind()) {
+            case SplatKdNode::Empty:
+                break;
+            case SplatKdNode::Leaf: {
+                const std::uint32_t count = node.b >> 2;
+                for (std::uint32_t s = node.a; s < node.a + count; ++s) visit(s);
+                break;
+            }
+            case SplatKdNode::Cull:
+                if (useCullNodes &&
+                    glm::dot(cone.direction, decodeNormal(node.a)) > decodeFloat(node.b & ~3u))
+                    break;
+                stack[top++] = {e.node + 1, e.t0, e.t1};
+                break;
+            case SplatKdNode::Interior: {
+                const int axis = static_cast<int>((node.b >> 2) & 3u);
+                const std::uint32_t right = e.node + (node.b >> 4);
+                const std::uint32_t left = e.node + 1;
+                const float plane = decodeFloat(node.a);
+                // Relative slack keeps rounding from dropping vertices on the frustum's boundary.
+                const float r1 = cone.radius(e.t1) * 1.00001f + 1e-7f;
+                const float o = cone.origin[axis], d = cone.direction[axis];
+                if (std::abs(d) < 1e-12f) {
+                    if (o + r1 >= plane) stack[top++] = {right, e.t0, e.t1};
+                    if (o - r1 <= plane) stack[top++] = {left, e.t0, e.t1};
+                    break;
+                }
+                const float t = (plane - o) / d;
+                const float dt = r1 / std::abs(d);
+                const std::uint32_t nearChild = d > 0.0f ? left : right;
+                const std::uint32_t farChild = d > 0.0f ? right : left;
+                if (e.t1 >= t - dt) stack[top++] = {farChild, std::max(e.t0, t - dt), e.t1};
+                if (e.t0 <= t + dt) stack[top++] = {nearChild, e.t0, std::min(e.t1, t + dt)};
+                break;
+            }
+            }
+        }
+    }
+
+private:
+    static std::uint32_t floatBits(float f) {
+        std::uint32_t bits;
+        std::memcpy(&bits, &f, sizeof bits);
+        return bits;
+    }
+    static std::uint32_t encodeNormal(const Vec3& n) {
+        const float l1 = std::abs(n.x) + std::abs(n.y) + std::abs(n.z);
+        float u = n.x / l1, v = n.y / l1;
+        if (n.z < 0.0f) {
+            const float x = (1.0f - std::abs(v)) * (u >= 0.0f ? 1.0f : -1.0f);
+            const float y = (1.0f - std::abs(u)) * (v >= 0.0f ? 1.0f : -1.0f);
+            u = x;
+            v = y;
+        }
+        const auto q = [](float x) { return static_cast<std::uint32_t>(std::lround((std::clamp(x, -1.0f, 1.0f) + 1.0f) * 0.5f * 65535.0f)); };
+        return q(u) | (q(v) << 16);
+    }
+
+    void buildNode(std::span<const Vec3> p, std::span<const Vec3> n, std::size_t begin, std::size_t end, Vec3 lo,
+                   Vec3 hi, bool mayCull, float cosLimit, int depth) {
+        const std::size_t count = end - begin;
+        if (count == 0) {
+            nodes_.push_back({0u, SplatKdNode::Empty});
+            return;
+        }
+        if (mayCull && count > 1) {
+            Vec3 mean(0.0f);
+            for (std::size_t i = begin; i < end; ++i) mean += n[ids_[i]];
+            if (glm::length(mean) > 1e-6f) {
+                const std::uint32_t packed = encodeNormal(glm::normalize(mean));
+                const Vec3 reference = decodeNormal(packed);
+                float minCos = 1.0f;
+                for (std::size_t i = begin; i < end; ++i) minCos = std::min(minCos, glm::dot(reference, n[ids_[i]]));
+                if (minCos >= cosLimit) {
+                    // sin δ, rounded up (the kind bits take the lowest mantissa bits).
+                    const float sinDelta = std::sqrt(std::max(0.0f, 1.0f - minCos * minCos)) * 1.0001f + 1e-6f;
+                    const std::uint32_t bits = (floatBits(sinDelta) + 3u) & ~3u;
+                    nodes_.push_back({packed, bits | SplatKdNode::Cull});
+                    mayCull = false;
+                }
+            }
+        }
+        const Vec3 extent = hi - lo;
+        if (count < options_.maxLeafSize || glm::length(extent) < options_.minCellDiagonal || depth > 60) {
+            nodes_.push_back({static_cast<std::uint32_t>(begin), (static_cast<std::uint32_t>(count) << 2) | SplatKdNode::Leaf});
+            return;
+        }
+        const auto first = ids_.begin() + static_cast<std::ptrdiff_t>(begin);
+        const auto last = ids_.begin() + static_cast<std::ptrdiff_t>(end);
+        Vec3 pointsLo(kInfinity), pointsHi(-kInfinity);
+        for (auto it = first; it != last; ++it) {
+            pointsLo = glm::min(pointsLo, p[*it]);
+            pointsHi = glm::max(pointsHi, p[*it]);
+        }
+        // The cell's longest axis along which the vertices differ (a split across
+        // an axis where they all agree would not separate them).
+        int axis = -1;
+        for (int a = 0; a < 3; ++a)
+            if (pointsHi[a] > pointsLo[a] && (axis < 0 || extent[a] > extent[axis])) axis = a;
+        if (axis < 0) {  // all at one position
+            nodes_.push_back({static_cast<std::uint32_t>(begin), (static_cast<std::uint32_t>(count) << 2) | SplatKdNode::Leaf});
+            return;
+        }
+        float split = 0.5f * (lo[axis] + hi[axis]);
+        const float pMin = pointsLo[axis], pMax = pointsHi[axis];
+        // Sliding midpoint: a plane with all vertices on one side slides to the nearest vertex.
+        if (pMin >= split) split = pMin;
+        else if (pMax < split) split = pMax;
+        auto middle = std::stable_partition(first, last, [&](std::uint32_t id) { return p[id][axis] < split; });
+        if (middle == first) {
+            // All at pMin == split: that vertex (and its equals) alone go left, just below the plane.
+            middle = std::stable_partition(first, last, [&](std::uint32_t id) { return p[id][axis] <= split; });
+        }
+        const std::size_t mid = static_cast<std::size_t>(middle - ids_.begin());
+        const std::size_t self = nodes_.size();
+        nodes_.push_back({floatBits(split), static_cast<std::uint32_t>(axis) << 2 | SplatKdNode::Interior});
+        Vec3 leftHi = hi, rightLo = lo;
+        leftHi[axis] = split;
+        rightLo[axis] = split;
+        buildNode(p, n, begin, mid, lo, leftHi, mayCull, cosLimit, depth + 1);
+        nodes_[self].b |= static_cast<std::uint32_t>(nodes_.size() - self) << 4;
+        buildNode(p, n, mid, end, rightLo, hi, mayCull, cosLimit, depth + 1);
+    }
+
+    SplatKdTreeOptions options_;
+    std::vector<SplatKdNode> nodes_;
+    std::vector<std::uint32_t> ids_;
+    std::vector<Vec3> positions_, normals_;
+    Vec3 lo_{0.0f}, hi_{0.0f};
+};
+
+}  // namespace fg

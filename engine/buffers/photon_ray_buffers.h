@@ -1,0 +1,71 @@
+// SoA buffer of photon rays for photon ray splatting (Herzog et al. 2007):
+// every segment x_i -> x_{i+1} of every photon path, with the bounded path
+// density p~ of Eq. 7 and, once the ray_bandwidth pass has run, the conical
+// frustum of §6 (initial bandwidth h_0 and its growth dh per unit length).
+#pragma once
+
+#include "engine/accel/splat_kdtree.h"
+#include "engine/core/math.h"
+#include "engine/core/pass.h"
+#include "engine/core/soa.h"
+
+#include <array>
+#include <cstdint>
+
+namespace fg {
+
+// Classes of photon rays, by the vertex they leave (index into PhotonRays::countPerClass).
+namespace PhotonRayClass {
+inline constexpr std::uint8_t Direct = 0;   // leaves the light (x_0)
+inline constexpr std::uint8_t Caustic = 1;  // leaves a specular vertex reached through specular events only
+inline constexpr std::uint8_t Global = 2;   // leaves a vertex after at least one non-specular event
+inline constexpr std::size_t Count = 3;
+}  // namespace PhotonRayClass
+
+FG_SOA_COLUMN(RayOrigin, Vec3, "origin");             // x_i
+FG_SOA_COLUMN(RayDirection, Vec3, "direction");       // unit, x_i -> x_{i+1}
+FG_SOA_COLUMN(RayLength, float, "length");            // |x_{i+1} - x_i|; escaping rays clipped to the scene box
+FG_SOA_COLUMN(RayPower, Rgb, "power");                // flux carried along the segment, divided by the emitted count
+FG_SOA_COLUMN(RayH0, float, "h0");                    // min(h(x_i), h(x_{i+1})), §6
+FG_SOA_COLUMN(RayDh, float, "dh");                    // max(0, h(x_{i+1}) - h(x_i)) / length, §6
+FG_SOA_COLUMN(RayDensity, float, "density");          // p~(x_{i+1} | x_i) of Eq. 7
+FG_SOA_COLUMN(RayOriginDensity, float, "origin_density");  // p~(x_i | x_{i-1}), 0 for rays leaving the light
+FG_SOA_COLUMN(RayClassColumn, std::uint8_t, "class");  // PhotonRayClass
+FG_SOA_COLUMN(RayOriginNormal, Vec3, "origin_normal");  // geometric normal at x_i on its outgoing side; zero if none
+FG_SOA_COLUMN(RayEndNormal, Vec3, "end_normal");        // geometric normal at x_{i+1} facing the ray; zero if it escaped
+FG_SOA_COLUMN(RayPath, std::uint64_t, "path");          // photon path index (rays of a path are consecutive)
+FG_SOA_COLUMN(RayVertex, std::uint16_t, "vertex");      // i
+
+using PhotonRayBuffer = SoaBuffer<RayOrigin, RayDirection, RayLength, RayPower, RayH0, RayDh, RayDensity, RayOriginDensity,
+                                  RayClassColumn, RayOriginNormal, RayEndNormal, RayPath, RayVertex>;
+
+struct PhotonRays {
+    PhotonRayBuffer rays;
+    std::uint64_t emitted = 0;  // photon paths emitted
+    float clampDistance = 0.0f;  // D~ of Eq. 7
+    // Set by ray_bandwidth: stored rays per class (M of Eq. 8), the pilot's
+    // normalisation w and scene scale mu_C, and whether h_0 and dh are filled.
+    std::array<std::uint64_t, PhotonRayClass::Count> countPerClass{};
+    double normalisation = 0.0;  // w
+    double sceneScale = 0.0;     // mu_C
+    bool hasBandwidths = false;
+    std::size_t bytes() const { return rays.bytes(); }
+};
+template <>
+struct BufferTypeName<PhotonRays> {
+    static constexpr const char* value = "PhotonRays";
+};
+
+// The splat kd-tree over the eye vertices (§7.1), in the eye buffer's index space.
+struct SplatIndex {
+    SplatKdTree tree;
+    std::size_t bytes() const {
+        return tree.nodes().size() * sizeof(SplatKdNode) + tree.size() * (2 * sizeof(Vec3) + sizeof(std::uint32_t));
+    }
+};
+template <>
+struct BufferTypeName<SplatIndex> {
+    static constexpr const char* value = "SplatIndex";
+};
+
+}  // namespace fg

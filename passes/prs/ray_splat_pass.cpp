@@ -1,0 +1,191 @@
+// Photon ray splatting (`ray_splat`): Herzog et al. 2007, "Global
+// Illumination using Photon Ray Splatting", §4-5 (density estimation in ray
+// space, Eqs. 3-6 read as in passes/prs/ray_splat.h) and §7.2 (the frustum
+// traversal of Algorithm 1 over the splat kd-tree). Each photon ray, with the
+// frustum ray_bandwidth gave it (§6), adds f_s Phi |cos theta_x| K_R(d_perp)
+// to the pixel of every feasible eye vertex near it. f_s is evaluated at the
+// vertex directly (Eq. 6): a Lambertian vertex's f_s is one constant, so its
+// light goes straight to the film; glossy vertices are evaluated per ray
+// here, where §8.1 would project into a radiance map first (not built).
+// Rays are splatted in fixed blocks into per-block films merged in block
+// order, so the image is the same for any thread count.
+#include "passes/passes.h"
+#include "passes/caustics/photon_estimate.h"
+#include "passes/prs/ray_splat.h"
+
+#include "engine/buffers/photon_buffers.h"
+#include "engine/buffers/photon_ray_buffers.h"
+#include "engine/core/error.h"
+#include "engine/image/film.h"
+#include "engine/scene/scene.h"
+#include "jobs/parallel.h"
+
+#include <algorithm>
+#include <optional>
+#include <vector>
+
+namespace fg {
+
+namespace {
+
+// Memory for the per-block films; at least one block, at most 64.
+constexpr std::size_t kAccumulatorBudget = std::size_t{256} << 20;
+
+struct BlockFilm {
+    std::vector<Rgb> pixels;
+    std::int64_t deposits = 0;
+    std::int64_t candidates = 0;
+    std::int64_t splatted = 0;
+};
+
+class RaySplatPass final : public Pass {
+public:
+    void run(PassContext& ctx) override {
+        const Scene& scene = ctx.scene();
+        const EyeVertexBuffer::View eye = ctx.input<EyeVertices>("eye_vertices").vertices.view();
+        const SplatIndex& index = ctx.input<SplatIndex>("splat_index");
+        const PhotonRays& photonRays = ctx.input<PhotonRays>("splat_rays");
+        if (!photonRays.hasBandwidths) throw std::logic_error("ray_splat: the rays carry no bandwidths");
+        if (index.tree.size() != eye.size()) throw std::logic_error("ray_splat: the index was not built from these eye vertices");
+        const SplatEndCap cap = ctx.params().getString("end_cap") == "hemisphere" ? SplatEndCap::Hemisphere
+                                                                                  : SplatEndCap::TangentPlane;
+        const bool withDirect = ctx.params().getString("classes") == "all";
+        const bool useCullNodes = ctx.params().getBool("cull_nodes");
+
+        Film& image = ctx.createOutput<Film>("radiance", ctx.filmSettings());
+        const std::size_t pixelCount = image.pixelCount();
+        for (std::uint32_t pixel : eye.column<EyePixel>())
+            if (pixel >= pixelCount) throw std::logic_error("ray_splat: eye vertex outside the film");
+        prepareTargets(scene, eye, index.tree);
+
+        const PhotonRayBuffer& rays = photonRays.rays;
+        const auto origin = rays.column<RayOrigin>();
+        const auto direction = rays.column<RayDirection>();
+        const auto length = rays.column<RayLength>();
+        const auto power = rays.column<RayPower>();
+        const auto h0 = rays.column<RayH0>();
+        const auto dh = rays.column<RayDh>();
+        const auto rayClass = rays.column<RayClassColumn>();
+        const auto originNormal = rays.column<RayOriginNormal>();
+        const auto endNormal = rays.column<RayEndNormal>();
+
+        const std::size_t blockBytes = std::max<std::size_t>(1, pixelCount * sizeof(Rgb));
+        std::vector<BlockFilm> blocks(std::clamp<std::size_t>(kAccumulatorBudget / blockBytes, 1, 64));
+        jobs::parallelForBlocks(rays.size(), blocks.size(), [&](std::size_t b, jobs::IndexRange range) {
+            BlockFilm& acc = blocks[b];
+            acc.pixels.assign(pixelCount, Rgb(0.0f));
+            for (std::size_t r = range.begin; r != range.end; ++r) {
+                if (rayClass[r] == PhotonRayClass::Direct && !withDirect) continue;
+                const SplatRay ray{origin[r], direction[r], h0[r], dh[r], length[r], originNormal[r], endNormal[r]};
+                if (!(ray.h0 > 0.0f || ray.dh > 0.0f)) continue;
+                ++acc.splatted;
+                const Vec3 incident = -ray.direction;
+                index.tree.forEachCandidate(
+                    splatCone(ray, cap),
+                    [&](std::uint32_t slot) {
+                        ++acc.candidates;
+                        const float weight =
+                            splatWeight(ray, cap, index.tree.slotPosition(slot), index.tree.slotNormal(slot));
+                        if (!(weight > 0.0f)) return;
+                        const Target& target = targets_[slot];
+                        Rgb f;
+                        if (target.lambertian) {
+                            if (!(glm::dot(incident, target.geometricNormal) > 0.0f)) return;
+                            f = target.weight;
+                        } else {
+                            f = VertexBrdf(scene, eye, target.vertex)(incident) *
+                                eye.column<EyeThroughput>()[target.vertex];
+                        }
+                        const Rgb value = f * power[r] * weight;
+                        if (!isFinite(value)) return;
+                        acc.pixels[target.pixel] += value;
+                        ++acc.deposits;
+                    },
+                    useCullNodes);
+            }
+        });
+        std::vector<Rgb> total(pixelCount, Rgb(0.0f));
+        std::int64_t deposits = 0, candidates = 0, splatted = 0;
+        for (const BlockFilm& block : blocks) {
+            for (std::size_t i = 0; i < block.pixels.size(); ++i) total[i] += block.pixels[i];
+            deposits += block.deposits;
+            candidates += block.candidates;
+            splatted += block.splatted;
+        }
+        image.addToPixels(total, 1.0f);
+        ctx.addItems(static_cast<std::int64_t>(rays.size()));
+        ctx.addCounter("splatted_rays", splatted);
+        ctx.addCounter("vertex_candidates", candidates);
+        ctx.addCounter("vertex_deposits", deposits);
+    }
+
+private:
+    // What a deposit needs of its eye vertex, in tree order. At a Lambertian
+    // vertex f_s times the throughput is one constant (rho / pi) T.
+    struct Target {
+        Vec3 geometricNormal{0.0f};
+        Rgb weight{0.0f};
+        std::uint32_t pixel = 0;
+        std::uint32_t vertex = 0;
+        bool lambertian = false;
+    };
+
+    void prepareTargets(const Scene& scene, const EyeVertexBuffer::View& eye, const SplatKdTree& tree) {
+        targets_.assign(eye.size(), Target{});
+        jobs::parallelFor(eye.size(), 4096, [&](std::size_t slot) {
+            Target& t = targets_[slot];
+            const std::uint32_t v = tree.vertexOf(static_cast<std::uint32_t>(slot));
+            const EyeVertexBuffer::Record vertex = eye.get(v);
+            t.vertex = v;
+            t.pixel = vertex.get<EyePixel>();
+            t.geometricNormal = vertex.get<EyeGeometricNormal>();
+            const std::optional<Rgb> reflectance =
+                scene.bsdfs[vertex.get<EyeBsdf>()]->constantReflectance(vertex.get<EyeUv>());
+            if (!reflectance) return;
+            t.lambertian = true;
+            // Seen from below its shading normal, a Lambertian surface reflects nothing.
+            if (glm::dot(vertex.get<EyeOutgoing>(), vertex.get<EyeNormal>()) > 0.0f)
+                t.weight = kInvPi * *reflectance * vertex.get<EyeThroughput>();
+        });
+    }
+
+    std::vector<Target> targets_;
+};
+
+}  // namespace
+
+PassRegistration raySplatPass() {
+    PassSpec spec;
+    spec.name = "ray_splat";
+    spec.doc = "Photon ray splatting (Herzog et al. 2007, §4-5, §7.2): every photon ray splats f_s Phi cos K_R(d_perp) "
+               "onto the eye vertices in its conical frustum, as a radiance layer";
+    spec.inputs = {
+        {"eye_vertices", "EyeVertices", "the vertices rays splat to, with pixel and throughput"},
+        {"splat_index", "SplatIndex", "splat kd-tree over eye_vertices"},
+        {"splat_rays", "PhotonRays", "photon rays with bandwidths (ray_bandwidth)"},
+    };
+    spec.outputs = {{"radiance", "Film", "the splatted indirect light alone (a film from black)"}};
+    spec.params = {
+        {"end_cap", ParamType::String, std::string("tangent_plane"), 0, 0, {"tangent_plane", "hemisphere"},
+         "footprint beyond the hit point: the paper's hemisphere (biased at oblique incidence) or the cylinder "
+         "cut by the hit's tangent plane (exact on planes)"},
+        {"classes", ParamType::String, std::string("indirect"), 0, 0, {"indirect", "all"},
+         "which rays splat: indirect (caustic and global; the eye pass has the direct light) or all"},
+        {"cull_nodes", ParamType::Bool, true, 0, 0, {}, "use the index's backface-culling nodes"},
+    };
+    const auto preflight = [](const PreflightContext& pf) {
+        if (!pf.scene.media.empty())
+            throw InputError(pf.source + ": pass '" + pf.instance +
+                             "': photon ray splatting traces rays between surfaces only; the scene has participating media");
+    };
+    const auto memory = [](const PreflightContext& pf) {
+        const std::uint64_t image =
+            multiplyBytes(static_cast<std::uint64_t>(pf.film.width) * static_cast<std::uint64_t>(pf.film.height), sizeof(Rgb));
+        const std::uint64_t blocks = std::clamp<std::uint64_t>(kAccumulatorBudget / std::max<std::uint64_t>(image, 1), 1, 64);
+        return MemoryEstimate{addBytes(addBytes(filmBytes(pf.film), image), multiplyBytes(image, blocks)),
+                              std::to_string(blocks) + " splat accumulators", {}};
+    };
+    return {spec, [] { return std::make_unique<RaySplatPass>(); }, preflight, memory};
+}
+
+}  // namespace fg

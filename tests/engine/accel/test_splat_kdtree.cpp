@@ -1,0 +1,161 @@
+// The splat kd-tree (Herzog et al. 2007, §7): structural invariants, and the
+// frustum traversal against brute force: for 10^4 random cones (axis-parallel,
+// grazing, dh = 0 and degenerate among them) the tree must report every
+// feasible eye vertex, with and without backface-culling nodes.
+#include "engine/accel/splat_kdtree.h"
+#include "passes/prs/ray_splat.h"
+#include "jobs/random.h"
+
+#include <gtest/gtest.h>
+
+#include <set>
+#include <vector>
+
+namespace fg {
+namespace {
+
+// Vertices on three faces of a box (coherent normals, as eye vertices on walls)
+// and a cloud with random normals.
+void makeVertices(std::vector<Vec3>& p, std::vector<Vec3>& n, std::size_t count) {
+    for (std::size_t i = 0; i < count; ++i) {
+        jobs::Rng rng(5, 1, i);
+        const Vec2 u = rng.uniform2();
+        const float kind = rng.uniform();
+        if (kind < 0.25f) {
+            p.emplace_back(u.x, u.y, 0.0f);
+            n.emplace_back(0, 0, 1);
+        } else if (kind < 0.5f) {
+            p.emplace_back(0.0f, u.x, u.y);
+            n.emplace_back(1, 0, 0);
+        } else if (kind < 0.75f) {
+            p.emplace_back(u.x, 1.0f, u.y);
+            n.emplace_back(0, -1, 0);
+        } else {
+            p.emplace_back(u.x, u.y, rng.uniform());
+            const Vec2 w = rng.uniform2();
+            const float z = 1.0f - 2.0f * w.x, r = std::sqrt(std::max(0.0f, 1.0f - z * z));
+            n.emplace_back(r * std::cos(2.0f * kPi * w.y), r * std::sin(2.0f * kPi * w.y), z);
+        }
+    }
+}
+
+SplatRay randomRay(std::uint64_t i) {
+    jobs::Rng rng(9, 2, i);
+    SplatRay ray;
+    ray.origin = Vec3(-0.3f) + 1.6f * Vec3(rng.uniform(), rng.uniform(), rng.uniform());
+    const Vec2 w = rng.uniform2();
+    const float z = 1.0f - 2.0f * w.x, r = std::sqrt(std::max(0.0f, 1.0f - z * z));
+    ray.direction = Vec3(r * std::cos(2.0f * kPi * w.y), r * std::sin(2.0f * kPi * w.y), z);
+    const int kind = static_cast<int>(i % 5);
+    if (kind == 1) {  // axis-parallel
+        ray.direction = Vec3(0.0f);
+        ray.direction[static_cast<int>(i / 5 % 3)] = (i / 15) % 2 ? 1.0f : -1.0f;
+    } else if (kind == 2) {  // grazing the z = 0 face
+        ray.direction = glm::normalize(Vec3(ray.direction.x, ray.direction.y, 0.01f * ray.direction.z));
+        ray.origin.z = 0.02f * rng.uniform();
+    }
+    ray.length = 1.5f * rng.uniform();
+    ray.h0 = 0.1f * rng.uniform();
+    ray.dh = kind == 3 ? 0.0f : 0.1f * rng.uniform();  // dh = 0: a cylinder
+    if (kind == 4 && i % 2) ray.length = 0.0f, ray.h0 = 0.0f;  // degenerate: no footprint
+    if (rng.uniform() < 0.5f) ray.originNormal = glm::normalize(ray.direction + Vec3(0.1f, 0.0f, 0.0f));
+    if (rng.uniform() < 0.8f) {
+        const Vec3 tilt(rng.uniform() - 0.5f, rng.uniform() - 0.5f, rng.uniform() - 0.5f);
+        ray.endNormal = glm::normalize(-ray.direction + tilt);
+    }
+    return ray;
+}
+
+TEST(SplatKdTree, Invariants) {
+    std::vector<Vec3> p, n;
+    makeVertices(p, n, 20000);
+    const SplatKdTree tree(p, n, {16, 0.0f, 45.0f});
+    ASSERT_EQ(tree.size(), p.size());
+    std::vector<int> seen(p.size(), 0);
+    for (std::uint32_t s = 0; s < tree.size(); ++s) {
+        ++seen[tree.vertexOf(s)];
+        EXPECT_EQ(tree.slotPosition(s), p[tree.vertexOf(s)]);
+    }
+    for (int count : seen) ASSERT_EQ(count, 1);
+    // Walk the tree: leaves partition the slots, vertices lie in their cells,
+    // leaves hold fewer than 16, cull nodes bound their subtree's normals.
+    struct Item {
+        std::uint32_t node;
+        Vec3 lo, hi;
+        Vec3 cullNormal;
+        float cullSin;
+    };
+    std::vector<Item> stack{{0, tree.boundsMin(), tree.boundsMax(), Vec3(0.0f), 2.0f}};
+    std::size_t covered = 0;
+    int cullNodes = 0;
+    while (!stack.empty()) {
+        const Item item = stack.back();
+        stack.pop_back();
+        const SplatKdNode node = tree.nodes()[item.node];
+        if (node.kind() == SplatKdNode::Leaf) {
+            const std::uint32_t count = node.b >> 2;
+            EXPECT_LT(count, 16u);
+            for (std::uint32_t s = node.a; s < node.a + count; ++s) {
+                const Vec3 x = tree.slotPosition(s);
+                for (int a = 0; a < 3; ++a) {
+                    EXPECT_GE(x[a], item.lo[a]);
+                    EXPECT_LE(x[a], item.hi[a]);
+                }
+                if (item.cullSin <= 1.0f) {
+                    const float c = glm::dot(tree.slotNormal(s), item.cullNormal);
+                    EXPECT_GE(std::sqrt(std::max(0.0f, 1.0f - item.cullSin * item.cullSin)), 0.0f);
+                    EXPECT_GE(c, std::sqrt(std::max(0.0f, 1.0f - item.cullSin * item.cullSin)) - 1e-4f);
+                }
+            }
+            covered += count;
+        } else if (node.kind() == SplatKdNode::Cull) {
+            ++cullNodes;
+            stack.push_back({item.node + 1, item.lo, item.hi, SplatKdTree::decodeNormal(node.a),
+                             SplatKdTree::decodeFloat(node.b & ~3u)});
+        } else if (node.kind() == SplatKdNode::Interior) {
+            const int axis = static_cast<int>((node.b >> 2) & 3u);
+            const float plane = SplatKdTree::decodeFloat(node.a);
+            Item left = item, right = item;
+            left.node = item.node + 1;
+            right.node = item.node + (node.b >> 4);
+            left.hi[axis] = plane;
+            right.lo[axis] = plane;
+            stack.push_back(left);
+            stack.push_back(right);
+        }
+    }
+    EXPECT_EQ(covered, p.size());
+    EXPECT_GT(cullNodes, 2);  // the three walls at least
+}
+
+class SplatKdTreeTraversal : public ::testing::TestWithParam<float> {};
+
+TEST_P(SplatKdTreeTraversal, FindsEveryFeasibleVertex) {
+    std::vector<Vec3> p, n;
+    makeVertices(p, n, 6000);
+    const SplatKdTree tree(p, n, {16, 0.0f, GetParam()});
+    std::int64_t feasibleTotal = 0, visitedTotal = 0;
+    for (const SplatEndCap cap : {SplatEndCap::Hemisphere, SplatEndCap::TangentPlane}) {
+        for (std::uint64_t i = 0; i < 5000; ++i) {
+            const SplatRay ray = randomRay(i);
+            std::set<std::uint32_t> expected, found;
+            for (std::uint32_t v = 0; v < p.size(); ++v)
+                if (splatWeight(ray, cap, p[v], n[v]) > 0.0f) expected.insert(v);
+            tree.forEachCandidate(splatCone(ray, cap), [&](std::uint32_t slot) {
+                ++visitedTotal;
+                const std::uint32_t v = tree.vertexOf(slot);
+                if (splatWeight(ray, cap, p[v], n[v]) > 0.0f) found.insert(v);
+            });
+            ASSERT_EQ(found, expected) << "ray " << i;
+            feasibleTotal += static_cast<std::int64_t>(expected.size());
+        }
+    }
+    EXPECT_GT(feasibleTotal, 10000);
+    // The traversal prunes: far fewer candidates than a scan of all vertices.
+    EXPECT_LT(visitedTotal, 10000 * static_cast<std::int64_t>(p.size()) / 10);
+}
+
+INSTANTIATE_TEST_SUITE_P(CullNodes, SplatKdTreeTraversal, ::testing::Values(0.0f, 45.0f, 89.0f));
+
+}  // namespace
+}  // namespace fg

@@ -1,0 +1,122 @@
+// Photon ray splatting's estimate (Herzog et al. 2007, §4-5) on analytic
+// scenes: a plane under a directional light at 0, 45 and 70 degrees, where
+// the tangent-plane end cap gives E_0 cos θ and the paper's hemisphere cap
+// E_0 cos θ (1/2 + cos θ (1/2 + sin^2 θ / 4)) (passes/prs/ray_splat.h derives
+// it); a point light over a plane, E(r) = I H / (H^2 + r^2)^(3/2); and the
+// prs pipeline's image, bit-identical on 1 and 2 threads.
+#include "passes/prs/ray_splat.h"
+
+#include "engine/scene/scene_loader.h"
+#include "tests/support/render_helpers.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+
+namespace fg {
+namespace {
+
+// Quadrature of the splat estimate at the origin of the plane z = 0 (normal +z)
+// for parallel rays at angle theta from the normal, crossing the plane
+// perpendicular to them on a grid 60 per bandwidth, each carrying E_0 times
+// its grid cell's area.
+double planeEstimate(float thetaDegrees, SplatEndCap cap, float h) {
+    const float theta = glm::radians(thetaDegrees);
+    const Vec3 direction(std::sin(theta), 0.0f, -std::cos(theta));
+    const Vec3 e1(std::cos(theta), 0.0f, std::sin(theta)), e2(0.0f, 1.0f, 0.0f);
+    const double e0 = 2.0;
+    const int half = 180;
+    const float step = h / 60.0f;
+    double sum = 0.0;
+    for (int i = -half; i <= half; ++i)
+        for (int j = -half; j <= half; ++j) {
+            const Vec3 q = (static_cast<float>(i) * step) * e1 + (static_cast<float>(j) * step) * e2;
+            const Vec3 hit = q + (q.z / std::cos(theta)) * direction;
+            SplatRay ray;
+            ray.length = 5.0f;
+            ray.origin = hit - ray.length * direction;
+            ray.direction = direction;
+            ray.h0 = h;
+            ray.dh = 0.0f;
+            ray.endNormal = Vec3(0, 0, 1);
+            sum += e0 * static_cast<double>(step) * step * splatWeight(ray, cap, Vec3(0.0f), Vec3(0, 0, 1));
+        }
+    return sum / e0;  // in units of E_0
+}
+
+class PrsPlaneUnderDirectionalLight : public ::testing::TestWithParam<float> {};
+
+TEST_P(PrsPlaneUnderDirectionalLight, TangentPlaneCapIsExact) {
+    const float theta = GetParam();
+    for (float h : {0.05f, 0.2f}) {
+        const double cosine = std::cos(glm::radians(static_cast<double>(theta)));
+        EXPECT_NEAR(planeEstimate(theta, SplatEndCap::TangentPlane, h), cosine, 0.01 * cosine) << "h " << h;
+    }
+}
+
+TEST_P(PrsPlaneUnderDirectionalLight, HemisphereCapLosesEnergyAtObliqueIncidence) {
+    const float theta = GetParam();
+    const double c = std::cos(glm::radians(static_cast<double>(theta)));
+    const double s2 = 1.0 - c * c;
+    const double expected = c * (0.5 + c * (0.5 + s2 / 4.0));
+    for (float h : {0.05f, 0.2f})
+        EXPECT_NEAR(planeEstimate(theta, SplatEndCap::Hemisphere, h), expected, 0.01 * expected) << "h " << h;
+}
+
+INSTANTIATE_TEST_SUITE_P(Angles, PrsPlaneUnderDirectionalLight, ::testing::Values(0.0f, 45.0f, 70.0f));
+
+// An isotropic point light of intensity I at height H over the plane z = 0:
+// rays along a spherical Fibonacci lattice of the lower hemisphere, each
+// carrying 2 pi I / N, as cones from the light (h_0 = 0, dh = 0.04).
+TEST(PrsPointLightOverPlane, IrradianceFollowsInverseSquareCosine) {
+    const double intensity = 3.0, height = 1.0;
+    const std::size_t n = 1'000'000;
+    const std::vector<float> radii = {0.0f, 0.25f, 0.5f, 0.75f, 1.0f};
+    std::vector<double> estimate(radii.size(), 0.0);
+    const double golden = kPi * (3.0 - std::sqrt(5.0));
+    for (std::size_t k = 0; k < n; ++k) {
+        const double z = -(static_cast<double>(k) + 0.5) / static_cast<double>(n);  // uniform in cos over the lower hemisphere
+        const double r = std::sqrt(1.0 - z * z), phi = golden * static_cast<double>(k);
+        SplatRay ray;
+        ray.origin = Vec3(0.0f, 0.0f, static_cast<float>(height));
+        ray.direction = Vec3(static_cast<float>(r * std::cos(phi)), static_cast<float>(r * std::sin(phi)), static_cast<float>(z));
+        ray.length = static_cast<float>(height / -z);
+        ray.h0 = 0.0f;
+        ray.dh = 0.04f;
+        ray.endNormal = Vec3(0, 0, 1);
+        const double flux = 2.0 * kPi * intensity / static_cast<double>(n);
+        for (std::size_t i = 0; i < radii.size(); ++i)
+            estimate[i] += flux * splatWeight(ray, SplatEndCap::TangentPlane, Vec3(radii[i], 0.0f, 0.0f), Vec3(0, 0, 1));
+    }
+    for (std::size_t i = 0; i < radii.size(); ++i) {
+        const double r = radii[i];
+        const double exact = intensity * height / std::pow(height * height + r * r, 1.5);
+        EXPECT_NEAR(estimate[i], exact, 0.02 * exact) << "r = " << r;
+    }
+}
+
+TEST(PrsPipeline, SameImageOnOneAndTwoThreads) {
+    const Scene scene = loadScene((std::filesystem::path(FLUXGRAPH_SOURCE_DIR) / "data/cornell-box/cornell-box.xml").string());
+    FilmSettings film;
+    film.width = 32;
+    film.height = 32;
+    const std::map<std::string, ParamValue> params = {
+        {"eye.spp", std::int64_t{1}},
+        {"photon.photons", std::int64_t{20000}},
+        {"photon.photon_rays", true},
+        {"photon.store", std::string("none")},
+    };
+    const test::RenderedImage one = test::renderPipeline(scene, "prs", params, film, 1, 1);
+    const test::RenderedImage two = test::renderPipeline(scene, "prs", params, film, 1, 2);
+    ASSERT_EQ(one.pixels.size(), two.pixels.size());
+    double sum = 0.0;
+    for (std::size_t i = 0; i < one.pixels.size(); ++i) {
+        ASSERT_EQ(one.pixels[i], two.pixels[i]) << "pixel value " << i;
+        sum += one.pixels[i].x + one.pixels[i].y + one.pixels[i].z;
+    }
+    EXPECT_GT(sum, 0.0);
+}
+
+}  // namespace
+}  // namespace fg
