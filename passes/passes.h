@@ -21,6 +21,7 @@ PassRegistration beamQueryPass();
 PassRegistration lightTracePass();
 PassRegistration filmNoisePass();
 PassRegistration compositePass();
+PassRegistration cacheUpdatePass();
 
 // The passes and the pipelines of passes/pipelines/*.toml.
 const Registry& builtinRegistry();
