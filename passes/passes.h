@@ -29,6 +29,7 @@ PassRegistration compositePass();
 PassRegistration rayBandwidthPass();
 PassRegistration splatIndexPass();
 PassRegistration raySplatPass();
+PassRegistration cacheUpdatePass();
 
 // The passes and the pipelines of passes/pipelines/*.toml.
 const Registry& builtinRegistry();

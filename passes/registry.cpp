@@ -19,6 +19,7 @@ const Registry& builtinRegistry() {
             emStatsPass(),     emFitPass(),  gmmPyramidPass(),   gmmBbhPass(),   gmmRenderPass(),
             filmNoisePass(),   compositePass(),
             rayBandwidthPass(), splatIndexPass(), raySplatPass(),
+            cacheUpdatePass(),
         };
         for (const auto& [file, text] : embeddedPipelineFiles()) r.pipelines.push_back(parsePipelineFile(text, file));
         return r;

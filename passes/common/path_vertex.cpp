@@ -3,7 +3,18 @@
 // the power heuristic (Veach 1997, Eq. 9.13); delta lights and specular
 // vertices take their single strategy with weight 1. Throughput in media uses
 // the spectral-MIS free-flight weights of HomogeneousMedium::sampleDistance.
+//
+// Guided vertices (Vorba et al. 2014, §4.1 "Sampling from the distribution
+// model"): with a radiance cache, a surface vertex whose BSDF has only smooth
+// reflection lobes picks the BSDF with probability α and the cached GMM
+// otherwise; the one-sample mixture density α p_bsdf + (1 - α) p_gmm divides
+// the sample and is the strategy's pdf in the power heuristic against
+// next-event estimation. The GMM's mass outside its square ends the path. Other
+// vertices, and every vertex without a cache, draw exactly the numbers and
+// values of the unguided tracer.
 #include "passes/common/path_vertex.h"
+
+#include "engine/guiding/guiding_cache.h"
 
 #include <algorithm>
 #include <array>
@@ -54,6 +65,31 @@ void queueLightSample(const PathTracerScene& pts, const Vec3& p, const Vec3& ng,
     }
     shadow.medium = onSurface ? mediumAfterCrossing(*shape, ng, ls->wi, medium) : medium;
     shadow.pending = true;
+}
+
+// The GMM (and its frame) guiding directions at a surface vertex, if any.
+struct VertexGuide {
+    const DirectionalGmm* gmm = nullptr;
+    Frame frame;
+    float bsdfProbability = 1.0f;
+    float pdf(const Vec3& wiWorld) const { return gmm->pdfLocal(frame.toLocal(wiWorld)); }
+};
+
+VertexGuide findGuide(const PathTracerScene& pts, const Bsdf& bsdf, const SurfacePoint& sp, const Vec3& toViewer) {
+    VertexGuide guide;
+    if (!pts.guiding) return guide;
+    // Specular and transmissive lobes and null events are never guided.
+    constexpr std::uint32_t kUnguided = BsdfLobe::Specular | BsdfLobe::Transmission | BsdfLobe::Null;
+    if ((bsdf.lobes() & kUnguided) != 0 || !bsdf.hasSmoothLobe()) return guide;
+    const Vec3 facing = glm::dot(sp.ns, toViewer) >= 0.0f ? sp.ns : -sp.ns;
+    const std::optional<std::uint32_t> record = pts.guiding->lookup(sp.p, facing);
+    if (!record) return guide;
+    const DirectionalGmm& gmm = pts.guiding->records.column<GuideMixture>()[*record];
+    if (!gmm.usable()) return guide;
+    guide.gmm = &gmm;
+    guide.frame = Frame(pts.guiding->records.column<GuideNormal>()[*record]);
+    guide.bsdfProbability = pts.guidingBsdfProbability;
+    return guide;
 }
 
 bool russianRoulette(const PathLimits& limits, PathVertexState& s) {
@@ -193,16 +229,49 @@ bool advancePathAtSurface(const PathTracerScene& pts, const PathLimits& limits, 
 
     if (++h.depth > limits.maxDepth) return false;
 
+    const VertexGuide guide = chosen ? VertexGuide{} : findGuide(pts, *bsdf, sp, -s.ray.direction);
+
     if (bsdf->hasSmoothLobe()) {
         queueLightSample(pts, sp.p, sp.ng, &shape, h.medium, beta, s.rng,
                          [&](const Vec3& wi) {
                              const Vec3 wiLocal = frame.toLocal(wi);
                              // Shading normals must not let light through the geometric surface.
                              if (glm::dot(wi, sp.ng) * wiLocal.z <= 0.0f) return std::pair<Rgb, float>(Rgb(0.0f), 0.0f);
-                             return std::pair<Rgb, float>(bsdf->eval(wo, wiLocal, sp.uv, TransportMode::Radiance),
-                                                          bsdf->pdf(wo, wiLocal, sp.uv));
+                             const float bsdfPdf = bsdf->pdf(wo, wiLocal, sp.uv);
+                             const float pdf = guide.gmm ? guide.bsdfProbability * bsdfPdf +
+                                                               (1.0f - guide.bsdfProbability) * guide.pdf(wi)
+                                                         : bsdfPdf;
+                             return std::pair<Rgb, float>(bsdf->eval(wo, wiLocal, sp.uv, TransportMode::Radiance), pdf);
                          },
                          shadow);
+    }
+
+    if (guide.gmm) {
+        const float uStrategy = s.rng.uniform();
+        const float uLobe = s.rng.uniform();
+        const Vec2 uDir = s.rng.uniform2();
+        Vec3 wiLocal;
+        if (uStrategy < guide.bsdfProbability) {
+            const std::optional<BsdfSample> bs = bsdf->sample(wo, sp.uv, uLobe, uDir, TransportMode::Radiance);
+            if (!bs || bs->pdf <= 0.0f || isBlack(bs->weight)) return false;
+            wiLocal = bs->wi;
+        } else {
+            const std::optional<Vec3> sampled = guide.gmm->sampleLocal(uLobe, uDir);
+            if (!sampled) return false;  // the GMM's mass outside the square (§4.1)
+            wiLocal = frame.toLocal(guide.frame.toWorld(*sampled));
+        }
+        const Vec3 wi = frame.toWorld(wiLocal);
+        if (glm::dot(wi, sp.ng) * wiLocal.z <= 0.0f) return false;
+        const float pdf = guide.bsdfProbability * bsdf->pdf(wo, wiLocal, sp.uv) +
+                          (1.0f - guide.bsdfProbability) * guide.pdf(wi);
+        const Rgb f = bsdf->eval(wo, wiLocal, sp.uv, TransportMode::Radiance);
+        if (!(pdf > 0.0f) || isBlack(f)) return false;
+        beta *= f / pdf;
+        h.specular = false;
+        h.previousPdf = pdf;
+        h.previousPosition = sp.p;
+        s.ray = Ray{offsetRayOrigin(sp.p, sp.ng, wi), wi, kInfinity};
+        return russianRoulette(limits, s);
     }
 
     if (!chosen) {

@@ -17,6 +17,8 @@
 
 namespace fg {
 
+class GuidingCache;
+
 struct PathTracerScene {
     PathTracerScene(const Scene& scene, const RayQuery& rays);
     const Scene& scene;
@@ -24,6 +26,11 @@ struct PathTracerScene {
     std::vector<int> infiniteLights;
     // Shadow rays must walk through null boundaries and media instead of a plain occlusion test.
     bool shadowsNeedTransmittance = false;
+    // Path guiding (Vorba et al. 2014): a radiance cache of directional GMMs;
+    // null = BSDF sampling only. At a guided vertex the BSDF is sampled with
+    // probability guidingBsdfProbability (α), the cache's GMM otherwise.
+    const GuidingCache* guiding = nullptr;
+    float guidingBsdfProbability = 0.5f;
 };
 
 struct PathLimits {

@@ -18,6 +18,7 @@
 #include "passes/passes.h"
 
 #include "engine/core/error.h"
+#include "engine/guiding/guiding_cache.h"
 
 #include "engine/image/film.h"
 #include "engine/accel/ray_query.h"
@@ -223,7 +224,14 @@ public:
         Camera camera = scene.camera;
         camera.width = ctx.filmSettings().width;
         camera.height = ctx.filmSettings().height;
-        const PathTracerScene pts(scene, ctx.rays());
+        PathTracerScene pts(scene, ctx.rays());
+        const std::string& guiding = params.getString("guiding");
+        if (guiding == "gmm" || (guiding == "auto" && ctx.hasInput("radiance_cache"))) {
+            if (!ctx.hasInput("radiance_cache"))
+                throw InputError("pass '" + ctx.instanceName() + "': guiding = \"gmm\" needs a radiance_cache input");
+            pts.guiding = &ctx.input<GuidingCache>("radiance_cache");
+            pts.guidingBsdfProbability = static_cast<float>(params.getFloat("guiding_bsdf_probability"));
+        }
 
         // Progressive rendering: the samples add to an earlier film's sums, so the
         // output is the average over all samples of both.
@@ -313,7 +321,9 @@ PassRegistration pathTracerPass() {
     SlotSpec accumulate{"accumulate", "Film",
                         "a film of earlier samples (same settings) the new samples are added to"};
     accumulate.optional = true;
-    spec.inputs = {accumulate};
+    SlotSpec radianceCache{"radiance_cache", "GuidingCache", "directional GMMs of incident radiance (guiding = gmm)"};
+    radianceCache.optional = true;
+    spec.inputs = {accumulate, radianceCache};
     spec.outputs = {{"image", "Film", "radiance estimate per pixel, with time_ns and samples AOVs"}};
     spec.params = {
         {"spp", ParamType::Int, std::int64_t{16}, 1, 1 << 20, {}, "samples per pixel", "sample_count"},
@@ -327,6 +337,11 @@ PassRegistration pathTracerPass() {
          "wavefront: SoA path queues advanced stage by stage; tile: each pixel's paths traced to completion"},
         {"wave_size", ParamType::Int, std::int64_t{1 << 18}, 1, 1 << 26, {},
          "paths in flight per wave (memory vs. parallelism)"},
+        {"guiding", ParamType::String, std::string("auto"), 0, 0, {"auto", "none", "gmm"},
+         "none: BSDF sampling; gmm: guided by the radiance_cache input (Vorba et al. 2014); auto: gmm when "
+         "that input is bound"},
+        {"guiding_bsdf_probability", ParamType::Float, 0.5, 0.01, 1.0, {},
+         "alpha: probability of BSDF sampling at a guided vertex (the GMM otherwise)"},
     };
     return {spec, [] { return std::make_unique<PathTracerPass>(); }, {}, pathTracerMemory};
 }

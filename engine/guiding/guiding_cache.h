@@ -1,0 +1,70 @@
+// Spatial cache of directional distributions (Vorba et al. 2014, §4.3): records
+// at surface points, each with a normal, a validity radius, the distance to
+// the furthest particle it was trained on, its GMM and the sufficient
+// statistics that on-line EM resumes from. A kd-tree over the record positions
+// answers the query of Eq. 11.
+#pragma once
+
+#include "engine/accel/kdtree.h"
+#include "engine/core/pass.h"
+#include "engine/core/soa.h"
+#include "engine/guiding/stepwise_em.h"
+
+#include <cstdint>
+#include <optional>
+
+namespace fg {
+
+FG_SOA_COLUMN(GuidePosition, Vec3, "position");
+FG_SOA_COLUMN(GuideNormal, Vec3, "normal");  // facing the side the distribution describes
+FG_SOA_COLUMN(GuideValidityRadius, float, "validity_radius");
+FG_SOA_COLUMN(GuideTrainingRadius, float, "training_radius");  // distance to the furthest training particle
+FG_SOA_COLUMN(GuideMixture, DirectionalGmm, "gmm");
+FG_SOA_COLUMN(GuideStatistics, GmmStatistics, "statistics");
+
+using GuidingRecordBuffer = SoaBuffer<GuidePosition, GuideNormal, GuideValidityRadius, GuideTrainingRadius,
+                                      GuideMixture, GuideStatistics>;
+
+struct GuidingCacheQuery {
+    std::uint32_t candidates = 16;  // M of Eq. 11
+};
+
+class GuidingCache {
+public:
+    GuidingRecordBuffer records;
+    std::uint64_t trainingPasses = 0;
+
+    // Rebuilds the kd-tree after records were added or moved.
+    void rebuildIndex() { tree_.build(records.column<GuidePosition>()); }
+    const KdTree& tree() const { return tree_; }
+
+    // Eq. 11: among the M records nearest to x, the one minimising
+    // |x - x_i|² / h + 2 sqrt(1 - n·n_i) (h: distance to the furthest of the M;
+    // ties to the lower index). Records facing away (n·n_i <= 0) are skipped:
+    // they describe the other side of a surface.
+    std::optional<std::uint32_t> select(const Vec3& x, const Vec3& n, const GuidingCacheQuery& query = {}) const;
+    // The selected record if x lies inside its validity radius, else nothing.
+    std::optional<std::uint32_t> lookup(const Vec3& x, const Vec3& n, const GuidingCacheQuery& query = {}) const;
+
+    std::size_t bytes() const { return records.bytes() + tree_.bytes(); }
+
+private:
+    KdTree tree_;
+};
+
+template <>
+struct BufferTypeName<GuidingCache> {
+    static constexpr const char* value = "GuidingCache";
+};
+
+// Validity radius of a record (§4.3), see the .cpp for what stands in for the
+// unavailable supplement: per-lobe KL radii, their π-weighted harmonic mean,
+// clamped to [0.5, 1] x the training radius.
+float validityRadius(const DirectionalGmm& gmm, float trainingRadius, float klThreshold);
+
+// Neighbour clamping (Křivánek et al. 2006): r_i <= r_k + |x_i - x_k| over the
+// M nearest records k, computed from the radii before the call (so the result
+// does not depend on the order records are visited in). Needs a built index.
+void clampNeighbourRadii(GuidingCache& cache, std::uint32_t neighbours);
+
+}  // namespace fg

@@ -1,0 +1,153 @@
+// Directional GMM of Vorba et al. 2014 §4.1: the equal-area square-to-hemisphere
+// map, the density's normalisation (one minus the mass outside the square) and
+// chi² tests of sampling against the density.
+#include "engine/guiding/directional_gmm.h"
+
+#include "jobs/random.h"
+#include "tests/support/chi2.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <vector>
+
+namespace fg {
+namespace {
+
+GmmComponent component(float weight, Vec2 mean, float xx, float xy, float yy) {
+    GmmComponent c;
+    c.weight = weight;
+    c.mean = mean;
+    c.covXX = xx;
+    c.covXY = xy;
+    c.covYY = yy;
+    return c;
+}
+
+DirectionalGmm mixture(const std::vector<GmmComponent>& parts) {
+    DirectionalGmm gmm;
+    for (GmmComponent& c : gmm.components) c.weight = 0.0f;
+    for (std::size_t j = 0; j < parts.size(); ++j) gmm.components[j] = parts[j];
+    EXPECT_TRUE(gmm.finalize());
+    return gmm;
+}
+
+DirectionalGmm randomMixture(std::uint64_t key) {
+    jobs::Rng rng(7, jobs::streamKey("gmm-random"), key);
+    std::vector<GmmComponent> parts;
+    float total = 0.0f;
+    for (int j = 0; j < kGmmComponents; ++j) {
+        const float w = 0.1f + rng.uniform();
+        total += w;
+        const float sx = 0.03f + 0.2f * rng.uniform(), sy = 0.03f + 0.2f * rng.uniform();
+        const float rho = 1.6f * rng.uniform() - 0.8f;
+        parts.push_back(component(w, Vec2(rng.uniform(), rng.uniform()), sx * sx, rho * sx * sy, sy * sy));
+    }
+    for (GmmComponent& c : parts) c.weight /= total;
+    return mixture(parts);
+}
+
+// Mass of an axis-aligned Gaussian inside [0,1]².
+double massInsideSquare(const GmmComponent& c) {
+    const auto axis = [](double mean, double variance) {
+        const double sigma = std::sqrt(variance);
+        return 0.5 * (std::erf((1.0 - mean) / (sigma * std::sqrt(2.0))) - std::erf(-mean / (sigma * std::sqrt(2.0))));
+    };
+    return axis(c.mean.x, c.covXX) * axis(c.mean.y, c.covYY);
+}
+
+TEST(GuidingMap, JacobianIsConstant2Pi) {
+    jobs::Rng rng(3, jobs::streamKey("map-jacobian"), 0);
+    const double h = 1e-3;
+    int tested = 0;
+    for (int k = 0; k < 2000; ++k) {
+        const Vec2 s(0.01f + 0.98f * rng.uniform(), 0.01f + 0.98f * rng.uniform());
+        const float a = 2.0f * s.x - 1.0f, b = 2.0f * s.y - 1.0f;
+        // The concentric map's wedges meet on the diagonals, where it is not differentiable.
+        if (std::abs(std::abs(a) - std::abs(b)) < 0.02f) continue;
+        const auto at = [](double x, double y) { return squareToHemisphere(Vec2(float(x), float(y))); };
+        const Vec3 dx = (at(s.x + h, s.y) - at(s.x - h, s.y)) / float(2 * h);
+        const Vec3 dy = (at(s.x, s.y + h) - at(s.x, s.y - h)) / float(2 * h);
+        const double jacobian = glm::length(glm::cross(dx, dy));
+        EXPECT_NEAR(jacobian, 2.0 * M_PI, 0.02 * 2.0 * M_PI) << s.x << ", " << s.y;
+        ++tested;
+    }
+    EXPECT_GT(tested, 1500);
+}
+
+TEST(GuidingMap, InverseRoundTrips) {
+    jobs::Rng rng(3, jobs::streamKey("map-inverse"), 0);
+    for (int k = 0; k < 10000; ++k) {
+        const Vec2 s = rng.uniform2();
+        const Vec3 w = squareToHemisphere(s);
+        EXPECT_NEAR(glm::length(w), 1.0f, 1e-5f);
+        EXPECT_GE(w.z, 0.0f);
+        const std::optional<Vec2> back = hemisphereToSquare(w);
+        ASSERT_TRUE(back.has_value());
+        EXPECT_NEAR(back->x, s.x, 2e-4f);
+        EXPECT_NEAR(back->y, s.y, 2e-4f);
+    }
+    EXPECT_FALSE(hemisphereToSquare(Vec3(0.0f, 0.6f, -0.8f)).has_value());
+}
+
+// ∫ pdf_ω over the hemisphere by midpoint quadrature in (cos θ, φ), against the
+// closed-form mass of the axis-aligned Gaussians inside the square: the map,
+// its Jacobian and the density's normalisation agree.
+TEST(DirectionalGmm, PdfIntegratesToMassInsideSquare) {
+    const DirectionalGmm gmm = mixture({component(0.3f, Vec2(0.05f, 0.5f), 0.01f, 0.0f, 0.02f),
+                                        component(0.2f, Vec2(0.9f, 0.95f), 0.03f, 0.0f, 0.005f),
+                                        component(0.5f, Vec2(0.5f, 0.4f), 0.02f, 0.0f, 0.01f)});
+    double expected = 0.0;
+    for (const GmmComponent& c : gmm.components)
+        if (c.weight > 0.0f) expected += c.weight * massInsideSquare(c);
+    ASSERT_LT(expected, 0.9);  // a real part of the mass lies outside
+    const int nz = 1500, nphi = 3000;
+    double integral = 0.0;
+    for (int i = 0; i < nz; ++i) {
+        const double z = (i + 0.5) / nz;
+        const double r = std::sqrt(1.0 - z * z);
+        for (int k = 0; k < nphi; ++k) {
+            const double phi = 2.0 * M_PI * (k + 0.5) / nphi;
+            integral += gmm.pdfLocal(Vec3(float(r * std::cos(phi)), float(r * std::sin(phi)), float(z)));
+        }
+    }
+    integral *= (1.0 / nz) * (2.0 * M_PI / nphi);
+    EXPECT_NEAR(integral, expected, 2e-3);
+    EXPECT_EQ(gmm.pdfLocal(Vec3(0.0f, 0.0f, -1.0f)), 0.0f);
+}
+
+void expectSamplingMatchesPdf(const DirectionalGmm& gmm, const char* what) {
+    test::Chi2Config config;
+    config.samples = 400'000;
+    config.testCount = 3;
+    jobs::Rng componentRng(config.seed, jobs::streamKey("gmm-chi2-component"), 0);
+    const test::Chi2Result result = test::chi2SphereTest(
+        [&](const Vec2& u) { return gmm.sampleLocal(componentRng.uniform(), u); },
+        [&](const Vec3& w) { return double(gmm.pdfLocal(w)); }, config);
+    EXPECT_TRUE(result.passed) << what << ": " << result.message;
+}
+
+TEST(DirectionalGmm, Chi2RandomMixture) { expectSamplingMatchesPdf(randomMixture(1), "random"); }
+
+TEST(DirectionalGmm, Chi2AnisotropicMixture) {
+    expectSamplingMatchesPdf(mixture({component(0.6f, Vec2(0.3f, 0.6f), 0.04f, 0.0f, 0.0009f),
+                                      component(0.4f, Vec2(0.7f, 0.3f), 0.0016f, 0.0f, 0.05f)}),
+                             "anisotropic");
+}
+
+TEST(DirectionalGmm, Chi2NearSingularMixture) {
+    // Correlation 0.999: the Gaussian is almost a line segment across the square.
+    expectSamplingMatchesPdf(mixture({component(0.7f, Vec2(0.5f, 0.5f), 0.02f, 0.01998f, 0.02f),
+                                      component(0.3f, Vec2(0.2f, 0.8f), 0.0004f, 0.0f, 0.0004f)}),
+                             "near-singular");
+}
+
+TEST(DirectionalGmm, FinalizeRejectsIndefiniteCovariance) {
+    DirectionalGmm gmm;
+    gmm.components[0] = component(1.0f, Vec2(0.5f), 0.01f, 0.02f, 0.01f);
+    EXPECT_FALSE(gmm.finalize());
+    EXPECT_FALSE(gmm.usable());
+}
+
+}  // namespace
+}  // namespace fg
