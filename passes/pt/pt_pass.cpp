@@ -7,9 +7,10 @@
 // Mitsuba 3). It is the ground truth for every other pipeline.
 //
 // Two schedules share the same per-vertex code (path_vertex.h):
-//  - wavefront (default): paths of a wave live in SoA columns and advance stage
-//    by stage (intersect stream -> shade -> shadow stream -> compact), as in
-//    pbrt-v4's wavefront integrator;
+//  - wavefront (default): paths live in SoA columns and advance stage by stage
+//    (intersect stream -> shade -> shadow stream -> compact), as in pbrt-v4's
+//    wavefront integrator, in streams of 256 paths that one task each carries to
+//    the end, so that a stream stays in cache and a wave has a single barrier;
 //  - tile: each pixel's samples are traced to completion one after another.
 // Both consume the same random numbers per path, keyed by (seed, instance, sample
 // index), so they produce the same image up to floating-point order in the
@@ -359,7 +360,7 @@ PassRegistration pathTracerPass() {
         {"schedule", ParamType::String, std::string("wavefront"), 0, 0, {"wavefront", "tile"},
          "wavefront: SoA path queues advanced stage by stage; tile: each pixel's paths traced to completion"},
         {"wave_size", ParamType::Int, std::int64_t{1 << 18}, 1, 1 << 26, {},
-         "paths in flight per wave (memory vs. parallelism)"},
+         "samples per wave, traced and then added to the film together (24 bytes each while in flight)"},
     };
     return {spec, [] { return std::make_unique<PathTracerPass>(); }, {}, pathTracerMemory};
 }
