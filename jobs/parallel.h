@@ -3,6 +3,8 @@
 //  - parallelFor: a loop over an index range [0, n) in chunks of `grain` items;
 //  - deterministicReduce: per-block accumulators over fixed blocks, merged in
 //    block order, so a floating-point sum is bit-identical for any thread count;
+//  - PerWorker: scratch state owned by one worker thread at a time, reused
+//    across the chunks that thread runs (no allocation per chunk);
 //  - ThreadLimit: caps the worker count for a scope (the --threads option);
 //  - TaskGraph: a dependency graph of tasks (the pass scheduler's flow graph).
 // Chunks are booked to the calling pass's WorkContext for the profiler.
@@ -11,6 +13,7 @@
 #include "jobs/work_context.h"
 
 #include <tbb/blocked_range.h>
+#include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
 
 #include <cstddef>
@@ -94,6 +97,20 @@ Acc deterministicReduce(std::size_t n, std::size_t blocks, Init&& init, Body&& b
         if (part) merge(total, *part);
     return total;
 }
+
+// One T per worker thread that asks for it, made on first use and kept for
+// the object's lifetime. A chunk body takes local() once and must not wait on
+// other parallel work while it holds it (a waiting thread may run another chunk
+// of the same loop, which would get the same object). Nothing a result depends
+// on may be kept in it between chunks: which worker runs a chunk varies.
+template <class T>
+class PerWorker {
+public:
+    T& local() { return slots_.local(); }
+
+private:
+    tbb::enumerable_thread_specific<T> slots_;
+};
 
 // Number of worker threads the pool currently allows.
 int maxThreads();

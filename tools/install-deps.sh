@@ -6,6 +6,7 @@ packages=(
   libembree-dev libtbb-dev libopenimageio-dev libopenexr-dev libglm-dev
   libtomlplusplus-dev libtinyobjloader-dev libpugixml-dev libcli11-dev zlib1g-dev
   libgtest-dev libbenchmark-dev python3 python3-numpy python3-skimage python3-matplotlib
+  embree-tools   # tools/bench_vs_embree.sh: Embree's tutorial path tracer as a yardstick
   slurm-wlm munge   # the Slurm test's local cluster (tools/slurm_local.sh)
   clang libfuzzer-14-dev   # tools/test.sh --sanitize: ASan/UBSan build and fuzz targets (clang 14)
 )

@@ -4,9 +4,10 @@
 // Based Rendering", 3rd ed., Sec. 7.8). Two filters are offered: the
 // box and the truncated Gaussian of PBR Sec. 7.8.1, both separable in x and y.
 //
-// Samples are gathered, never scattered: each output pixel is owned by exactly
-// one task, which walks the source pixels its filter reaches in raster order
-// and each pixel's samples in their stored order. The floating-point operation
+// Each output row is owned by exactly one task, which walks the source pixels
+// its filter reaches in raster order and each pixel's samples in their stored
+// order, adding each to the row's pixels it reaches (the separable filter's y
+// factor is evaluated once per sample and row). The floating-point operation
 // sequence per output pixel is therefore fixed, which makes the image
 // bit-identical whatever the number of threads.
 #include "engine/image/film.h"
@@ -92,46 +93,61 @@ void Film::addRound(const SampleRound& round) {
     const std::ptrdiff_t firstRow = std::max<std::ptrdiff_t>(0, roundBegin / width - reach);
     const std::ptrdiff_t lastRow = std::min<std::ptrdiff_t>(height - 1, (roundEnd - 1) / width + reach);
     const std::size_t rowCount = static_cast<std::size_t>(lastRow - firstRow + 1);
-    // A few thousand pixels per chunk keeps scheduling overhead negligible; the
-    // grain does not affect the result.
-    const std::size_t rowGrain = std::max<std::size_t>(1, 4096 / static_cast<std::size_t>(width));
+    // A few thousand samples per chunk keeps scheduling overhead negligible
+    // and the two threads' shares even; the grain does not affect the result.
+    const std::size_t rowGrain = std::max<std::size_t>(1, 8192 / (static_cast<std::size_t>(width) * spp));
 
-    jobs::parallelFor(rowCount, rowGrain, [&](std::size_t rowOffset) {
-        const std::ptrdiff_t py = firstRow + static_cast<std::ptrdiff_t>(rowOffset);
-        const float centreY = static_cast<float>(py) + 0.5f;
-        const std::ptrdiff_t syBegin = std::max<std::ptrdiff_t>(0, py - reach);
-        const std::ptrdiff_t syEnd = std::min<std::ptrdiff_t>(height - 1, py + reach);
-        for (std::ptrdiff_t px = 0; px < width; ++px) {
-            const float centreX = static_cast<float>(px) + 0.5f;
-            const std::ptrdiff_t sxBegin = std::max<std::ptrdiff_t>(0, px - reach);
-            const std::ptrdiff_t sxEnd = std::min<std::ptrdiff_t>(width - 1, px + reach);
-            // Accumulated in double so that the round's contribution is rounded
-            // to float once, not once per sample.
-            double sumR = 0.0, sumG = 0.0, sumB = 0.0, sumW = 0.0;
-            bool touched = false;
+    jobs::parallelForChunks(rowCount, rowGrain, [&](jobs::IndexRange rows) {
+        // Per output pixel of the row: weighted R, G, B and weight, accumulated in
+        // double so that the round's contribution is rounded to float once, not
+        // once per sample.
+        std::vector<double> sums(static_cast<std::size_t>(width) * 4);
+        std::vector<std::uint8_t> touched(static_cast<std::size_t>(width));
+        for (std::size_t rowOffset = rows.begin; rowOffset != rows.end; ++rowOffset) {
+            const std::ptrdiff_t py = firstRow + static_cast<std::ptrdiff_t>(rowOffset);
+            const float centreY = static_cast<float>(py) + 0.5f;
+            std::fill(sums.begin(), sums.end(), 0.0);
+            std::fill(touched.begin(), touched.end(), std::uint8_t{0});
+            // Source samples in raster order, each added to the output pixels of
+            // this row it reaches: every output pixel receives its samples in
+            // raster order, whatever the chunking.
+            const std::ptrdiff_t syBegin = std::max<std::ptrdiff_t>(0, py - reach);
+            const std::ptrdiff_t syEnd = std::min<std::ptrdiff_t>(height - 1, py + reach);
             for (std::ptrdiff_t sy = syBegin; sy <= syEnd; ++sy) {
                 const std::ptrdiff_t rowStart = sy * width;
-                const std::ptrdiff_t begin = std::max(rowStart + sxBegin, roundBegin);
-                const std::ptrdiff_t end = std::min(rowStart + sxEnd + 1, roundEnd);
+                const std::ptrdiff_t begin = std::max(rowStart, roundBegin);
+                const std::ptrdiff_t end = std::min(rowStart + width, roundEnd);
                 for (std::ptrdiff_t source = begin; source < end; ++source) {
+                    const std::ptrdiff_t sx = source - rowStart;
+                    const std::ptrdiff_t pxBegin = std::max<std::ptrdiff_t>(0, sx - reach);
+                    const std::ptrdiff_t pxEnd = std::min<std::ptrdiff_t>(width - 1, sx + reach);
                     const std::size_t first = static_cast<std::size_t>(source - roundBegin) * spp;
                     for (std::size_t i = first; i < first + spp; ++i) {
                         const Vec2 position = round.raster[i];
-                        const float w = filter(position.x - centreX, position.y - centreY);
-                        if (w == 0.0f) continue;
+                        const float wy = filter.axis(position.y - centreY);
+                        if (wy == 0.0f) continue;
                         const Rgb& radiance = round.radiance[i];
-                        sumR += static_cast<double>(w) * radiance.x;
-                        sumG += static_cast<double>(w) * radiance.y;
-                        sumB += static_cast<double>(w) * radiance.z;
-                        sumW += w;
-                        touched = true;
+                        for (std::ptrdiff_t px = pxBegin; px <= pxEnd; ++px) {
+                            const float w = filter.axis(position.x - (static_cast<float>(px) + 0.5f)) * wy;
+                            if (w == 0.0f) continue;
+                            double* sum = &sums[static_cast<std::size_t>(px) * 4];
+                            sum[0] += static_cast<double>(w) * radiance.x;
+                            sum[1] += static_cast<double>(w) * radiance.y;
+                            sum[2] += static_cast<double>(w) * radiance.z;
+                            sum[3] += w;
+                            touched[static_cast<std::size_t>(px)] = 1;
+                        }
                     }
                 }
             }
-            if (!touched) continue;
-            const std::size_t pixel = static_cast<std::size_t>(py * width + px);
-            weightedSum_[pixel] += Rgb(static_cast<float>(sumR), static_cast<float>(sumG), static_cast<float>(sumB));
-            weightSum_[pixel] += static_cast<float>(sumW);
+            for (std::ptrdiff_t px = 0; px < width; ++px) {
+                if (!touched[static_cast<std::size_t>(px)]) continue;
+                const double* sum = &sums[static_cast<std::size_t>(px) * 4];
+                const std::size_t pixel = static_cast<std::size_t>(py * width + px);
+                weightedSum_[pixel] +=
+                    Rgb(static_cast<float>(sum[0]), static_cast<float>(sum[1]), static_cast<float>(sum[2]));
+                weightSum_[pixel] += static_cast<float>(sum[3]);
+            }
         }
     });
 }

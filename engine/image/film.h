@@ -87,15 +87,18 @@ class PixelFilter {
 public:
     explicit PixelFilter(const FilmSettings& s);
 
-    float operator()(float dx, float dy) const {
+    float operator()(float dx, float dy) const { return axis(dx) * axis(dy); }
+
+    // The filter is separable: w(dx, dy) = axis(dx) * axis(dy), bit for bit.
+    float axis(float d) const {
         if (kind_ == FilterKind::Box) {
             // Half-open on purpose: with radius 0.5 a sample on the edge shared by two
             // pixels belongs to exactly one of them (the one whose raster cell [i, i+1)
             // contains it), so the box filter is exactly the per-pixel mean.
-            return (dx >= -radius_ && dx < radius_ && dy >= -radius_ && dy < radius_) ? 1.0f : 0.0f;
+            return (d >= -radius_ && d < radius_) ? 1.0f : 0.0f;
         }
-        if (kind_ == FilterKind::Tent) return tent1D(dx) * tent1D(dy);
-        return gaussian1D(dx) * gaussian1D(dy);
+        if (kind_ == FilterKind::Tent) return tent1D(d);
+        return gaussian1D(d);
     }
 
 private:

@@ -464,12 +464,6 @@ private:
     std::vector<int> lightMedium_;
 };
 
-// Appends the records [0, count) of `records`.
-template <class Buffer, class Record>
-void append(Buffer& buffer, const std::vector<Record>& records, std::size_t count) {
-    buffer.append(std::span(records).first(count));
-}
-
 // Records of paths up to and including `lastPath` (records are in path order).
 std::size_t recordsUpTo(const std::vector<PhotonRecord>& records, std::uint64_t lastPath) {
     return static_cast<std::size_t>(
@@ -606,36 +600,72 @@ public:
                 for (std::size_t i = r.begin; i != r.end; ++i) tracer.trace(batchStart + i, out);
             });
             emitted = batchStart + count;
+            // How many records each chunk hands over is decided in chunk order
+            // (a volume-photon target cuts the batch at one path); the copying
+            // into the maps, at offsets fixed by those counts, runs in parallel.
+            struct Take {
+                std::size_t caustic = 0, global = 0, volume = 0, rays = 0;
+                std::size_t causticAt = 0, globalAt = 0, volumeAt = 0, raysAt = 0;
+                std::int64_t direct = 0, singleScattering = 0;
+            };
+            std::vector<Take> takes(chunks.size());
+            std::size_t causticEnd = causticMap->photons.size(), globalEnd = globalMap->photons.size(),
+                        volumeEnd = volumeMap->photons.size(), raysEnd = photonRays.rays.size();
+            std::size_t usedChunks = 0;
             for (const ChunkResult& chunk : chunks) {
-                std::size_t takeVolume = chunk.volume.size();
+                Take& take = takes[usedChunks++];
+                take.volume = chunk.volume.size();
                 std::uint64_t lastPath = ~std::uint64_t(0);
-                if (targetMode && static_cast<std::uint64_t>(storedVolume) + takeVolume >= settings.volumeTarget) {
-                    takeVolume = static_cast<std::size_t>(settings.volumeTarget - static_cast<std::uint64_t>(storedVolume));
-                    lastPath = chunk.volume[takeVolume - 1].path;
+                if (targetMode && static_cast<std::uint64_t>(storedVolume) + take.volume >= settings.volumeTarget) {
+                    take.volume = static_cast<std::size_t>(settings.volumeTarget - static_cast<std::uint64_t>(storedVolume));
+                    lastPath = chunk.volume[take.volume - 1].path;
                     emitted = lastPath + 1;
                     targetReached = true;
                 }
-                const std::size_t takeCaustic = recordsUpTo(chunk.caustic, lastPath);
-                const std::size_t takeGlobal = recordsUpTo(chunk.global, lastPath);
-                append(causticMap->photons, chunk.caustic, takeCaustic);
-                append(globalMap->photons, chunk.global, takeGlobal);
-                append(volumeMap->photons, chunk.volume, takeVolume);
-                const std::size_t takeRays = static_cast<std::size_t>(
+                take.caustic = recordsUpTo(chunk.caustic, lastPath);
+                take.global = recordsUpTo(chunk.global, lastPath);
+                take.causticAt = causticEnd;
+                take.globalAt = globalEnd;
+                take.volumeAt = volumeEnd;
+                causticEnd += take.caustic;
+                globalEnd += take.global;
+                volumeEnd += take.volume;
+                take.rays = static_cast<std::size_t>(
                     std::partition_point(chunk.rays.begin(), chunk.rays.end(),
                                          [&](const PhotonRayBuffer::Record& r) { return r.get<RayPath>() <= lastPath; }) -
                     chunk.rays.begin());
-                append(photonRays.rays, chunk.rays, takeRays);
+                take.raysAt = raysEnd;
+                raysEnd += take.rays;
                 causticMap->collapsedFootprints += static_cast<std::uint64_t>(chunk.collapsedCaustic);
                 globalMap->collapsedFootprints += static_cast<std::uint64_t>(chunk.collapsedGlobal);
                 collapsed += static_cast<std::uint64_t>(chunk.collapsedCaustic + chunk.collapsedGlobal);
-                storedCaustic += static_cast<std::int64_t>(takeCaustic);
-                storedVolume += static_cast<std::int64_t>(takeVolume);
-                for (std::size_t k = 0; k < takeVolume; ++k)
-                    singleScattering += (chunk.volume[k].get<PhotonClassColumn>() & PhotonClass::Direct) != 0;
-                for (std::size_t k = 0; k < takeGlobal; ++k)
-                    ++(chunk.global[k].get<PhotonClassColumn>() == PhotonClass::Direct ? storedDirect : storedGlobal);
+                storedCaustic += static_cast<std::int64_t>(take.caustic);
+                storedVolume += static_cast<std::int64_t>(take.volume);
                 segments += chunk.segments;
                 if (targetReached) break;
+            }
+            causticMap->photons.resize(causticEnd);
+            globalMap->photons.resize(globalEnd);
+            volumeMap->photons.resize(volumeEnd);
+            photonRays.rays.resize(raysEnd);
+            jobs::parallelFor(usedChunks, 1, [&](std::size_t c) {
+                const ChunkResult& chunk = chunks[c];
+                Take& take = takes[c];
+                for (std::size_t k = 0; k < take.caustic; ++k) causticMap->photons.set(take.causticAt + k, chunk.caustic[k]);
+                for (std::size_t k = 0; k < take.global; ++k) {
+                    globalMap->photons.set(take.globalAt + k, chunk.global[k]);
+                    take.direct += chunk.global[k].get<PhotonClassColumn>() == PhotonClass::Direct;
+                }
+                for (std::size_t k = 0; k < take.volume; ++k) {
+                    volumeMap->photons.set(take.volumeAt + k, chunk.volume[k]);
+                    take.singleScattering += (chunk.volume[k].get<PhotonClassColumn>() & PhotonClass::Direct) != 0;
+                }
+                for (std::size_t k = 0; k < take.rays; ++k) photonRays.rays.set(take.raysAt + k, chunk.rays[k]);
+            });
+            for (std::size_t c = 0; c < usedChunks; ++c) {
+                storedDirect += takes[c].direct;
+                storedGlobal += static_cast<std::int64_t>(takes[c].global) - takes[c].direct;
+                singleScattering += takes[c].singleScattering;
             }
             ctx.addItems(static_cast<std::int64_t>(count));
             batchStart += count;

@@ -7,9 +7,10 @@
 // Mitsuba 3). It is the ground truth for every other pipeline.
 //
 // Two schedules share the same per-vertex code (path_vertex.h):
-//  - wavefront (default): paths of a wave live in SoA columns and advance stage
-//    by stage (intersect stream -> shade -> shadow stream -> compact), as in
-//    pbrt-v4's wavefront integrator;
+//  - wavefront (default): paths live in SoA columns and advance stage by stage
+//    (intersect stream -> shade -> shadow stream -> compact), as in pbrt-v4's
+//    wavefront integrator, in streams of 256 paths that one task each carries to
+//    the end, so that a stream stays in cache and a wave has a single barrier;
 //  - tile: each pixel's samples are traced to completion one after another.
 // Both consume the same random numbers per path, keyed by (seed, instance, sample
 // index), so they produce the same image up to floating-point order in the
@@ -36,42 +37,52 @@ namespace fg {
 
 namespace {
 
+// The state a path carries from one vertex to the next, for one stream of
+// paths in flight; dead paths are compacted away after every bounce so that the
+// live ones stay contiguous and feed Embree's stream queries directly.
 FG_SOA_COLUMN(PathRay, Ray, "ray");
-FG_SOA_COLUMN(PathHit, Hit, "hit");
 FG_SOA_COLUMN(PathThroughput, Rgb, "throughput");
 FG_SOA_COLUMN(PathRadiance, Rgb, "radiance");
 FG_SOA_COLUMN(PathPrevious, PathHistory, "history");
 FG_SOA_COLUMN(PathRng, jobs::Rng, "rng");
-FG_SOA_COLUMN(PathShadow, ShadowRequest, "shadow");
-FG_SOA_COLUMN(PathRaster, Vec2, "raster");
+FG_SOA_COLUMN(PathSample, std::uint32_t, "sample");  // the path's sample in the wave
 FG_SOA_COLUMN(PathTimeNs, float, "time_ns");
+using PathBuffer = SoaBuffer<PathRay, PathThroughput, PathRadiance, PathPrevious, PathRng, PathSample, PathTimeNs>;
 
-using PathBuffer = SoaBuffer<PathRay, PathHit, PathThroughput, PathRadiance, PathPrevious, PathRng, PathShadow,
-                             PathRaster, PathTimeNs>;
+// What one bounce produces and consumes, not carried to the next.
+FG_SOA_COLUMN(VertexHit, Hit, "hit");
+FG_SOA_COLUMN(VertexShadow, ShadowRequest, "shadow");
+FG_SOA_COLUMN(VertexAlive, std::uint8_t, "alive");
+using VertexBuffer = SoaBuffer<VertexHit, VertexShadow, VertexAlive>;
 
-constexpr std::size_t kGrain = 256;
+// A wave's finished samples, in the order the film takes them.
+FG_SOA_COLUMN(SampleRaster, Vec2, "raster");
+FG_SOA_COLUMN(SampleRadiance, Rgb, "radiance");
+FG_SOA_COLUMN(SampleTimeNs, float, "time_ns");
+using SampleBuffer = SoaBuffer<SampleRaster, SampleRadiance, SampleTimeNs>;
+
+// Paths per stream: one Embree stream query's worth, and small enough that a
+// stream's state (about 100 bytes a path, plus the bounce's hits and shadow
+// rays) stays in the L2 cache while the stream bounces.
+constexpr std::size_t kStream = 256;
+
+struct PathStream {
+    PathBuffer paths;
+    VertexBuffer vertices;
+};
+
+constexpr std::array<std::uint32_t, kStream> streamSlots() {
+    std::array<std::uint32_t, kStream> slots{};
+    for (std::size_t i = 0; i < kStream; ++i) slots[i] = static_cast<std::uint32_t>(i);
+    return slots;
+}
+constexpr std::array<std::uint32_t, kStream> kStreamSlots = streamSlots();
 
 struct Settings {
     int spp = 16;
     PathLimits limits;
     std::size_t waveSize = 1 << 18;
     bool wavefront = true;
-};
-
-// Books a chunk's wall time evenly to the paths it processed (the per-pixel time AOV).
-class ChunkClock {
-public:
-    explicit ChunkClock(std::span<float> timeNs, std::span<const std::uint32_t> paths)
-        : timeNs_(timeNs), paths_(paths), start_(jobs::wallNanos()) {}
-    ~ChunkClock() {
-        const float share = static_cast<float>(jobs::wallNanos() - start_) / static_cast<float>(paths_.size());
-        for (std::uint32_t p : paths_) timeNs_[p] += share;
-    }
-
-private:
-    std::span<float> timeNs_;
-    std::span<const std::uint32_t> paths_;
-    std::int64_t start_;
 };
 
 // Samples [firstSample, firstSample + samples) of each pixel in [firstPixel,
@@ -90,103 +101,118 @@ struct SampleRange {
     }
 };
 
-// Traces the samples of `range` in SoA stages.
-// Returns the number of path segments traced (closest-hit queries).
-std::int64_t traceWave(const PathTracerScene& pts, const Camera& camera, std::uint64_t seed, std::uint64_t stream,
-                       const Settings& settings, const SampleRange& range, PathBuffer& paths) {
-    std::int64_t segments = 0;
-    const std::size_t count = range.count();
-    paths.resize(count);
+Vec2 jitteredRaster(const Camera& camera, std::uint32_t pixel, jobs::Rng& rng) {
+    const Vec2 jitter = rng.uniform2();
+    return Vec2(static_cast<float>(pixel % static_cast<std::uint32_t>(camera.width)),
+                static_cast<float>(pixel / static_cast<std::uint32_t>(camera.width))) + jitter;
+}
+
+// A non-finite sample would poison every pixel its filter reaches.
+Rgb finiteOrBlack(const Rgb& L) { return isFinite(L) ? L : Rgb(0.0f); }
+
+// Traces the wave's samples [first.begin, first.end) in SoA stages (closest-hit
+// stream -> shading -> shadow stream -> compaction) until all have ended, and
+// writes their results into `samples`. Returns the path segments traced.
+std::int64_t traceStream(const PathTracerScene& pts, const Camera& camera, std::uint64_t seed, std::uint64_t stream,
+                         const Settings& settings, const SampleRange& range, jobs::IndexRange first,
+                         PathStream& state, SampleBuffer& samples) {
+    PathBuffer& paths = state.paths;
+    VertexBuffer& vertices = state.vertices;
+    paths.resize(first.size());
+    vertices.resize(first.size());
     auto rays = paths.column<PathRay>();
-    auto hits = paths.column<PathHit>();
     auto throughput = paths.column<PathThroughput>();
     auto radiance = paths.column<PathRadiance>();
     auto history = paths.column<PathPrevious>();
     auto rngs = paths.column<PathRng>();
-    auto shadows = paths.column<PathShadow>();
-    auto raster = paths.column<PathRaster>();
+    auto sampleOf = paths.column<PathSample>();
     auto timeNs = paths.column<PathTimeNs>();
+    auto hits = vertices.column<VertexHit>();
+    auto shadows = vertices.column<VertexShadow>();
+    auto alive = vertices.column<VertexAlive>();
+    auto raster = samples.column<SampleRaster>();
+    auto sampleRadiance = samples.column<SampleRadiance>();
+    auto sampleTimeNs = samples.column<SampleTimeNs>();
 
-    std::vector<std::uint32_t> active(count);
-    for (std::size_t i = 0; i < count; ++i) active[i] = static_cast<std::uint32_t>(i);
+    std::int64_t clock = jobs::wallNanos();
+    for (std::size_t k = 0; k < first.size(); ++k) {
+        const std::size_t i = first.begin + k;
+        rngs[k] = jobs::Rng(seed, stream, range.key(i, static_cast<std::uint64_t>(settings.spp)));
+        raster[i] = jitteredRaster(camera, range.pixel(i), rngs[k]);
+        rays[k] = camera.generateRay(raster[i]);
+        throughput[k] = Rgb(1.0f);
+        radiance[k] = Rgb(0.0f);
+        history[k] = PathHistory::atCamera(camera.medium);
+        sampleOf[k] = static_cast<std::uint32_t>(i);
+        timeNs[k] = 0.0f;
+    }
 
-    // Stage: camera rays.
-    jobs::parallelForChunks(count, kGrain, [&](jobs::IndexRange r) {
-        ChunkClock clock(timeNs, std::span<const std::uint32_t>(active).subspan(r.begin, r.size()));
-        for (std::size_t i = r.begin; i != r.end; ++i) {
-            const std::uint32_t pixel = range.pixel(i);
-            rngs[i] = jobs::Rng(seed, stream, range.key(i, static_cast<std::uint64_t>(settings.spp)));
-            const Vec2 jitter = rngs[i].uniform2();
-            raster[i] = Vec2(static_cast<float>(pixel % static_cast<std::uint32_t>(camera.width)),
-                             static_cast<float>(pixel / static_cast<std::uint32_t>(camera.width))) + jitter;
-            rays[i] = camera.generateRay(raster[i]);
-            throughput[i] = Rgb(1.0f);
-            radiance[i] = Rgb(0.0f);
-            history[i] = PathHistory::atCamera(camera.medium);
-            timeNs[i] = 0.0f;
+    std::int64_t segments = 0;
+    std::size_t live = first.size();
+    while (live > 0) {
+        segments += static_cast<std::int64_t>(live);
+        pts.rays.intersect(rays.first(live), hits.first(live));
+        for (std::size_t k = 0; k < live; ++k) {
+            PathVertexState vertex{rays[k], throughput[k], radiance[k], history[k], rngs[k]};
+            shadows[k] = ShadowRequest{};
+            alive[k] = advancePath(pts, settings.limits, hits[k], vertex, shadows[k]) ? 1 : 0;
         }
-    });
+        resolveShadowRays(pts, std::span<const std::uint32_t>(kStreamSlots.data(), live), shadows, radiance);
 
-    std::vector<std::uint8_t> alive(count);
-    while (!active.empty()) {
-        segments += static_cast<std::int64_t>(active.size());
-        // Stage: closest hits for all live paths, as ray streams.
-        jobs::parallelForChunks(active.size(), kGrain, [&](jobs::IndexRange r) {
-            const auto ids = std::span<const std::uint32_t>(active).subspan(r.begin, r.size());
-            ChunkClock clock(timeNs, ids);
-            std::array<Ray, kGrain> streamRays;
-            std::array<Hit, kGrain> streamHits;
-            for (std::size_t k = 0; k < ids.size(); ++k) streamRays[k] = rays[ids[k]];
-            pts.rays.intersect(std::span<const Ray>(streamRays.data(), ids.size()),
-                               std::span<Hit>(streamHits.data(), ids.size()));
-            for (std::size_t k = 0; k < ids.size(); ++k) hits[ids[k]] = streamHits[k];
-        });
+        // The bounce's wall time is shared by the paths that took part in it,
+        // so long paths are booked more of the pixel's time.
+        const std::int64_t now = jobs::wallNanos();
+        const float share = static_cast<float>(now - clock) / static_cast<float>(live);
+        clock = now;
 
-        // Stage: shading (emission, medium events, light sampling, next direction).
-        jobs::parallelForChunks(active.size(), kGrain, [&](jobs::IndexRange r) {
-            const auto ids = std::span<const std::uint32_t>(active).subspan(r.begin, r.size());
-            ChunkClock clock(timeNs, ids);
-            for (std::uint32_t p : ids) {
-                PathVertexState state{rays[p], throughput[p], radiance[p], history[p], rngs[p]};
-                shadows[p] = ShadowRequest{};
-                alive[p] = advancePath(pts, settings.limits, hits[p], state, shadows[p]) ? 1 : 0;
+        // Compaction keeps the order of paths; a path's result does not depend on it.
+        std::size_t kept = 0;
+        for (std::size_t k = 0; k < live; ++k) {
+            timeNs[k] += share;
+            if (alive[k]) {
+                if (kept != k) paths.set(kept, paths.get(k));
+                ++kept;
+            } else {
+                sampleRadiance[sampleOf[k]] = finiteOrBlack(radiance[k]);
+                sampleTimeNs[sampleOf[k]] = timeNs[k];
             }
-        });
-
-        // Stage: shadow rays (transmittance through null boundaries and media).
-        jobs::parallelForChunks(active.size(), kGrain, [&](jobs::IndexRange r) {
-            const auto ids = std::span<const std::uint32_t>(active).subspan(r.begin, r.size());
-            ChunkClock clock(timeNs, ids);
-            resolveShadowRays(pts, ids, shadows, radiance);
-        });
-
-        // Compaction keeps the order of paths, so nothing depends on scheduling.
-        std::erase_if(active, [&](std::uint32_t p) { return alive[p] == 0; });
+        }
+        live = kept;
     }
     return segments;
 }
 
-std::int64_t traceTile(const PathTracerScene& pts, const Camera& camera, std::uint64_t seed, std::uint64_t stream,
-                       const Settings& settings, const SampleRange& range, PathBuffer& paths) {
+// Wavefront schedule: the wave is cut into streams of kStream paths, each
+// advanced bounce by bounce to the end by one task, so a wave has one barrier
+// (its end) instead of several per bounce. Stream state lives in per-worker
+// buffers reused across streams and waves.
+std::int64_t traceWave(const PathTracerScene& pts, const Camera& camera, std::uint64_t seed, std::uint64_t stream,
+                       const Settings& settings, const SampleRange& range, jobs::PerWorker<PathStream>& streams,
+                       SampleBuffer& samples) {
     std::atomic<std::int64_t> segments{0};
-    paths.resize(range.count());
-    auto radiance = paths.column<PathRadiance>();
-    auto raster = paths.column<PathRaster>();
-    auto timeNs = paths.column<PathTimeNs>();
+    jobs::parallelForChunks(range.count(), kStream, [&](jobs::IndexRange r) {
+        segments += traceStream(pts, camera, seed, stream, settings, range, r, streams.local(), samples);
+    });
+    return segments.load();
+}
+
+std::int64_t traceTile(const PathTracerScene& pts, const Camera& camera, std::uint64_t seed, std::uint64_t stream,
+                       const Settings& settings, const SampleRange& range, SampleBuffer& out) {
+    std::atomic<std::int64_t> segments{0};
+    auto radiance = out.column<SampleRadiance>();
+    auto raster = out.column<SampleRaster>();
+    auto timeNs = out.column<SampleTimeNs>();
     const std::size_t samples = range.samples;
     // One chunk = whole pixels, so each pixel's samples run back to back.
-    const std::size_t pixelGrain = std::max<std::size_t>(1, kGrain / samples);
+    const std::size_t pixelGrain = std::max<std::size_t>(1, kStream / samples);
     jobs::parallelForChunks(range.pixels, pixelGrain, [&](jobs::IndexRange pixels) {
         std::int64_t chunkSegments = 0;
         for (std::size_t localPixel = pixels.begin; localPixel != pixels.end; ++localPixel) {
             const std::int64_t start = jobs::wallNanos();
             for (std::size_t s = 0; s < samples; ++s) {
                 const std::size_t i = localPixel * samples + s;
-                const std::uint32_t pixel = range.pixel(i);
                 jobs::Rng rng(seed, stream, range.key(i, static_cast<std::uint64_t>(settings.spp)));
-                const Vec2 jitter = rng.uniform2();
-                raster[i] = Vec2(static_cast<float>(pixel % static_cast<std::uint32_t>(camera.width)),
-                                 static_cast<float>(pixel / static_cast<std::uint32_t>(camera.width))) + jitter;
+                raster[i] = jitteredRaster(camera, range.pixel(i), rng);
                 Ray ray = camera.generateRay(raster[i]);
                 Rgb beta(1.0f), L(0.0f);
                 PathHistory hist = PathHistory::atCamera(camera.medium);
@@ -199,7 +225,7 @@ std::int64_t traceTile(const PathTracerScene& pts, const Camera& camera, std::ui
                     pathAlive = advancePath(pts, settings.limits, hit, state, shadow);
                     if (shadow.pending) L += shadow.contribution * shadowTransmittance(pts, shadow);
                 }
-                radiance[i] = L;
+                radiance[i] = finiteOrBlack(L);
             }
             const float perSample = static_cast<float>(jobs::wallNanos() - start) / static_cast<float>(samples);
             for (std::size_t s = 0; s < samples; ++s) timeNs[localPixel * samples + s] = perSample;
@@ -260,34 +286,35 @@ public:
         // Waves hold whole pixels so that each film round has every sample of its pixels in the pass.
         const std::size_t pixelsPerWave = std::max<std::size_t>(1, settings.waveSize / passSamples);
 
-        PathBuffer paths;
+        SampleBuffer samples;
+        jobs::PerWorker<PathStream> streams;
         for (std::size_t passStart = 0; passStart < spp; passStart += passSamples) {
-            const std::size_t samples = std::min(passSamples, spp - passStart);
+            const std::size_t samplesPerPixel = std::min(passSamples, spp - passStart);
             for (std::size_t firstPixel = 0; firstPixel < pixelCount; firstPixel += pixelsPerWave) {
-                const SampleRange range{firstPixel, std::min(pixelsPerWave, pixelCount - firstPixel), passStart, samples};
+                const SampleRange range{firstPixel, std::min(pixelsPerWave, pixelCount - firstPixel), passStart,
+                                        samplesPerPixel};
+                samples.resize(range.count());
                 const std::int64_t segments =
-                    settings.wavefront ? traceWave(pts, camera, ctx.seed(), ctx.streamKey(), settings, range, paths)
-                                       : traceTile(pts, camera, ctx.seed(), ctx.streamKey(), settings, range, paths);
+                    settings.wavefront
+                        ? traceWave(pts, camera, ctx.seed(), ctx.streamKey(), settings, range, streams, samples)
+                        : traceTile(pts, camera, ctx.seed(), ctx.streamKey(), settings, range, samples);
                 ctx.addCounter("path_segments", segments);
-                // A non-finite sample would poison every pixel its filter reaches.
-                for (Rgb& L : paths.column<PathRadiance>())
-                    if (!isFinite(L)) L = Rgb(0.0f);
-                film.addRound({firstPixel, range.pixels, static_cast<int>(samples), paths.column<PathRaster>(),
-                               paths.column<PathRadiance>()});
-                const auto times = paths.column<PathTimeNs>();
-                for (std::size_t px = 0; px < range.pixels; ++px) {
+                film.addRound({firstPixel, range.pixels, static_cast<int>(samplesPerPixel),
+                               samples.column<SampleRaster>(), samples.column<SampleRadiance>()});
+                const auto times = std::span<const float>(samples.column<SampleTimeNs>());
+                jobs::parallelFor(range.pixels, 4096, [&](std::size_t px) {
                     float sum = 0.0f;
-                    for (std::size_t s = 0; s < samples; ++s) sum += times[px * samples + s];
+                    for (std::size_t s = 0; s < samplesPerPixel; ++s) sum += times[px * samplesPerPixel + s];
                     timeAov[firstPixel + px] += sum;
-                    sampleAov[firstPixel + px] += static_cast<float>(samples);
-                }
+                    sampleAov[firstPixel + px] += static_cast<float>(samplesPerPixel);
+                });
                 ctx.addItems(static_cast<std::int64_t>(range.count()));
                 ctx.reportProgress((static_cast<double>(passStart) * static_cast<double>(pixelCount) +
-                                    static_cast<double>((firstPixel + range.pixels) * samples)) /
+                                    static_cast<double>((firstPixel + range.pixels) * samplesPerPixel)) /
                                    (static_cast<double>(pixelCount) * static_cast<double>(spp)));
             }
             ctx.completedUnit();
-            const std::size_t done = passStart + samples;
+            const std::size_t done = passStart + samplesPerPixel;
             if (done < spp && ctx.stopRequested()) {
                 ctx.keptPartial(ctx.instanceName() + ": " + std::to_string(done) + " of " + std::to_string(spp) +
                                 " samples per pixel");
@@ -297,18 +324,25 @@ public:
     }
 };
 
-// The film (sums and the time_ns and samples AOVs) and one wave of paths.
+// Bytes of one path in flight: its carried state plus one bounce's hit and shadow request.
+constexpr std::uint64_t kBytesPerPathInFlight = sizeof(Ray) + 2 * sizeof(Rgb) + sizeof(PathHistory) +
+                                                sizeof(jobs::Rng) + sizeof(std::uint32_t) + sizeof(float) +
+                                                sizeof(Hit) + sizeof(ShadowRequest) + sizeof(std::uint8_t);
+// Bytes of one finished sample waiting for the film: raster position, radiance, time.
+constexpr std::uint64_t kBytesPerWaveSample = sizeof(Vec2) + sizeof(Rgb) + sizeof(float);
+
+// The film (sums and the time_ns and samples AOVs), one wave of finished
+// samples and one stream of paths in flight per worker thread.
 MemoryEstimate pathTracerMemory(const PreflightContext& pf) {
     const auto spp = static_cast<std::uint64_t>(pf.params.getInt("spp"));
     const std::uint64_t pixels = static_cast<std::uint64_t>(pf.film.width) * static_cast<std::uint64_t>(pf.film.height);
     const std::uint64_t wave = std::min(multiplyBytes(pixels, spp), static_cast<std::uint64_t>(pf.params.getInt("wave_size")));
-    constexpr std::uint64_t kBytesPerPath = sizeof(Ray) + sizeof(Hit) + 2 * sizeof(Rgb) + sizeof(PathHistory) +
-                                            sizeof(jobs::Rng) + sizeof(ShadowRequest) + sizeof(Vec2) + sizeof(float) +
-                                            sizeof(std::uint32_t) + sizeof(std::uint8_t);  // + active, alive
+    const std::uint64_t inFlight = static_cast<std::uint64_t>(std::max(1, jobs::hardwareThreads())) * kStream;
     MemoryEstimate estimate;
-    estimate.bytes = addBytes(filmBytes(pf.film, 2), multiplyBytes(wave, kBytesPerPath));
-    estimate.what = "film " + std::to_string(pf.film.width) + " x " + std::to_string(pf.film.height) + " and " +
-                    std::to_string(wave) + " paths in flight";
+    estimate.bytes = addBytes(filmBytes(pf.film, 2), addBytes(multiplyBytes(wave, kBytesPerWaveSample),
+                                                              multiplyBytes(inFlight, kBytesPerPathInFlight)));
+    estimate.what = "film " + std::to_string(pf.film.width) + " x " + std::to_string(pf.film.height) + ", " +
+                    std::to_string(wave) + " samples per wave and " + std::to_string(inFlight) + " paths in flight";
     return estimate;
 }
 
@@ -336,7 +370,7 @@ PassRegistration pathTracerPass() {
         {"schedule", ParamType::String, std::string("wavefront"), 0, 0, {"wavefront", "tile"},
          "wavefront: SoA path queues advanced stage by stage; tile: each pixel's paths traced to completion"},
         {"wave_size", ParamType::Int, std::int64_t{1 << 18}, 1, 1 << 26, {},
-         "paths in flight per wave (memory vs. parallelism)"},
+         "samples per wave, traced and then added to the film together (24 bytes each while in flight)"},
         {"guiding", ParamType::String, std::string("auto"), 0, 0, {"auto", "none", "gmm"},
          "none: BSDF sampling; gmm: guided by the radiance_cache input (Vorba et al. 2014); auto: gmm when "
          "that input is bound"},
