@@ -19,6 +19,7 @@ PassRegistration photonRadiusPass();
 PassRegistration photonBvhPass();
 PassRegistration beamQueryPass();
 PassRegistration lightTracePass();
+PassRegistration bdptPass();
 PassRegistration filmNoisePass();
 PassRegistration compositePass();
 
