@@ -736,14 +736,14 @@ private:
             const std::optional<LightSample> ls = scene.lights[index]->sampleLi(eye.p, uPoint);
             if (!ls || !(ls->pdf > 0.0f) || isBlack(ls->value)) return;
             const bool atInfinity = std::isinf(ls->distance) || ls->distance >= kInfinity;
-            if (atInfinity) return;  // light at infinity is what escaped camera rays see (s = 0)
             sampled.kind = BdptVertexKind::Light;
             sampled.light = static_cast<int>(index);
-            sampled.p = ls->p;
-            sampled.ng = ls->n;
+            sampled.infinite = atInfinity;
+            sampled.p = atInfinity ? ls->wi : ls->p;
+            sampled.ng = atInfinity ? Vec3(0.0f) : ls->n;
             sampled.pdfFwd = bdptPdfLightOrigin(bs, sampled);
-            // Radiance per solid angle pdf, times d^2 so that the common factor below applies.
-            value = ls->value / (ls->pdf * pmf) * glm::dot(ls->p - eye.p, ls->p - eye.p);
+            // Radiance over its solid-angle density, times d^2 so that the common factor below applies.
+            value = ls->value / (ls->pdf * pmf) * (atInfinity ? 1.0f : glm::dot(ls->p - eye.p, ls->p - eye.p));
             qs = &sampled;
         } else {
             qs = &light[static_cast<std::size_t>(s - 1)];
@@ -752,8 +752,9 @@ private:
             value = qs->beta * bdptScatter(bs, *qs, dir, true);
         }
         if (isBlack(value)) return;
-        const Vec3 toVertex = qs->p - eye.p;
-        const float distance2 = glm::dot(toVertex, toVertex);
+        // Lights at infinity are seen along a direction: no distance falls off.
+        const Vec3 toVertex = qs->infinite ? qs->p : qs->p - eye.p;
+        const float distance2 = qs->infinite ? 1.0f : glm::dot(toVertex, toVertex);
         if (!(distance2 > 0.0f)) return;
         const float distance = std::sqrt(distance2);
         const Vec3 dir = toVertex / distance;
@@ -761,7 +762,7 @@ private:
         Vec2 raster;
         if (!(cosCamera > 0.0f) || !(bs.cameraDirectionPdf(dir, &raster) > 0.0f)) return;
         const float depth = distance * cosCamera;
-        if (depth < bs.view.nearClip || depth > bs.view.farClip) return;
+        if (!qs->infinite && (depth < bs.view.nearClip || depth > bs.view.farClip)) return;
         value *= bs.view.rasterPerImagePlane / (distance2 * cosCamera * cosCamera * cosCamera);
         if (!isFinite(value) || isBlack(value)) return;
         std::array<BdptVertex, 1> eyePath{eye};

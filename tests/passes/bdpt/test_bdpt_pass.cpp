@@ -37,14 +37,6 @@ Film renderBdptFilm(const Scene& scene, const std::map<std::string, ParamValue>&
     return *static_cast<const Film*>(result.results.at("image").data.get());
 }
 
-// Mean of AOV channel `name` over the image.
-double aovMean(Film& film, const std::string& name) {
-    const std::vector<float>& values = film.aov(name);
-    double sum = 0.0;
-    for (float v : values) sum += v;
-    return sum / static_cast<double>(values.size());
-}
-
 int addDiffuse(Scene& scene, const Rgb& albedo) {
     scene.bsdfs.push_back(makeDiffuse(makeConstantTexture(albedo)));
     return static_cast<int>(scene.bsdfs.size()) - 1;
@@ -78,6 +70,263 @@ TEST(BdptPass, FurnaceSphereHasUnitRadiance) {
                                       smallFilm(24, 24), 1, 2);
     const Rgb mean = image.mean();
     for (int c = 0; c < 3; ++c) EXPECT_NEAR(mean[c], 1.0f, 0.01f) << "channel " << c;
+}
+
+
+// Per 4x4-block means of two estimates of the same image agree within 3 sigma
+// of their difference, sigma measured from two independent halves of each.
+struct NoisyImage {
+    test::RenderedImage first, second;
+};
+
+int blocksBeyond(const NoisyImage& a, const NoisyImage& b, double sigmas, int* checked) {
+    const int w = a.first.width, h = a.first.height;
+    int beyond = 0;
+    for (int by = 0; by + 4 <= h; by += 4) {
+        for (int bx = 0; bx + 4 <= w; bx += 4) {
+            for (int c = 0; c < 3; ++c) {
+                double meanA = 0.0, meanB = 0.0, varA = 0.0, varB = 0.0;
+                for (int y = by; y < by + 4; ++y) {
+                    for (int x = bx; x < bx + 4; ++x) {
+                        const double a1 = a.first.at(x, y)[c], a2 = a.second.at(x, y)[c];
+                        const double b1 = b.first.at(x, y)[c], b2 = b.second.at(x, y)[c];
+                        meanA += 0.5 * (a1 + a2);
+                        meanB += 0.5 * (b1 + b2);
+                        // The mean of two independent halves has a quarter of their difference's variance.
+                        varA += 0.25 * (a1 - a2) * (a1 - a2);
+                        varB += 0.25 * (b1 - b2) * (b1 - b2);
+                    }
+                }
+                meanA /= 16.0;
+                meanB /= 16.0;
+                const double sigma = std::sqrt((varA + varB) / 256.0);
+                ++*checked;
+                if (std::abs(meanA - meanB) > sigmas * sigma + 1e-6) ++beyond;
+            }
+        }
+    }
+    return beyond;
+}
+
+NoisyImage renderHalves(const Scene& scene, const std::string& pipeline, const std::map<std::string, ParamValue>& params,
+                        const FilmSettings& film) {
+    return {renderPipeline(scene, pipeline, params, film, 11, 2), renderPipeline(scene, pipeline, params, film, 12, 2)};
+}
+
+// A closed Cornell-like box: white floor, ceiling and back wall, red and green
+// side walls, a square emitter under the ceiling, a camera inside.
+Scene cornellBox() {
+    Scene scene;
+    const int white = addDiffuse(scene, Rgb(0.75f));
+    const int red = addDiffuse(scene, Rgb(0.63f, 0.06f, 0.05f));
+    const int green = addDiffuse(scene, Rgb(0.14f, 0.45f, 0.09f));
+    const auto wall = [&](const Mat4& transform, int bsdf) {
+        Shape shape;
+        TriangleMesh mesh = makeRectangleMesh();
+        mesh.transform(transform);
+        shape.geometry = mesh;
+        shape.bsdf = bsdf;
+        scene.shapes.push_back(shape);
+    };
+    const Mat4 I(1.0f);
+    wall(glm::translate(I, Vec3(0, -1, 0)) * glm::rotate(I, -kPi / 2, Vec3(1, 0, 0)), white);  // floor
+    wall(glm::translate(I, Vec3(0, 1, 0)) * glm::rotate(I, kPi / 2, Vec3(1, 0, 0)), white);    // ceiling
+    wall(glm::translate(I, Vec3(0, 0, -1)), white);                                              // back
+    wall(glm::translate(I, Vec3(0, 0, 1)) * glm::rotate(I, kPi, Vec3(0, 1, 0)), white);         // front
+    wall(glm::translate(I, Vec3(-1, 0, 0)) * glm::rotate(I, kPi / 2, Vec3(0, 1, 0)), red);      // left
+    wall(glm::translate(I, Vec3(1, 0, 0)) * glm::rotate(I, -kPi / 2, Vec3(0, 1, 0)), green);    // right
+    Shape emitter;
+    TriangleMesh mesh = makeRectangleMesh();
+    mesh.transform(glm::translate(I, Vec3(0, 0.99f, 0)) * glm::rotate(I, kPi / 2, Vec3(1, 0, 0)) *
+                   glm::scale(I, Vec3(0.25f)));
+    emitter.geometry = mesh;
+    emitter.bsdf = addDiffuse(scene, Rgb(0.0f));
+    emitter.areaLight = 0;
+    scene.lights.push_back(makeAreaLight(emitter, Rgb(12.0f)));
+    scene.lightShape.push_back(static_cast<int>(scene.shapes.size()));
+    scene.shapes.push_back(emitter);
+    scene.camera.eye = Vec3(0.0f, 0.0f, 0.95f);
+    scene.camera.target = Vec3(0.0f, 0.0f, -1.0f);
+    scene.camera.fovYDegrees = 75.0f;
+    scene.finalize();
+    return scene;
+}
+
+TEST(BdptPass, CornellBoxAgreesWithPathTracer) {
+    const Scene scene = cornellBox();
+    const FilmSettings film = smallFilm(24, 24);
+    const NoisyImage bdpt = renderHalves(scene, "bdpt", {{"bdpt.spp", std::int64_t{32}}, {"bdpt.max_depth", std::int64_t{9}}}, film);
+    const NoisyImage pt = renderHalves(scene, "pt", {{"pt.spp", std::int64_t{128}}, {"pt.max_depth", std::int64_t{8}}}, film);
+    int checked = 0;
+    const int beyond3 = blocksBeyond(bdpt, pt, 3.0, &checked);
+    int unused = 0;
+    const int beyond5 = blocksBeyond(bdpt, pt, 5.0, &unused);
+    // 3 sigma is passed by 0.3 % of blocks by chance; sigma itself is an estimate of 16 pixels.
+    EXPECT_LE(beyond3, 2) << "of " << checked;
+    EXPECT_EQ(beyond5, 0);
+    EXPECT_GT(bdpt.first.mean().y, 0.05f);
+}
+
+TEST(BdptPass, ImageIsIdenticalForOneAndTwoThreads) {
+    const Scene scene = cornellBox();
+    FilmSettings film = smallFilm(20, 16);
+    film.filter = FilterKind::Gaussian;
+    film.filterRadius = 1.5f;
+    const std::map<std::string, ParamValue> params = {{"spp", std::int64_t{4}}, {"wave_size", std::int64_t{300}},
+                                                      {"strategy_aovs", std::int64_t{2}}};
+    Film a = renderBdptFilm(scene, params, film, 7, 1);
+    Film b = renderBdptFilm(scene, params, film, 7, 2);
+    const std::vector<Rgb> ia = a.resolve(), ib = b.resolve();
+    ASSERT_EQ(ia.size(), ib.size());
+    bool anyNonZero = false;
+    for (std::size_t i = 0; i < ia.size(); ++i) {
+        EXPECT_EQ(ia[i], ib[i]) << "pixel " << i;
+        anyNonZero |= !isBlack(ia[i]);
+    }
+    EXPECT_TRUE(anyNonZero);
+    ASSERT_EQ(a.aovs().size(), b.aovs().size());
+    for (std::size_t k = 0; k < a.aovs().size(); ++k) EXPECT_EQ(a.aovs()[k].second, b.aovs()[k].second) << a.aovs()[k].first;
+}
+
+// A spot light under a mirror ceiling points up: the floor below sees it only
+// through the mirror (L S D E), and of all strategies only t = 1 (the floor
+// vertex of the light subpath connected to the camera) can make that path: the
+// camera path meets the mirror but cannot connect from it, nor can the light
+// path from its mirror vertex. The image is that of the mirrored spot,
+// L = (albedo / pi) I cos(theta) / d^2.
+TEST(BdptPass, MirrorCausticIsOnlyTheLightTracingStrategy) {
+    const float albedo = 0.5f, intensity = 3.0f, lightHeight = 1.5f, mirrorHeight = 2.0f, cameraHeight = 1.0f;
+    Scene scene;
+    Shape floor;
+    TriangleMesh plane = makeRectangleMesh();
+    plane.transform(glm::scale(Mat4(1.0f), Vec3(10.0f)));
+    floor.geometry = plane;
+    floor.bsdf = addDiffuse(scene, Rgb(albedo));
+    scene.shapes.push_back(floor);
+    Shape mirror;
+    TriangleMesh ceiling = makeRectangleMesh();
+    ceiling.transform(glm::translate(Mat4(1.0f), Vec3(0, 0, mirrorHeight)) * glm::rotate(Mat4(1.0f), kPi, Vec3(1, 0, 0)) *
+                      glm::scale(Mat4(1.0f), Vec3(10.0f)));
+    mirror.geometry = ceiling;
+    scene.bsdfs.push_back(makeConductor(*conductorPreset("none")));
+    mirror.bsdf = static_cast<int>(scene.bsdfs.size()) - 1;
+    scene.shapes.push_back(mirror);
+    scene.lights.push_back(makeSpotLight(Vec3(0, 0, lightHeight), Vec3(0, 0, 1), Rgb(intensity), 40.0f, 39.0f));
+    scene.lightShape.push_back(-1);
+    scene.camera.eye = Vec3(0.0f, 0.0f, cameraHeight);
+    scene.camera.target = Vec3(0.0f, 0.0f, 0.0f);
+    scene.camera.up = Vec3(0, 1, 0);
+    scene.camera.fovYDegrees = 60.0f;
+    scene.finalize();
+
+    const int w = 16, h = 16;
+    Film film = renderBdptFilm(scene, {{"spp", std::int64_t{64}}, {"max_depth", std::int64_t{3}}, {"strategy_aovs", std::int64_t{3}}},
+                               smallFilm(w, h));
+    const std::vector<Rgb> image = film.resolve();
+    const Vec3 virtualLight(0, 0, 2.0f * mirrorHeight - lightHeight);
+    Camera cam = scene.camera;
+    cam.width = w;
+    cam.height = h;
+    double measured = 0.0, expected = 0.0;
+    for (int y = 0; y < h; ++y) {
+        for (int x = 0; x < w; ++x) {
+            const Ray ray = cam.generateRay(Vec2(x + 0.5f, y + 0.5f));
+            const Vec3 onFloor = ray.origin + (ray.origin.z / -ray.direction.z) * ray.direction;
+            const Vec3 toLight = virtualLight - onFloor;
+            const float d2 = glm::dot(toLight, toLight);
+            expected += albedo / kPi * intensity * (toLight.z / std::sqrt(d2)) / d2;
+            measured += image[static_cast<std::size_t>(y * w + x)].y;
+        }
+    }
+    EXPECT_NEAR(measured, expected, 0.02 * expected);
+    for (const auto& [name, values] : film.aovs()) {
+        double sum = 0.0;
+        for (float v : values) sum += v;
+        if (name.starts_with("s3t1.")) EXPECT_NEAR(sum, name == "s3t1.G" ? measured : sum, 1e-3 * measured) << name;
+        else EXPECT_EQ(sum, 0.0) << name;
+    }
+}
+
+// pt's airlight test: single scattering (two segments) from a point light
+// along camera rays in a homogeneous medium matches the airlight integral.
+TEST(BdptPass, SingleScatteringMatchesAirlightIntegral) {
+    const float sigmaS = 0.4f, sigmaA = 0.1f, intensity = 10.0f;
+    const float wallDistance = 3.0f, hOffset = 0.5f, delta = 1.2f;
+    Scene scene;
+    scene.media.emplace_back(Rgb(sigmaA), Rgb(sigmaS), 0.0f);
+    Shape wall;
+    TriangleMesh plane = makeRectangleMesh();
+    plane.transform(glm::translate(Mat4(1.0f), Vec3(0, 0, -wallDistance)) * glm::scale(Mat4(1.0f), Vec3(10.0f)));
+    wall.geometry = plane;
+    wall.bsdf = addDiffuse(scene, Rgb(0.0f));
+    scene.shapes.push_back(wall);
+    scene.lights.push_back(makePointLight(Vec3(hOffset, 0.0f, -delta), Rgb(intensity)));
+    scene.lightShape.push_back(-1);
+    scene.camera.eye = Vec3(0.0f);
+    scene.camera.target = Vec3(0, 0, -1);
+    scene.camera.fovYDegrees = 2.0f;
+    scene.camera.medium = 0;
+    scene.finalize();
+
+    const auto image = renderPipeline(scene, "bdpt", {{"bdpt.spp", std::int64_t{256}}, {"bdpt.max_depth", std::int64_t{2}}},
+                                      smallFilm(16, 16), 1, 2);
+    Camera cam = scene.camera;
+    cam.width = cam.height = 16;
+    double expected = 0.0;
+    for (int y = 0; y < 16; ++y) {
+        for (int x = 0; x < 16; ++x) {
+            const Vec3 d = glm::normalize(cam.generateRay(Vec2(x + 0.5f, y + 0.5f)).direction);
+            const double T = wallDistance / -d.z;
+            const Vec3 light(hOffset, 0.0f, -delta);
+            const double foot = glm::dot(light, d);
+            const double perp = glm::length(light - static_cast<float>(foot) * d);
+            expected += test::airlight(sigmaS, sigmaS + sigmaA, intensity, perp, foot, T);
+        }
+    }
+    expected /= 256.0;
+    EXPECT_NEAR(image.mean().y, expected, 0.01 * expected);
+}
+
+// A fog cube behind a null boundary over a diffuse floor, lit by a point light
+// and a constant environment: medium vertices, transmittance on connections
+// through the boundary, and the environment reached by escaping paths.
+TEST(BdptPass, MediumBoxAgreesWithPathTracer) {
+    Scene scene;
+    Shape floor;
+    TriangleMesh plane = makeRectangleMesh();
+    plane.transform(glm::scale(Mat4(1.0f), Vec3(3.0f)));
+    floor.geometry = plane;
+    floor.bsdf = addDiffuse(scene, Rgb(0.6f, 0.5f, 0.4f));
+    scene.shapes.push_back(floor);
+    scene.media.emplace_back(Rgb(0.05f, 0.1f, 0.2f), Rgb(0.8f, 0.6f, 0.4f), 0.3f);
+    Shape fog;
+    TriangleMesh cube = makeCubeMesh();
+    cube.transform(glm::translate(Mat4(1.0f), Vec3(0, 0, 0.8f)) * glm::scale(Mat4(1.0f), Vec3(0.8f)));
+    fog.geometry = cube;
+    scene.bsdfs.push_back(makeNull());
+    fog.bsdf = static_cast<int>(scene.bsdfs.size()) - 1;
+    fog.interiorMedium = 0;
+    scene.shapes.push_back(fog);
+    scene.lights.push_back(makePointLight(Vec3(0.5f, -0.5f, 2.5f), Rgb(6.0f)));
+    scene.lightShape.push_back(-1);
+    scene.lights.push_back(makeConstantEnvironment(Rgb(0.3f)));
+    scene.lightShape.push_back(-1);
+    scene.camera.eye = Vec3(0.0f, -4.0f, 2.0f);
+    scene.camera.target = Vec3(0.0f, 0.0f, 0.6f);
+    scene.camera.up = Vec3(0, 0, 1);
+    scene.camera.fovYDegrees = 45.0f;
+    scene.finalize();
+
+    const FilmSettings film = smallFilm(24, 24);
+    const NoisyImage bdpt = renderHalves(scene, "bdpt", {{"bdpt.spp", std::int64_t{32}}, {"bdpt.max_depth", std::int64_t{7}}}, film);
+    const NoisyImage pt = renderHalves(scene, "pt", {{"pt.spp", std::int64_t{128}}, {"pt.max_depth", std::int64_t{6}}}, film);
+    int checked = 0;
+    const int beyond3 = blocksBeyond(bdpt, pt, 3.0, &checked);
+    int unused = 0;
+    const int beyond5 = blocksBeyond(bdpt, pt, 5.0, &unused);
+    EXPECT_LE(beyond3, 2) << "of " << checked;
+    EXPECT_EQ(beyond5, 0);
+    EXPECT_GT(bdpt.first.mean().y, 0.05f);
 }
 
 }  // namespace
