@@ -46,6 +46,7 @@
 
 #include "engine/accel/ray_query.h"
 #include "engine/core/error.h"
+#include "engine/core/memory.h"
 #include "engine/core/soa.h"
 #include "engine/image/film.h"
 #include "engine/scene/scene.h"
@@ -434,6 +435,7 @@ public:
         VertexBuffer cameraVertices, lightVertices;
         std::vector<Rgb> sampleStrategies;
         std::int64_t totalCameraVertices = 0, totalLightVertices = 0;
+        std::size_t samplesDone = 0;  // per pixel, over the completed sample passes
         for (std::size_t passStart = 0; passStart < spp; passStart += passSamples) {
             const std::size_t samplesPerPixel = std::min(passSamples, spp - passStart);
             for (std::size_t firstPixel = 0; firstPixel < pixelCount; firstPixel += pixelsPerWave) {
@@ -529,6 +531,12 @@ public:
                                    (static_cast<double>(pixelCount) * static_cast<double>(spp)));
             }
             ctx.completedUnit();
+            samplesDone = passStart + samplesPerPixel;
+            if (samplesDone < spp && ctx.stopRequested()) {
+                ctx.keptPartial(ctx.instanceName() + ": " + std::to_string(samplesDone) + " of " + std::to_string(spp) +
+                                " samples per pixel");
+                break;
+            }
         }
 
         // Merge the light image in block order.
@@ -541,7 +549,8 @@ public:
             for (std::size_t k = 0; k < strategyLight.size(); ++k) strategyLight[k] += block.strategyPixels[k];
             connections += block.connections;
         }
-        const double lightPaths = static_cast<double>(pixelCount) * static_cast<double>(spp);
+        // One light path per camera sample; an interrupt leaves fewer than planned.
+        const double lightPaths = static_cast<double>(pixelCount) * static_cast<double>(std::max<std::size_t>(samplesDone, 1));
         film.addToPixels(lightImage, static_cast<float>(1.0 / lightPaths));
         for (std::size_t k = 0; k < table.size(); ++k) {
             const auto [s, t] = table.strategies[k];
@@ -549,7 +558,7 @@ public:
             std::array<std::vector<float>*, 3> channels{&film.aov(name + ".R"), &film.aov(name + ".G"),
                                                         &film.aov(name + ".B")};
             for (std::size_t p = 0; p < pixelCount; ++p) {
-                const Rgb value = strategyCamera[k][p] / static_cast<float>(spp) +
+                const Rgb value = strategyCamera[k][p] / static_cast<float>(std::max<std::size_t>(samplesDone, 1)) +
                                   strategyLight[k * pixelCount + p] / static_cast<float>(lightPaths);
                 for (int c = 0; c < 3; ++c) (*channels[static_cast<std::size_t>(c)])[p] = value[c];
             }
@@ -815,7 +824,27 @@ PassRegistration bdptPass() {
                              " has an orthographic camera, which light subpaths cannot connect to; render it with pt");
         }
     };
-    return {spec, [] { return std::make_unique<BdptPass>(); }, preflight, {}};
+    // The film with its strategy AOVs, one wave of subpaths, and the light-image accumulators.
+    const auto memory = [](const PreflightContext& pf) {
+        const auto maxDepth = static_cast<std::uint64_t>(pf.params.getInt("max_depth"));
+        const auto strategyLength = static_cast<std::uint64_t>(pf.params.getInt("strategy_aovs"));
+        const std::uint64_t strategies = strategyLength * (strategyLength + 3) / 2;
+        const std::uint64_t pixels = static_cast<std::uint64_t>(pf.film.width) * static_cast<std::uint64_t>(pf.film.height);
+        const std::uint64_t wave = std::min(multiplyBytes(pixels, static_cast<std::uint64_t>(pf.params.getInt("spp"))),
+                                            static_cast<std::uint64_t>(pf.params.getInt("wave_size")));
+        const std::uint64_t perSample = (2 * maxDepth + 1) * sizeof(BdptVertex) + sizeof(Vec2) + sizeof(Rgb) +
+                                        2 * sizeof(std::uint16_t) + sizeof(jobs::Rng) + strategies * sizeof(Rgb);
+        const std::uint64_t image = multiplyBytes(pixels, sizeof(Rgb) * (1 + strategies));
+        const std::uint64_t blocks = std::clamp<std::uint64_t>(kAccumulatorBudget / std::max<std::uint64_t>(image, 1), 1, kMaxBlocks);
+        MemoryEstimate estimate;
+        estimate.bytes = addBytes(addBytes(filmBytes(pf.film, static_cast<int>(3 * strategies)), multiplyBytes(wave, perSample)),
+                                  multiplyBytes(image, blocks + 2));
+        estimate.what = "film " + std::to_string(pf.film.width) + " x " + std::to_string(pf.film.height) + ", " +
+                        std::to_string(wave) + " subpath pairs in flight and " + std::to_string(blocks) +
+                        " light-image accumulators";
+        return estimate;
+    };
+    return {spec, [] { return std::make_unique<BdptPass>(); }, preflight, memory};
 }
 
 }  // namespace fg

@@ -417,5 +417,74 @@ TEST(BdptPass, UnweightedStrategiesOfOneLengthAgree) {
     EXPECT_NEAR(imageMean, weightedTotal, 1e-4 * imageMean);
 }
 
+// A diffuse sphere of albedo 0.8 under a constant environment of radiance 1:
+// being convex it sees only the sky, so it reflects 0.8 at any depth, and the
+// sky itself is 1 (the camera path escaping, s = 0, and the sky sampled from
+// the eye, s = 1, t = 1).
+TEST(BdptPass, ConvexSphereUnderConstantSkyReflectsItsAlbedo) {
+    Scene scene;
+    Shape sphere;
+    sphere.geometry = Sphere{Vec3(0.0f), 1.0f};
+    sphere.bsdf = addDiffuse(scene, Rgb(0.8f));
+    scene.shapes.push_back(sphere);
+    scene.lights.push_back(makeConstantEnvironment(Rgb(1.0f)));
+    scene.lightShape.push_back(-1);
+    scene.camera.eye = Vec3(0.0f, 0.0f, 4.0f);
+    scene.camera.target = Vec3(0.0f);
+    scene.camera.fovYDegrees = 40.0f;
+    scene.finalize();
+    const int size = 16;
+    const auto image = renderPipeline(scene, "bdpt", {{"bdpt.spp", std::int64_t{32}}, {"bdpt.max_depth", std::int64_t{4}}},
+                                      smallFilm(size, size), 1, 2);
+    Camera cam = scene.camera;
+    cam.width = cam.height = size;
+    double sphereSum = 0.0, skySum = 0.0;
+    int spherePixels = 0, skyPixels = 0;
+    for (int y = 0; y < size; ++y) {
+        for (int x = 0; x < size; ++x) {
+            // Pixels wholly on the sphere or wholly on the sky (all four corners agree).
+            int hits = 0;
+            for (const Vec2 corner : {Vec2(0, 0), Vec2(1, 0), Vec2(0, 1), Vec2(1, 1)}) {
+                const Ray ray = cam.generateRay(Vec2(static_cast<float>(x), static_cast<float>(y)) + corner);
+                const float b = glm::dot(ray.origin, ray.direction);
+                hits += b * b - (glm::dot(ray.origin, ray.origin) - 1.0f) > 0.0f && b < 0.0f ? 1 : 0;
+            }
+            const float value = image.at(x, y).y;
+            if (hits == 4) sphereSum += value, ++spherePixels;
+            if (hits == 0) skySum += value, ++skyPixels;
+        }
+    }
+    ASSERT_GT(spherePixels, 10);
+    ASSERT_GT(skyPixels, 10);
+    EXPECT_NEAR(sphereSum / spherePixels, 0.8, 0.01);
+    EXPECT_NEAR(skySum / skyPixels, 1.0, 1e-3);
+}
+
+// A diffuse floor of albedo 0.5 under collimated light of irradiance E at 30
+// degrees from the normal reflects 0.5 E cos(30) / pi (direct light only:
+// next-event estimation and the light path's floor vertex seen by the camera).
+TEST(BdptPass, DirectionalLightOnAFloorMatchesLambert) {
+    const float irradiance = 2.0f, albedo = 0.5f;
+    Scene scene;
+    Shape floor;
+    TriangleMesh plane = makeRectangleMesh();
+    plane.transform(glm::scale(Mat4(1.0f), Vec3(2.0f)));
+    floor.geometry = plane;
+    floor.bsdf = addDiffuse(scene, Rgb(albedo));
+    scene.shapes.push_back(floor);
+    const Vec3 direction = glm::normalize(Vec3(std::sin(kPi / 6.0f), 0.0f, -std::cos(kPi / 6.0f)));
+    scene.lights.push_back(makeDirectionalLight(direction, Rgb(irradiance)));
+    scene.lightShape.push_back(-1);
+    scene.camera.eye = Vec3(0.0f, -1.0f, 2.0f);
+    scene.camera.target = Vec3(0.0f);
+    scene.camera.up = Vec3(0, 0, 1);
+    scene.camera.fovYDegrees = 30.0f;
+    scene.finalize();
+    const auto image = renderPipeline(scene, "bdpt", {{"bdpt.spp", std::int64_t{64}}, {"bdpt.max_depth", std::int64_t{2}}},
+                                      smallFilm(12, 12), 1, 2);
+    const double expected = albedo * irradiance * std::cos(kPi / 6.0) / kPi;
+    EXPECT_NEAR(image.mean().y, expected, 0.01 * expected);
+}
+
 }  // namespace
 }  // namespace fg
