@@ -486,5 +486,137 @@ TEST(BdptPass, DirectionalLightOnAFloorMatchesLambert) {
     EXPECT_NEAR(image.mean().y, expected, 0.01 * expected);
 }
 
+// Sum of an AOV channel over the image.
+double aovSum(Film& film, const std::string& name) {
+    double sum = 0.0;
+    for (float v : film.aov(name)) sum += v;
+    return sum;
+}
+
+// The AOVs of every strategy but `only` (s, t) are black, and that one holds
+// the whole image (box filter: the AOVs are box-filtered).
+void expectOnlyStrategy(Film& film, int onlyS, int onlyT) {
+    std::array<char, 16> only{};
+    std::snprintf(only.data(), only.size(), "s%dt%d.", onlyS, onlyT);
+    double image = 0.0;
+    for (const Rgb& p : film.resolve()) image += p.y;
+    EXPECT_GT(image, 0.0);
+    std::vector<std::string> names;
+    for (const auto& [name, values] : film.aovs()) names.push_back(name);
+    for (const std::string& name : names) {
+        const double sum = aovSum(film, name);
+        if (name.starts_with(only.data())) {
+            if (name.ends_with(".G")) {
+                EXPECT_NEAR(sum, image, 1e-4 * image) << name;
+            }
+        } else {
+            EXPECT_EQ(sum, 0.0) << name;
+        }
+    }
+}
+
+// A mirror ceiling; the camera below it looks up. (1) A disk emitter facing
+// up under the camera is seen only in the mirror (L S E): only s = 0, the
+// camera path reaching the emitter, makes that path, and where a pixel sees
+// the emitter wholly its value is the emitter's radiance. (2) A point light
+// over a diffuse floor, the floor seen only in the mirror (L D S E): only
+// s = 1, next-event estimation from the floor, makes that path; the image is
+// (albedo / pi) I cos(theta) / d^2 at the floor point of each reflected ray.
+TEST(BdptPass, CameraHitsAndNextEventStrategiesAloneThroughAMirror) {
+    const float mirrorHeight = 2.0f;
+    const auto mirrorScene = [&](Scene& scene) {
+        Shape mirror;
+        TriangleMesh ceiling = makeRectangleMesh();
+        ceiling.transform(glm::translate(Mat4(1.0f), Vec3(0, 0, mirrorHeight)) *
+                          glm::rotate(Mat4(1.0f), kPi, Vec3(1, 0, 0)) * glm::scale(Mat4(1.0f), Vec3(10.0f)));
+        mirror.geometry = ceiling;
+        scene.bsdfs.push_back(makeConductor(*conductorPreset("none")));
+        mirror.bsdf = static_cast<int>(scene.bsdfs.size()) - 1;
+        scene.shapes.push_back(mirror);
+        scene.camera.eye = Vec3(0.0f, 0.0f, 0.5f);
+        scene.camera.target = Vec3(0.0f, 0.0f, 1.0f);
+        scene.camera.up = Vec3(0, 1, 0);
+        scene.camera.fovYDegrees = 50.0f;
+    };
+    const int size = 16;
+    const std::map<std::string, ParamValue> params = {{"spp", std::int64_t{32}}, {"max_depth", std::int64_t{3}},
+                                                      {"strategy_aovs", std::int64_t{3}}};
+    Camera cam;
+    // Where the ray through raster r meets the plane z = height after the mirror.
+    const auto reflectedHit = [&](const Vec2& r, float height) {
+        const Ray ray = cam.generateRay(r);
+        const float toMirror = (mirrorHeight - ray.origin.z) / ray.direction.z;
+        const Vec3 onMirror = ray.origin + toMirror * ray.direction;
+        const Vec3 down(ray.direction.x, ray.direction.y, -ray.direction.z);
+        return onMirror + ((onMirror.z - height) / -down.z) * down;
+    };
+    {
+        const float radius = 0.6f, diskHeight = 0.2f, radiance = 3.0f;
+        Scene scene;
+        mirrorScene(scene);
+        Shape disk;
+        TriangleMesh mesh = makeDiskMesh(256);
+        mesh.transform(glm::translate(Mat4(1.0f), Vec3(0, 0, diskHeight)) * glm::scale(Mat4(1.0f), Vec3(radius)));
+        disk.geometry = mesh;
+        disk.bsdf = addDiffuse(scene, Rgb(0.0f));
+        disk.areaLight = 0;
+        scene.lights.push_back(makeAreaLight(disk, Rgb(radiance)));
+        scene.lightShape.push_back(1);
+        scene.shapes.push_back(disk);
+        scene.finalize();
+        cam = scene.camera;
+        cam.width = cam.height = size;
+        Film film = renderBdptFilm(scene, params, smallFilm(size, size));
+        expectOnlyStrategy(film, 0, 3);
+        const std::vector<Rgb> image = film.resolve();
+        int inside = 0;
+        for (int y = 0; y < size; ++y) {
+            for (int x = 0; x < size; ++x) {
+                bool covered = true;
+                for (const Vec2 corner : {Vec2(0, 0), Vec2(1, 0), Vec2(0, 1), Vec2(1, 1)}) {
+                    const Vec3 onDisk = reflectedHit(Vec2(static_cast<float>(x), static_cast<float>(y)) + corner, diskHeight);
+                    covered &= glm::length(Vec2(onDisk.x, onDisk.y)) < radius * 0.99f;
+                }
+                if (!covered) continue;
+                ++inside;
+                EXPECT_NEAR(image[static_cast<std::size_t>(y * size + x)].y, radiance, 1e-4f) << x << "," << y;
+            }
+        }
+        EXPECT_GT(inside, 8);
+    }
+    {
+        const float albedo = 0.5f, intensity = 2.0f;
+        const Vec3 lightPosition(0.3f, -0.2f, 1.0f);
+        Scene scene;
+        mirrorScene(scene);
+        Shape floor;
+        TriangleMesh plane = makeRectangleMesh();
+        plane.transform(glm::scale(Mat4(1.0f), Vec3(10.0f)));
+        floor.geometry = plane;
+        floor.bsdf = addDiffuse(scene, Rgb(albedo));
+        scene.shapes.push_back(floor);
+        scene.lights.push_back(makePointLight(lightPosition, Rgb(intensity)));
+        scene.lightShape.push_back(-1);
+        scene.finalize();
+        cam = scene.camera;
+        cam.width = cam.height = size;
+        Film film = renderBdptFilm(scene, params, smallFilm(size, size));
+        expectOnlyStrategy(film, 1, 3);
+        double measured = 0.0, expected = 0.0;
+        const std::vector<Rgb> image = film.resolve();
+        for (int y = 0; y < size; ++y) {
+            for (int x = 0; x < size; ++x) {
+                const Vec3 onFloor = reflectedHit(Vec2(x + 0.5f, y + 0.5f), 0.0f);
+                const Vec3 toLight = lightPosition - onFloor;
+                const float d2 = glm::dot(toLight, toLight);
+                expected += albedo / kPi * intensity * (toLight.z / std::sqrt(d2)) / d2;
+                measured += image[static_cast<std::size_t>(y * size + x)].y;
+            }
+        }
+        // Pixel centres stand for the pixels' means: the radiance varies smoothly across each.
+        EXPECT_NEAR(measured, expected, 0.01 * expected);
+    }
+}
+
 }  // namespace
 }  // namespace fg
