@@ -13,7 +13,7 @@ For each scene (default: cornell-box and volumetric-caustic):
     tools/render_bdpt_references.sh; without one only throughput is reported).
 
 Usage:
-  tools/bdpt_report.py [--build build] [--threads 2] [--spp 16]
+  tools/bdpt_report.py [--build build] [--threads 2] [--spp 16] [--seed 3]
                        [--scenes cornell-box,volumetric-caustic]
                        [--reference out/bdpt-references] [--crop volumetric-caustic=0,16,128,112]
                        [--out out/bdpt-report]
@@ -35,9 +35,9 @@ def fail(message):
     sys.exit(2)
 
 
-def render(binary, job, out, name, threads, sets):
+def render(binary, job, out, name, threads, sets, seed):
     stats = out / f"{name}.json"
-    cmd = [str(binary), "render", str(job), "--out", str(out), "--threads", str(threads), "-q",
+    cmd = [str(binary), "render", str(job), "--out", str(out), "--threads", str(threads), "-q", "--seed", str(seed),
            "--stats", str(stats), "--set", f"output.name={name}", "--set", "output.png=false"]
     for s in sets:
         cmd += ["--set", s]
@@ -58,11 +58,28 @@ def rmse(binary, image, reference, crop=None):
     return float(result.stdout.split()[1])
 
 
+def mean_rgb(image, crop=None):
+    """Mean RGB over the crop (x,y,w,h) or the whole image, by oiiotool."""
+    single = Path(str(image) + ".cut.exr")
+    cmd = ["oiiotool", str(image), "--ch", "R,G,B"]
+    if crop:
+        x, y, w, h = (int(v) for v in crop.split(","))
+        cmd += ["--cut", f"{w}x{h}+{x}+{y}"]
+    subprocess.run(cmd + ["-o", str(single)], check=True, capture_output=True)
+    stats = subprocess.run(["oiiotool", "--stats", str(single)], check=True, capture_output=True, text=True).stdout
+    single.unlink()
+    line = next(l for l in stats.splitlines() if "Stats Avg" in l)
+    return [float(v) for v in line.split(":")[1].split()[:3]]
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--build", default="build")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--spp", type=int, default=16, help="bdpt samples per pixel")
+    ap.add_argument("--seed", type=int, default=3,
+                    help="seed of the renders (tools/render_bdpt_references.sh uses 1 and 2: keep them apart, "
+                         "or the light subpaths repeat the reference's)")
     ap.add_argument("--scenes", default="cornell-box,volumetric-caustic")
     ap.add_argument("--reference", default=None, help="folder with <scene>/reference.exr")
     ap.add_argument("--crop", action="append", default=["volumetric-caustic=0,16,128,112"],
@@ -83,11 +100,11 @@ def main():
         bdpt_job, pt_job = data / "bdpt.toml", data / "pt.toml"
         if not bdpt_job.exists() or not pt_job.exists():
             fail(f"{scene} needs data/{scene}/bdpt.toml and pt.toml")
-        b, b_image = render(binary, bdpt_job, out, f"{scene}-bdpt", args.threads, [f"passes.bdpt.spp={args.spp}"])
+        b, b_image = render(binary, bdpt_job, out, f"{scene}-bdpt", args.threads, [f"passes.bdpt.spp={args.spp}"], args.seed)
         # A short pt run measures its rate, from which the equal-time sample count follows.
-        p, _ = render(binary, pt_job, out, f"{scene}-pt-probe", args.threads, [f"passes.pt.spp={args.spp}"])
+        p, _ = render(binary, pt_job, out, f"{scene}-pt-probe", args.threads, [f"passes.pt.spp={args.spp}"], args.seed)
         pt_spp = max(1, round(args.spp * b["wall_seconds"] / p["wall_seconds"]))
-        p_eq, p_image = render(binary, pt_job, out, f"{scene}-pt", args.threads, [f"passes.pt.spp={pt_spp}"])
+        p_eq, p_image = render(binary, pt_job, out, f"{scene}-pt", args.threads, [f"passes.pt.spp={pt_spp}"], args.seed)
         bdpt_vertices = b["counters"].get("camera_vertices", 0) + b["counters"].get("light_vertices", 0)
         row = {
             "scene": scene,
@@ -107,6 +124,10 @@ def main():
             if scene in crops:
                 row["bdpt_rmse_crop"] = rmse(binary, b_image, reference, crops[scene])
                 row["pt_rmse_crop"] = rmse(binary, p_image, reference, crops[scene])
+            crop = crops.get(scene)
+            row["mean_rgb_reference"] = mean_rgb(reference, crop)
+            row["mean_rgb_bdpt"] = mean_rgb(b_image, crop)
+            row["mean_rgb_pt"] = mean_rgb(p_image, crop)
         rows.append(row)
 
     (out / "report.json").write_text(json.dumps(rows, indent=2))
@@ -118,6 +139,12 @@ def main():
                   else f"{'-':>10} {'-':>10} {'-':>6}")
         print(f"{r['scene']:<20} {r['bdpt_samples_per_s']:>11.0f} {r['bdpt_vertices_per_s']:>11.0f} "
               f"{r['pt_samples_per_s']:>10.0f} {r['pt_segments_per_s']:>10.0f} {r['pt_equal_time_spp']:>9} {errors}")
+    for r in rows:
+        if "mean_rgb_reference" in r:
+            ref, b, p = r["mean_rgb_reference"], r["mean_rgb_bdpt"], r["mean_rgb_pt"]
+            print(f"{r['scene']}: mean RGB over the crop: reference {ref[0]:.4f} {ref[1]:.4f} {ref[2]:.4f}, "
+                  f"bdpt {b[0]:.4f} {b[1]:.4f} {b[2]:.4f} ({100 * (sum(b) / sum(ref) - 1):+.2f} %), "
+                  f"pt {p[0]:.4f} {p[1]:.4f} {p[2]:.4f} ({100 * (sum(p) / sum(ref) - 1):+.2f} %)")
     print(f"(RMSE over the crop where one is given; details in {out / 'report.json'})")
 
 

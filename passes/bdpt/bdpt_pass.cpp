@@ -8,8 +8,8 @@
 //    through the pixel filter (the light tracing of light_trace_pass.cpp);
 //  - otherwise y_{s-1} and z_{t-1} are joined by a shadow ray.
 // The strategies are combined with the balance or power heuristic (Veach
-// Eqs. 9.13/10.9), the weights built from the ratios of neighbouring
-// strategies' densities (Eqs. 10.10-10.11, bdpt_path.h). Delta lights
+// §9.2), the weights built from the ratios of neighbouring strategies'
+// densities (§10.2-10.3, bdpt_path.h). Delta lights
 // (point, spot, directional) and specular vertices take no weight in the
 // strategies that cannot produce them.
 //

@@ -1,5 +1,5 @@
-// Densities and MIS weights of bidirectional path tracing (Veach 1997 §10.2-10.4,
-// Eqs. 10.9-10.11). See bdpt_path.h for the conventions.
+// Densities and MIS weights of bidirectional path tracing (Veach 1997 §10.2-10.3).
+// See bdpt_path.h for the conventions.
 #include "passes/bdpt/bdpt_path.h"
 
 #include "passes/common/path_vertex.h"
@@ -202,8 +202,8 @@ float bdptMisWeight(const BdptScene& bs, std::span<const BdptVertex> light, std:
                     const BdptVertex* sampledLight, int s, int t, MisHeuristic heuristic) {
     const auto S = static_cast<std::size_t>(s), T = static_cast<std::size_t>(t);
     if (S > kMaxSubpath || T > kMaxSubpath) return 0.0f;
-    // Copies of the densities the connection changes (Veach Eq. 10.10 needs the
-    // reverse densities at the four vertices beside it as this strategy sees them).
+    // Copies of the densities the connection changes: the ratios need the reverse
+    // densities at the four vertices beside it as this strategy sees them.
     std::array<float, kMaxSubpath> camFwd, camRev, lightFwd, lightRev;
     std::array<bool, kMaxSubpath> camDelta, lightDelta;
     for (std::size_t i = 0; i < T; ++i) {

@@ -2,15 +2,16 @@
 // importance sampling weights are made of (Veach 1997, ch. 10; the vertex
 // bookkeeping follows the design of pbrt-v3 §16.3, written anew here).
 //
-// Every vertex keeps two area densities (Veach Eq. 10.6 measures paths by
-// area at surface vertices, by volume at medium vertices):
+// Every vertex keeps two densities, per unit area at surface vertices and per
+// unit volume at medium vertices (the path-space measure of Veach ch. 8):
 //   pdfFwd: the density with which the subpath that made it sampled it;
 //   pdfRev: the density with which a subpath growing from the other end would
 //           sample it (filled in once the next vertex exists, and at the two
 //           vertices beside a connection when the weight of that connection
 //           is computed).
-// The weight of strategy (s, t), Veach Eq. 10.9 with the ratios of Eq. 10.10,
-// is w = 1 / (1 + sum_i (p_i / p_s)^beta): walking from the connection
+// The weight of strategy (s, t) (Veach §10.2-10.3: the balance heuristic for
+// beta = 1, the power heuristic for beta = 2, §9.2) is
+// w = 1 / (1 + sum_i (p_i / p_s)^beta): walking from the connection
 // outwards the ratio of neighbouring strategies is pdfRev / pdfFwd of the
 // vertex that changes sides. Free-flight distances are left out of both
 // densities (their factors are the same for every strategy that samples a

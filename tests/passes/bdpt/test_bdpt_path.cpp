@@ -1,5 +1,5 @@
 // The MIS weights of bidirectional path tracing: for one path, the weights of
-// every strategy (s, t) that can produce it sum to one (Veach 1997 Eq. 10.9),
+// every strategy (s, t) that can produce it sum to one (Veach 1997 §10.2),
 // with surfaces, medium vertices, and area, point and environment lights.
 #include "passes/bdpt/bdpt_path.h"
 
