@@ -35,11 +35,12 @@
 // camera samples and the blocks merged in block order, so the image is the
 // same for any thread count.
 //
-// Data layout: the samples of a wave keep their subpaths in SoA columns
-// (camera and light vertices, counts, raster position, estimate); a wave
-// advances in three stages (camera subpaths, light subpaths, connections),
-// the connections of each group of samples resolved as one stream of shadow
-// rays.
+// Data layout: the samples of a wave keep their per-sample state in SoA
+// columns (raster position, estimate, subpath lengths, random stream) and
+// their subpaths in a vertex column of fixed-size slots per sample (a vertex
+// is one record: every connection reads most of its fields); a wave advances
+// in three stages (camera subpaths, light subpaths, connections), the
+// connections of each group of samples resolved as one stream of shadow rays.
 #include "passes/bdpt/bdpt_path.h"
 #include "passes/common/path_vertex.h"
 #include "passes/passes.h"
@@ -71,7 +72,7 @@ FG_SOA_COLUMN(SampleLightLength, std::uint16_t, "light_vertices");
 FG_SOA_COLUMN(SampleRng, jobs::Rng, "rng");
 using SampleBuffer = SoaBuffer<SampleRaster, SampleRadiance, SampleCameraLength, SampleLightLength, SampleRng>;
 
-// Subpath vertices, maxVertices slots per sample.
+// Subpath vertices: max_depth + 1 camera or max_depth light slots per sample.
 FG_SOA_COLUMN(SubpathVertex, BdptVertex, "vertex");
 using VertexBuffer = SoaBuffer<SubpathVertex>;
 
@@ -101,7 +102,7 @@ struct StrategyTable {
     int index(int s, int t) const {
         const int length = s + t - 1;
         if (length < 1 || length > maxLength || t < 1) return -1;
-        // Strategies of length l: t = 1..l+1 with s = l + 1 - t; t = 1 with s = 0 does not exist.
+        // Strategies of length l are (l + 1 - t, t) for t = 1..l+1, in that order.
         int first = 0;
         for (int l = 1; l < length; ++l) first += l + 1;
         return first + (t - 1);
