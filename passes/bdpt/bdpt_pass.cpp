@@ -633,10 +633,9 @@ private:
                             if (isBlack(Le)) continue;
                             BdptVertex emitter = pt;
                             emitter.light = index;
-                            std::vector<BdptVertex> path(cam.begin(), cam.begin() + t);
-                            path.back() = emitter;
                             const Rgb value = pt.beta * Le;
-                            const float w = bdptMisWeight(bs, {}, path, nullptr, 0, t, settings.heuristic);
+                            const float w = bdptMisWeight(bs, {}, cam.first(static_cast<std::size_t>(t)), &emitter, 0, t,
+                                                          settings.heuristic);
                             radiance += value * w;
                             record(0, t, value * w, value);
                         }

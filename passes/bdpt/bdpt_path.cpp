@@ -219,7 +219,7 @@ float bdptMisWeight(const BdptScene& bs, std::span<const BdptVertex> light, std:
         lightRev[i] = lightVertex(i).pdfRev;
         lightDelta[i] = lightVertex(i).delta;
     }
-    const BdptVertex& pt = camera[T - 1];
+    const BdptVertex& pt = (s == 0 && sampledLight) ? *sampledLight : camera[T - 1];
     const BdptVertex* ptMinus = t > 1 ? &camera[T - 2] : nullptr;
     const BdptVertex* qs = s > 0 ? &lightVertex(S - 1) : nullptr;
     const BdptVertex* qsMinus = s > 1 ? &lightVertex(S - 2) : nullptr;

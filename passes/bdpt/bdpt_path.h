@@ -114,7 +114,8 @@ enum class MisHeuristic : std::uint8_t { Balance, Power };
 
 // Weight of connecting the first s light vertices with the first t camera
 // vertices. `sampledLight` replaces light[0] for s = 1 (next-event estimation
-// resamples the light); may be null otherwise.
+// resamples the light) and, for s = 0, the camera subpath's last vertex (an
+// escaped ray as one of several lights at infinity sees it); null otherwise.
 float bdptMisWeight(const BdptScene& bs, std::span<const BdptVertex> light, std::span<const BdptVertex> camera,
                     const BdptVertex* sampledLight, int s, int t, MisHeuristic heuristic);
 
