@@ -24,6 +24,7 @@ PassRegistration gmmPyramidPass();
 PassRegistration gmmBbhPass();
 PassRegistration gmmRenderPass();
 PassRegistration lightTracePass();
+PassRegistration bdptPass();
 PassRegistration filmNoisePass();
 PassRegistration compositePass();
 PassRegistration rayBandwidthPass();

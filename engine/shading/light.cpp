@@ -95,6 +95,7 @@ public:
     float pdfLi(const Vec3&, const Vec3&, const Vec3&, const Vec3&) const override { return 0.0f; }
     Rgb power() const override { return kFourPi * intensity_; }
     std::optional<Vec3> position() const override { return position_; }
+    float emissionDirectionPdf(const Vec3&) const override { return uniformSpherePdf(); }
 
     std::optional<EmissionSample> sampleEmission(const Vec2&, const Vec2& uDir) const override {
         EmissionSample e;
