@@ -3,6 +3,7 @@
 // independent seeds), the furnace sphere still gives radiance 1, and the
 // trained caches and the image are the same at 1 and 2 threads.
 #include "engine/core/job.h"
+#include "engine/accel/ray_query.h"
 #include "engine/guiding/guiding_cache.h"
 #include "engine/scene/scene_loader.h"
 #include "engine/shading/bsdf.h"
@@ -15,7 +16,9 @@
 
 #include <cmath>
 #include <algorithm>
+#include <cstdio>
 #include <cstring>
+#include <filesystem>
 
 namespace fg {
 namespace {
@@ -88,39 +91,120 @@ TEST(GuidedPt, FurnaceSphereHasUnitRadiance) {
     EXPECT_NEAR(sum / px.size(), 1.0, 0.01);
 }
 
+// A room lit only through a gap beside a partition (a small "door ajar"): the
+// light sits behind the partition, the camera sees the near side, so nearly
+// all light arrives by indirect paths through the gap, where guiding changes
+// the sampled directions most.
+constexpr const char* kAjarRoom = R"(
+[camera]
+eye = [-0.9, -0.3, 0.6]
+target = [0.32, -0.3, 0.2]
+fov = 70
+[[material]]
+name = "wall"
+type = "diffuse"
+reflectance = 0.7
+[[shape]]
+type = "cube"
+flip_normals = true
+material = "wall"
+[[shape]]
+type = "cube"
+transform = [{ scale = [0.02, 1.0, 0.85] }, { translate = [0.32, 0.0, -0.15] }]
+material = "wall"
+[[shape]]
+type = "rectangle"
+transform = [{ scale = 0.15 }, { rotate = { axis = [1, 0, 0], angle = 90 } }, { translate = [0.75, 0.99, -0.6] }]
+material = "wall"
+emission = 60
+)";
+
+struct MeanComparison {
+    double worstBlockZ = 0.0;
+    double imageZ = 0.0;
+    double imageRelativeSigma = 0.0;  // standard error of the difference of the image means / pt's mean
+    double imageRelativeDifference = 0.0;  // (guided - pt) / pt of the image means
+    double varianceRatio = 0.0;       // guided / pt variance of the block means, summed over blocks
+};
+
+// Guided pt with a cache trained once, against pt, over `seeds` independent
+// renders of each. Guided pt must be unbiased for every cache, so one cache
+// serves all seeds and the training is paid once. Per 4x4 block (and for the
+// whole image) z = difference of means / its standard error from the seeds'
+// spread; with 2(seeds - 1) degrees of freedom z is close to normal.
+MeanComparison compareMeans(const Scene& scene, int size, int seeds, std::int64_t spp, std::int64_t photons) {
+    constexpr int kBlock = 4;
+    const int blocksPerSide = size / kBlock, blocks = blocksPerSide * blocksPerSide;
+    const BufferHandle cache = test::runPipeline(scene, guidedPipeline(2, "radiance_cache"), builtinRegistry().passes,
+                                                 trainingParams(photons, spp), film(size, size), "radiance_cache", 99);
+    EXPECT_GT(test::bufferAs<GuidingCache>(cache).records.size(), 10u);
+    const RayQuery rays(scene);
+    const PassRegistration pt = pathTracerPass();
+    const std::map<std::string, ParamValue> params{{"spp", spp}, {"max_depth", std::int64_t{12}}};
+    // Per seed: the block means, then the image mean as one more entry.
+    const auto means = [&](const BufferHandle& image) {
+        std::vector<double> m(static_cast<std::size_t>(blocks) + 1, 0.0);
+        const std::vector<Rgb> px = pixels(test::bufferAs<Film>(image));
+        for (int y = 0; y < size; ++y)
+            for (int x = 0; x < size; ++x) {
+                const Rgb& p = px[static_cast<std::size_t>(y * size + x)];
+                const double v = (p.x + p.y + p.z) / 3.0;
+                m[static_cast<std::size_t>((y / kBlock) * blocksPerSide + x / kBlock)] += v / (kBlock * kBlock);
+                m.back() += v / (size * size);
+            }
+        return m;
+    };
+    std::vector<std::vector<double>> a, b;
+    for (int seed = 1; seed <= seeds; ++seed) {
+        const auto s = static_cast<std::uint64_t>(seed);
+        a.push_back(means(test::runPass(pt, scene, &rays, film(size, size), {{"radiance_cache", cache}}, params, s).at("image")));
+        b.push_back(means(test::runPass(pt, scene, &rays, film(size, size), {}, params, s + 1000).at("image")));
+    }
+    MeanComparison result;
+    double varianceA = 0.0, varianceB = 0.0;
+    for (std::size_t k = 0; k <= static_cast<std::size_t>(blocks); ++k) {
+        double ma = 0, mb = 0, va = 0, vb = 0;
+        for (int i = 0; i < seeds; ++i) ma += a[i][k] / seeds, mb += b[i][k] / seeds;
+        for (int i = 0; i < seeds; ++i) va += sqr(a[i][k] - ma), vb += sqr(b[i][k] - mb);
+        va /= seeds - 1;
+        vb /= seeds - 1;
+        const double sigma = std::sqrt((va + vb) / seeds);
+        const double z = std::abs(ma - mb) / std::max(sigma, 1e-12);
+        if (k == static_cast<std::size_t>(blocks)) {
+            result.imageZ = z;
+            result.imageRelativeSigma = sigma / mb;
+            result.imageRelativeDifference = (ma - mb) / mb;
+        } else {
+            result.worstBlockZ = std::max(result.worstBlockZ, z);
+            varianceA += va;
+            varianceB += vb;
+        }
+    }
+    result.varianceRatio = varianceA / varianceB;
+    return result;
+}
+
+// Thresholds: 16 blocks at |z| < 4.5 fail together with probability about
+// 16 x 7e-5 (t with 38 degrees of freedom) when both means are the same; the
+// image mean at |z| < 4 with about 1e-4.
+void expectSameMean(const MeanComparison& c, const char* scene) {
+    EXPECT_LT(c.worstBlockZ, 4.5) << scene;
+    EXPECT_LT(c.imageZ, 4.0) << scene << ": image means differ by " << c.imageZ << " sigma (sigma = "
+                             << c.imageRelativeSigma << " of the mean)";
+    std::printf("%s: worst block z %.2f, image z %.2f (guided - pt: %+.4f of the mean, sigma %.4f), guided/pt variance %.3f\n",
+                scene, c.worstBlockZ, c.imageZ, c.imageRelativeDifference, c.imageRelativeSigma, c.varianceRatio);
+}
+
 TEST(GuidedPt, SameMeanAsPtOnCornellBox) {
     const Scene scene = loadScene(test::sourcePath("data/cornell-box/cornell-box.toml"));
-    constexpr int kSize = 16, kBlock = 4, kSeeds = 10;
-    const auto blockMeans = [&](const Film& image) {
-        std::vector<double> means((kSize / kBlock) * (kSize / kBlock), 0.0);
-        const std::vector<Rgb> px = pixels(image);
-        for (int y = 0; y < kSize; ++y)
-            for (int x = 0; x < kSize; ++x) {
-                const Rgb& p = px[static_cast<std::size_t>(y * kSize + x)];
-                means[static_cast<std::size_t>((y / kBlock) * (kSize / kBlock) + x / kBlock)] +=
-                    (p.x + p.y + p.z) / (3.0 * kBlock * kBlock);
-            }
-        return means;
-    };
-    const Pipeline guided = guidedPipeline(3, "image");
-    const Pipeline& plain = *std::find_if(builtinPipelines().begin(), builtinPipelines().end(),
-                                          [](const Pipeline& p) { return p.name == "pt"; });
-    std::vector<std::vector<double>> a, b;
-    for (int seed = 1; seed <= kSeeds; ++seed) {
-        a.push_back(blockMeans(test::bufferAs<Film>(test::runPipeline(
-            scene, guided, builtinRegistry().passes, trainingParams(4000, 16), film(kSize, kSize), "image",
-            static_cast<std::uint64_t>(seed)))));
-        b.push_back(blockMeans(test::bufferAs<Film>(test::runPipeline(
-            scene, plain, builtinRegistry().passes, {{"pt.spp", std::int64_t{16}}, {"pt.max_depth", std::int64_t{12}}},
-            film(kSize, kSize), "image", static_cast<std::uint64_t>(seed)))));
-    }
-    for (std::size_t k = 0; k < a[0].size(); ++k) {
-        double ma = 0, mb = 0, va = 0, vb = 0;
-        for (int s = 0; s < kSeeds; ++s) ma += a[s][k] / kSeeds, mb += b[s][k] / kSeeds;
-        for (int s = 0; s < kSeeds; ++s) va += (a[s][k] - ma) * (a[s][k] - ma), vb += (b[s][k] - mb) * (b[s][k] - mb);
-        const double sigma = std::sqrt((va + vb) / (kSeeds - 1) / kSeeds);
-        EXPECT_LE(std::abs(ma - mb), 3.0 * sigma + 1e-6) << "block " << k << ": guided " << ma << ", pt " << mb;
-    }
+    expectSameMean(compareMeans(scene, 16, 40, 64, 4000), "cornell-box");
+}
+
+TEST(GuidedPt, SameMeanAsPtInOccludedRoom) {
+    const std::filesystem::path dir = test::scratchDirectory("guided-pt");
+    test::writeText(dir / "ajar-room.toml", kAjarRoom);
+    const Scene scene = loadScene((dir / "ajar-room.toml").string());
+    expectSameMean(compareMeans(scene, 16, 20, 32, 20000), "occluded room");
 }
 
 TEST(GuidedPt, CacheAndImageIdenticalAtOneAndTwoThreads) {
