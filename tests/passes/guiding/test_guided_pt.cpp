@@ -1,6 +1,6 @@
 // Guided path tracing (Vorba et al. 2014): the guided image has the unguided
-// one's mean (4x4-pixel blocks within 3 sigma of the difference, sigma from
-// independent seeds), the furnace sphere still gives radiance 1, and the
+// one's mean (4x4-pixel blocks and the image mean, z from independent seeds,
+// on the Cornell box and an occluded room), the furnace sphere still gives radiance 1, and the
 // trained caches and the image are the same at 1 and 2 threads.
 #include "engine/core/job.h"
 #include "engine/accel/ray_query.h"
