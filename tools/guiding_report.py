@@ -35,8 +35,9 @@ def pipeline_text(training_passes):
     return "\n".join(line for line in text.splitlines() if not line.startswith("doc =")) + "\n"
 
 
-def job(scene, width, height, body):
-    return f'scene = "{scene}"\nseed = 1\n[film]\nwidth = {width}\nheight = {height}\n' + body
+def job(scene, width, height, body, pipeline=None):
+    top = f'pipeline = "{pipeline}"\n' if pipeline else ""
+    return f'scene = "{scene}"\nseed = 1\n{top}[film]\nwidth = {width}\nheight = {height}\n' + body
 
 
 def run(binary, job_text, path, out_dir, threads):
@@ -49,11 +50,11 @@ def run(binary, job_text, path, out_dir, threads):
     if result.returncode != 0:
         sys.exit(f"render {path} failed:\n{result.stderr}")
     rows = {}
-    for line in result.stderr.splitlines():
+    for line in (result.stdout + result.stderr).splitlines():
         m = re.match(r"^(\S+)\s+([0-9.]+)\s+([0-9.]+)\s", line)
         if m:
             rows[m.group(1)] = float(m.group(2))
-    m = re.search(r"passes ([0-9.]+) s", result.stderr)
+    m = re.search(r"passes ([0-9.]+) s", result.stdout + result.stderr)
     passes = float(m.group(1)) if m else wall
     name = os.path.splitext(os.path.basename(path))[0]
     return os.path.join(out_dir, name + ".exr"), passes, rows
@@ -90,8 +91,8 @@ def main():
         os.makedirs(work, exist_ok=True)
         reference = os.path.join(work, "reference.exr")
         if not os.path.exists(reference):
-            body = f"pipeline = \"pt\"\n[passes.pt]\nspp = {args.reference_spp}\nmax_depth = 16\n"
-            image, _, _ = run(args.binary, job(scene, width, height, body), os.path.join(work, "reference.toml"), work, args.threads)
+            body = f"[passes.pt]\nspp = {args.reference_spp}\nmax_depth = 16\n"
+            image, _, _ = run(args.binary, job(scene, width, height, body, "pt"), os.path.join(work, "reference.toml"), work, args.threads)
         guided_body = (f"[passes.photon]\nphotons = {args.photons}\nstore = \"global\"\ndifferentials = false\n"
                        f"[passes.radiance_update]\ntraining_particles = {args.training_particles}\n"
                        f"[passes.pt]\nspp = {args.spp}\nmax_depth = 16\n\n" + pipeline_text(args.training_passes))
@@ -101,11 +102,11 @@ def main():
         pt_share = rows.get("pt", 0.0)
         # pt's time per sample from a short run, then the spp that fills the guided budget.
         probe_spp = 8
-        _, probe_time, probe_rows = run(args.binary, job(scene, width, height, f"pipeline = \"pt\"\n[passes.pt]\nspp = {probe_spp}\nmax_depth = 16\n"),
+        _, probe_time, probe_rows = run(args.binary, job(scene, width, height, f"[passes.pt]\nspp = {probe_spp}\nmax_depth = 16\n", "pt"),
                                         os.path.join(work, "probe.toml"), work, args.threads)
         per_spp = probe_rows.get("pt", probe_time) / probe_spp
         spp = max(1, int(round(guided_time / per_spp)))
-        plain, plain_time, _ = run(args.binary, job(scene, width, height, f"pipeline = \"pt\"\n[passes.pt]\nspp = {spp}\nmax_depth = 16\n"),
+        plain, plain_time, _ = run(args.binary, job(scene, width, height, f"[passes.pt]\nspp = {spp}\nmax_depth = 16\n", "pt"),
                                    os.path.join(work, "pt.toml"), work, args.threads)
         g, p = relmse(args.binary, guided, reference), relmse(args.binary, plain, reference)
         lines.append(f"| {name} | {guided_time:.1f} | {training / guided_time:.0%} | {pt_share / guided_time:.0%} | "
