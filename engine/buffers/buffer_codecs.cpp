@@ -10,8 +10,10 @@
 #include "engine/buffers/film_noise.h"
 #include "engine/buffers/photon_buffers.h"
 #include "engine/core/codec.h"
+#include "engine/guiding/guiding_cache.h"
 #include "engine/image/film.h"
 
+#include <cmath>
 #include <string>
 #include <utility>
 #include <vector>
@@ -232,6 +234,62 @@ BufferCodec photonBvhCodec() {
         });
 }
 
+// A loaded mixture is used for sampling at once: every component must be a
+// usable Gaussian, with the derived terms finalize() would give it.
+bool validMixture(const DirectionalGmm& gmm) {
+    for (const GmmComponent& c : gmm.components) {
+        const float det = c.covXX * c.covYY - c.covXY * c.covXY;
+        const float values[] = {c.weight, c.mean.x, c.mean.y, c.covXX, c.covXY, c.covYY, c.invXX, c.invXY,
+                                c.invYY, c.normalisation, c.cholXX, c.cholYX, c.cholYY};
+        for (float v : values)
+            if (!std::isfinite(v)) return false;
+        if (c.weight < 0.0f || (c.weight > 0.0f && !(det > 0.0f && c.covXX > 0.0f))) return false;
+    }
+    return true;
+}
+
+BufferCodec guidingCacheCodec() {
+    return codecFor<GuidingCache>(
+        [](const GuidingCache& cache, CodecWriter& writer) {
+            const KdTree& tree = cache.tree();
+            writer.setItemCount(cache.records.size());
+            writer.write<std::uint64_t>(cache.trainingPasses);
+            writer.writeSoa("records", cache.records);
+            writer.write<std::uint32_t>(tree.maxLeafSize());
+            writer.writeVector("tree.positions", tree.sortedPositions());
+            writer.writeVector("tree.permutation", tree.permutation());
+            writer.writeVector("tree.splits", tree.splits());
+        },
+        [](CodecReader& reader) {
+            GuidingCache cache;
+            cache.trainingPasses = reader.read<std::uint64_t>();
+            reader.readSoa("records", cache.records);
+            const auto leafSize = reader.read<std::uint32_t>();
+            std::vector<Vec3> positions = reader.readVector<Vec3>("tree.positions");
+            std::vector<std::uint32_t> permutation = reader.readVector<std::uint32_t>("tree.permutation");
+            std::vector<KdTree::Split> splits = reader.readVector<KdTree::Split>("tree.splits");
+            if (permutation.size() != cache.records.size())
+                reader.fail("corrupt buffer: an index over " + std::to_string(permutation.size()) + " of " +
+                            std::to_string(cache.records.size()) + " guiding records");
+            // The index must be over these records: a query's ids pick their GMMs.
+            const auto recordPositions = cache.records.column<GuidePosition>();
+            for (std::size_t k = 0; k < permutation.size(); ++k)
+                if (permutation[k] >= recordPositions.size() || positions[k] != recordPositions[permutation[k]])
+                    reader.fail("corrupt buffer: the guiding index does not match the records");
+            cache.restoreIndex(KdTree::restore(std::move(positions), std::move(permutation), std::move(splits), leafSize));
+            const auto radii = cache.records.column<GuideValidityRadius>();
+            const auto normals = cache.records.column<GuideNormal>();
+            const auto gmms = cache.records.column<GuideMixture>();
+            for (std::size_t i = 0; i < cache.records.size(); ++i) {
+                const float length = glm::length(normals[i]);
+                if (!(std::abs(length - 1.0f) < 1e-3f) || !(radii[i] >= 0.0f) || !std::isfinite(radii[i]) ||
+                    !validMixture(gmms[i]))
+                    reader.fail("corrupt buffer: guiding record " + std::to_string(i));
+            }
+            return cache;
+        });
+}
+
 }  // namespace
 
 std::vector<BufferCodec> builtinCodecs() {
@@ -245,6 +303,7 @@ std::vector<BufferCodec> builtinCodecs() {
     codecs.push_back(eyeSegmentsCodec());
     codecs.push_back(pointIndexCodec());
     codecs.push_back(photonBvhCodec());
+    codecs.push_back(guidingCacheCodec());
     return codecs;
 }
 

@@ -12,6 +12,7 @@
 
 #include <cstdint>
 #include <optional>
+#include <utility>
 
 namespace fg {
 
@@ -37,6 +38,8 @@ public:
     // Rebuilds the kd-tree after records were added or moved.
     void rebuildIndex() { tree_.build(records.column<GuidePosition>()); }
     const KdTree& tree() const { return tree_; }
+    // A loaded cache takes its index as saved (engine/buffers/buffer_codecs.cpp).
+    void restoreIndex(KdTree tree) { tree_ = std::move(tree); }
 
     // Eq. 11: among the M records nearest to x, the one minimising
     // |x - x_i|² / h + 2 sqrt(1 - n·n_i) (h: distance to the furthest of the M;

@@ -14,6 +14,7 @@
 // values of the unguided tracer.
 #include "passes/common/path_vertex.h"
 
+#include "engine/guiding/guided_sampling.h"
 #include "engine/guiding/guiding_cache.h"
 
 #include <algorithm>
@@ -72,7 +73,6 @@ struct VertexGuide {
     const DirectionalGmm* gmm = nullptr;
     Frame frame;
     float bsdfProbability = 1.0f;
-    float pdf(const Vec3& wiWorld) const { return gmm->pdfLocal(frame.toLocal(wiWorld)); }
 };
 
 VertexGuide findGuide(const PathTracerScene& pts, const Bsdf& bsdf, const SurfacePoint& sp, const Vec3& toViewer) {
@@ -230,6 +230,7 @@ bool advancePathAtSurface(const PathTracerScene& pts, const PathLimits& limits, 
     if (++h.depth > limits.maxDepth) return false;
 
     const VertexGuide guide = chosen ? VertexGuide{} : findGuide(pts, *bsdf, sp, -s.ray.direction);
+    const GuidedBsdfSampler guided{bsdf, frame, wo, sp.uv, guide.gmm, guide.frame, guide.bsdfProbability};
 
     if (bsdf->hasSmoothLobe()) {
         queueLightSample(pts, sp.p, sp.ng, &shape, h.medium, beta, s.rng,
@@ -237,10 +238,7 @@ bool advancePathAtSurface(const PathTracerScene& pts, const PathLimits& limits, 
                              const Vec3 wiLocal = frame.toLocal(wi);
                              // Shading normals must not let light through the geometric surface.
                              if (glm::dot(wi, sp.ng) * wiLocal.z <= 0.0f) return std::pair<Rgb, float>(Rgb(0.0f), 0.0f);
-                             const float bsdfPdf = bsdf->pdf(wo, wiLocal, sp.uv);
-                             const float pdf = guide.gmm ? guide.bsdfProbability * bsdfPdf +
-                                                               (1.0f - guide.bsdfProbability) * guide.pdf(wi)
-                                                         : bsdfPdf;
+                             const float pdf = guide.gmm ? guided.pdf(wiLocal) : bsdf->pdf(wo, wiLocal, sp.uv);
                              return std::pair<Rgb, float>(bsdf->eval(wo, wiLocal, sp.uv, TransportMode::Radiance), pdf);
                          },
                          shadow);
@@ -250,20 +248,12 @@ bool advancePathAtSurface(const PathTracerScene& pts, const PathLimits& limits, 
         const float uStrategy = s.rng.uniform();
         const float uLobe = s.rng.uniform();
         const Vec2 uDir = s.rng.uniform2();
-        Vec3 wiLocal;
-        if (uStrategy < guide.bsdfProbability) {
-            const std::optional<BsdfSample> bs = bsdf->sample(wo, sp.uv, uLobe, uDir, TransportMode::Radiance);
-            if (!bs || bs->pdf <= 0.0f || isBlack(bs->weight)) return false;
-            wiLocal = bs->wi;
-        } else {
-            const std::optional<Vec3> sampled = guide.gmm->sampleLocal(uLobe, uDir);
-            if (!sampled) return false;  // the GMM's mass outside the square (§4.1)
-            wiLocal = frame.toLocal(guide.frame.toWorld(*sampled));
-        }
+        const std::optional<Vec3> sampled = guided.sample(uStrategy, uLobe, uDir);
+        if (!sampled) return false;
+        const Vec3 wiLocal = *sampled;
         const Vec3 wi = frame.toWorld(wiLocal);
         if (glm::dot(wi, sp.ng) * wiLocal.z <= 0.0f) return false;
-        const float pdf = guide.bsdfProbability * bsdf->pdf(wo, wiLocal, sp.uv) +
-                          (1.0f - guide.bsdfProbability) * guide.pdf(wi);
+        const float pdf = guided.pdf(wiLocal);
         const Rgb f = bsdf->eval(wo, wiLocal, sp.uv, TransportMode::Radiance);
         if (!(pdf > 0.0f) || isBlack(f)) return false;
         beta *= f / pdf;

@@ -194,6 +194,7 @@ public:
 
         // Off-line stepwise EM for the new records, in parallel.
         cache.records.resize(existing + fresh.size());
+        std::vector<std::int32_t> sweeps(fresh.size(), 0);
         jobs::parallelForChunks(fresh.size(), 8, [&](jobs::IndexRange r) {
             std::vector<WeightedPoint> points;
             for (std::size_t k = r.begin; k != r.end; ++k) {
@@ -205,7 +206,7 @@ public:
                 record.get<GuideTrainingRadius>() = radius;
                 DirectionalGmm gmm = initialGmm(points, settings.em);
                 GmmStatistics stats;
-                offlineStepwiseEm(gmm, stats, points, settings.em);
+                sweeps[k] = offlineStepwiseEm(gmm, stats, points, settings.em);
                 record.get<GuideMixture>() = gmm;
                 record.get<GuideStatistics>() = stats;
                 record.get<GuideValidityRadius>() = validityRadius(gmm, radius, settings.klThreshold);
@@ -216,6 +217,9 @@ public:
         clampNeighbourRadii(cache, settings.query.candidates);
         ctx.addItems(static_cast<std::int64_t>(cache.records.size()));
         ctx.addCounter("records_created", static_cast<std::int64_t>(fresh.size()));
+        std::int64_t totalSweeps = 0;
+        for (std::int32_t n : sweeps) totalSweeps += n;
+        ctx.addCounter("offline_em_sweeps", totalSweeps);
         ctx.addCounter("records", static_cast<std::int64_t>(cache.records.size()));
     }
 };
@@ -236,7 +240,7 @@ PassRegistration cacheUpdatePass() {
         {"training_particles", ParamType::Int, std::int64_t{250}, 1, 4096, {}, "N: nearest particles per record (Fig. 7)"},
         {"candidates", ParamType::Int, std::int64_t{16}, 1, 64, {}, "M: records compared by Eq. 11 per query"},
         {"kl_threshold", ParamType::Float, 0.5, 1e-6, 1e6, {}, "KL divergence a lobe may change by within the validity radius"},
-        {"tolerance", ParamType::Float, 1e-4, 1e-12, 1.0, {}, "off-line EM stops below this relative change of the log-likelihood"},
+        {"tolerance", ParamType::Float, 1e-3, 1e-12, 1.0, {}, "off-line EM stops when a sweep changes the log-likelihood by less than this times max(|L|, total weight)"},
         {"step_exponent", ParamType::Float, 0.7, 0.5, 1.0, {}, "stepwise EM step sizes i^-exponent"},
         {"m_step_interval", ParamType::Int, std::int64_t{10}, 1, 100000, {}, "particles between M-steps (m)"},
         {"prior_a", ParamType::Float, 2.01, 2.0, 1e6, {}, "a: covariance prior (Eq. 10)"},

@@ -1,0 +1,38 @@
+// Direction sampling at a guided surface vertex (Vorba et al. 2014, §4.1
+// "Sampling from the distribution model"): a one-sample mixture that draws the
+// BSDF's sampling routine with probability α and the record's GMM otherwise.
+// Its density over all directions is
+//   p(ω) = α p_bsdf(ω) + (1 - α) p_gmm(ω),
+// p_gmm being the GMM's density on the record's hemisphere (zero below it).
+// The GMM's mass outside its square, and GMM directions below the shading
+// hemisphere, are samples that end the path: they lower the mixture's total
+// mass but not its density anywhere else, so dividing by p(ω) stays unbiased,
+// and p(ω) is also the pdf the strategy has in MIS against next-event
+// estimation. Both are computed here, so that the two cannot drift apart.
+#pragma once
+
+#include "engine/core/math.h"
+#include "engine/guiding/directional_gmm.h"
+#include "engine/shading/bsdf.h"
+
+#include <optional>
+
+namespace fg {
+
+struct GuidedBsdfSampler {
+    const Bsdf* bsdf = nullptr;
+    Frame shading;    // the vertex's shading frame: wo and sampled directions are local to it
+    Vec3 wo{0.0f, 0.0f, 1.0f};
+    Vec2 uv{0.0f};
+    const DirectionalGmm* gmm = nullptr;
+    Frame gmmFrame;   // the record's frame: its normal is the GMM hemisphere's pole
+    float bsdfProbability = 0.5f;  // α
+
+    // Mixture density of a direction local to the shading frame.
+    float pdf(const Vec3& wiLocal) const;
+    // A direction local to the shading frame, or nothing when the chosen strategy
+    // fails (the BSDF gives no sample, the GMM point falls outside its square).
+    std::optional<Vec3> sample(float uStrategy, float uLobe, const Vec2& uDir) const;
+};
+
+}  // namespace fg

@@ -1,0 +1,122 @@
+#!/usr/bin/env python3
+"""Equal-time relMSE of guided vs unguided path tracing (issue #20, Vorba et al. 2014).
+
+For each scene: renders guided-pt (training included in its time), then pt with
+its spp scaled so that pt takes the same wall time, and compares both with a
+reference by `fluxgraph compare --metric relmse`. Prints a Markdown table with
+the time shares of guided-pt (training passes vs the guided pt pass).
+
+References: data/<scene>/reference/reference.exr is used only if it has the
+size rendered here; otherwise a pt reference at --reference-spp is rendered
+once into the output folder (its own noise is part of both relMSE figures:
+compare the ratio, not the absolute values).
+
+    tools/guiding_report.py --out results/guiding --size 96x64 --reference-spp 2048
+"""
+import argparse
+import os
+import re
+import subprocess
+import sys
+import time
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+SCENES = {
+    "veach-ajar": os.path.join(ROOT, "data/veach-ajar/fragments/veach-ajar.xml"),
+    "cornell-box": os.path.join(ROOT, "data/cornell-box/cornell-box.xml"),
+}
+
+
+def pipeline_text(training_passes):
+    text = open(os.path.join(ROOT, "passes/pipelines/guided-pt.toml")).read()
+    text = text[text.index("[pipeline]"):]
+    text = text.replace('name = "guided-pt"', 'name = "guided-pt-report"').replace("count = 30", f"count = {training_passes}")
+    return "\n".join(line for line in text.splitlines() if not line.startswith("doc =")) + "\n"
+
+
+def job(scene, width, height, body, pipeline=None):
+    top = f'pipeline = "{pipeline}"\n' if pipeline else ""
+    return f'scene = "{scene}"\nseed = 1\n{top}[film]\nwidth = {width}\nheight = {height}\n' + body
+
+
+def run(binary, job_text, path, out_dir, threads):
+    with open(path, "w") as f:
+        f.write(job_text)
+    start = time.monotonic()
+    result = subprocess.run([binary, "render", path, "--out", out_dir, "--threads", str(threads)],
+                            capture_output=True, text=True)
+    wall = time.monotonic() - start
+    if result.returncode != 0:
+        sys.exit(f"render {path} failed:\n{result.stderr}")
+    rows = {}
+    for line in (result.stdout + result.stderr).splitlines():
+        m = re.match(r"^(\S+)\s+([0-9.]+)\s+([0-9.]+)\s", line)
+        if m:
+            rows[m.group(1)] = float(m.group(2))
+    m = re.search(r"passes ([0-9.]+) s", result.stdout + result.stderr)
+    passes = float(m.group(1)) if m else wall
+    name = os.path.splitext(os.path.basename(path))[0]
+    return os.path.join(out_dir, name + ".exr"), passes, rows
+
+
+def relmse(binary, image, reference):
+    out = subprocess.run([binary, "compare", image, reference, "--metric", "relmse"], capture_output=True, text=True)
+    m = re.search(r"relmse\s+([0-9.eE+-]+)", out.stdout)
+    if not m:
+        sys.exit(f"compare failed: {out.stdout}{out.stderr}")
+    return float(m.group(1))
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--binary", default=os.path.join(ROOT, "build/fluxgraph"))
+    parser.add_argument("--out", default=os.path.join(ROOT, "results/guiding"))
+    parser.add_argument("--scenes", default="veach-ajar,cornell-box")
+    parser.add_argument("--size", default="96x64")
+    parser.add_argument("--training-passes", type=int, default=4)
+    parser.add_argument("--photons", type=int, default=20000)
+    parser.add_argument("--training-particles", type=int, default=64)
+    parser.add_argument("--spp", type=int, default=32, help="guided pt samples per pixel")
+    parser.add_argument("--reference-spp", type=int, default=2048)
+    parser.add_argument("--threads", type=int, default=2)
+    args = parser.parse_args()
+    width, height = (int(v) for v in args.size.split("x"))
+    os.makedirs(args.out, exist_ok=True)
+    lines = ["| scene | guided time s | training share | guided pt share | guided relMSE | pt spp | pt time s | pt relMSE | guided/pt relMSE |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for name in args.scenes.split(","):
+        scene = SCENES[name]
+        work = os.path.join(args.out, name)
+        os.makedirs(work, exist_ok=True)
+        reference = os.path.join(work, "reference.exr")
+        if not os.path.exists(reference):
+            body = f"[passes.pt]\nspp = {args.reference_spp}\nmax_depth = 16\n"
+            image, _, _ = run(args.binary, job(scene, width, height, body, "pt"), os.path.join(work, "reference.toml"), work, args.threads)
+        guided_body = (f"[passes.photon]\nphotons = {args.photons}\nstore = \"global\"\ndifferentials = false\n"
+                       f"[passes.radiance_update]\ntraining_particles = {args.training_particles}\n"
+                       f"[passes.pt]\nspp = {args.spp}\nmax_depth = 16\n\n" + pipeline_text(args.training_passes))
+        guided, guided_time, rows = run(args.binary, job(scene, width, height, guided_body),
+                                        os.path.join(work, "guided-pt.toml"), work, args.threads)
+        training = sum(v for k, v in rows.items() if k.startswith("train[") and "[*]" not in k)
+        pt_share = rows.get("pt", 0.0)
+        # pt's time per sample from a short run, then the spp that fills the guided budget.
+        probe_spp = 8
+        _, probe_time, probe_rows = run(args.binary, job(scene, width, height, f"[passes.pt]\nspp = {probe_spp}\nmax_depth = 16\n", "pt"),
+                                        os.path.join(work, "probe.toml"), work, args.threads)
+        per_spp = probe_rows.get("pt", probe_time) / probe_spp
+        spp = max(1, int(round(guided_time / per_spp)))
+        plain, plain_time, _ = run(args.binary, job(scene, width, height, f"[passes.pt]\nspp = {spp}\nmax_depth = 16\n", "pt"),
+                                   os.path.join(work, "pt.toml"), work, args.threads)
+        g, p = relmse(args.binary, guided, reference), relmse(args.binary, plain, reference)
+        lines.append(f"| {name} | {guided_time:.1f} | {training / guided_time:.0%} | {pt_share / guided_time:.0%} | "
+                     f"{g:.4g} | {spp} | {plain_time:.1f} | {p:.4g} | {g / p:.3f} |")
+        print(lines[-1], flush=True)
+    report = "\n".join(lines) + "\n"
+    with open(os.path.join(args.out, "README.md"), "w") as f:
+        f.write("# Guided vs unguided pt at equal time\n\n" + " ".join(sys.argv) + "\n\n" + report)
+    print(report)
+
+
+if __name__ == "__main__":
+    main()
