@@ -20,6 +20,7 @@ PassRegistration photonBvhPass();
 PassRegistration beamQueryPass();
 PassRegistration emStatsPass();
 PassRegistration emFitPass();
+PassRegistration pemFitPass();
 PassRegistration gmmPyramidPass();
 PassRegistration gmmBbhPass();
 PassRegistration gmmRenderPass();

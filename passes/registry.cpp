@@ -16,7 +16,7 @@ const Registry& builtinRegistry() {
             pathTracerPass(), photonPass(),  eyePass(),          eyeIndexPass(),
             photonIndexPass(), gatherPass(), gatherGlobalPass(), splatPass(),
             volumeEyePass(),   photonRadiusPass(), photonBvhPass(), beamQueryPass(), lightTracePass(),
-            emStatsPass(),     emFitPass(),  gmmPyramidPass(),   gmmBbhPass(),   gmmRenderPass(),
+            emStatsPass(),     emFitPass(),  pemFitPass(),       gmmPyramidPass(),   gmmBbhPass(),   gmmRenderPass(),
             filmNoisePass(),   compositePass(),
             rayBandwidthPass(), splatIndexPass(), raySplatPass(),
             cacheUpdatePass(),

@@ -18,20 +18,30 @@ constexpr std::size_t kEStepBlocks = 64;
 constexpr std::size_t kMStepBlocks = 32;
 constexpr std::uint32_t kComponentLeafSize = 4;
 
-// A hierarchy over the components' means for the sparse E-step. A node bounds
-// w_s exp<log g_s>_A for all its components s and any cell mean m by
-//   log w_s + log N_s - |m - mu_s|^2 / (2 lambda_max(Sigma_s))
-//     <= maxLogWeightedNorm - dist(m, box)^2 / (2 maxLambda),
-// since (m - mu)^T Sigma^-1 (m - mu) >= |m - mu|^2 / lambda_max and tr(Sigma^-1 C_A) >= 0.
+// A hierarchy over the components' means for the sparse E-step. For a cell
+// (mean m, covariance C) and a component s whose mean lies in a node's box,
+//   log w_s + <log g_s>_A = log w_s + log N_s - 1/2 [(m - mu_s)^T Sigma_s^-1 (m - mu_s) + tr(Sigma_s^-1 C)]
+//                        <= a_s - b_s x,   a_s = log w_s + log N_s,  b_s = 1 / (2 lambda_max(Sigma_s)),
+// with x = dist(m, box)^2 + tr(C), since a quadratic form is at least
+// lambda_max^-1 times the squared length and tr(Sigma^-1 C) >= tr(C) / lambda_max.
+// Each component gives a line in x, so the tightest such bound of a node is
+// the upper envelope of its components' lines over x >= 0, which each node
+// keeps (a few lines). Combining the node's largest a with its largest
+// lambda_max instead (one line) pairs the normaliser of the thinnest Gaussian
+// with the reach of the widest, and prunes little.
 struct ComponentTree {
     struct Node {
         Vec3d lo, hi;
-        double maxLogWeightedNorm = -std::numeric_limits<double>::infinity();
-        double maxLambda = 0.0;
         std::uint32_t begin = 0, end = 0, left = 0, right = 0;
+        std::uint32_t lineBegin = 0, lineEnd = 0;  // its envelope in `lines`
         bool leaf = true;
     };
+    // a - b x, optimal on [from, next line's from).
+    struct Line {
+        double a = 0.0, b = 0.0, from = 0.0;
+    };
     std::vector<Node> nodes;
+    std::vector<Line> lines;
     std::vector<std::uint32_t> order;
     std::vector<double> logWeight;
 
@@ -40,19 +50,52 @@ struct ComponentTree {
         order.resize(k);
         std::iota(order.begin(), order.end(), 0u);
         logWeight.resize(k);
-        std::vector<double> lambda(k), logWeightedNorm(k);
+        std::vector<Line> own(k);
         for (std::size_t s = 0; s < k; ++s) {
             logWeight[s] = std::log(components[s].weight);
-            lambda[s] = components[s].gaussian.covariance.largestEigenvalue();
-            logWeightedNorm[s] = logWeight[s] + components[s].gaussian.factors.logNormaliser;
+            own[s].a = logWeight[s] + components[s].gaussian.factors.logNormaliser;
+            own[s].b = 0.5 / components[s].gaussian.covariance.largestEigenvalue();
         }
         if (k == 0) return;
         nodes.reserve(2 * k / kComponentLeafSize + 2);
-        build(0, static_cast<std::uint32_t>(k), components, lambda, logWeightedNorm);
+        build(0, static_cast<std::uint32_t>(k), components, own);
+    }
+
+    // Upper envelope over x >= 0 of the lines a - b x of components [begin, end).
+    void envelope(std::uint32_t begin, std::uint32_t end, const std::vector<Line>& own, Node& node) {
+        std::vector<Line> candidates;
+        candidates.reserve(end - begin);
+        for (std::uint32_t i = begin; i < end; ++i) candidates.push_back(own[order[i]]);
+        // By slope -b ascending (b descending); for equal b only the largest a matters.
+        std::sort(candidates.begin(), candidates.end(), [](const Line& p, const Line& q) {
+            return p.b > q.b || (p.b == q.b && p.a > q.a);
+        });
+        std::vector<Line> hull;
+        const auto crossing = [](const Line& p, const Line& q) { return (p.a - q.a) / (p.b - q.b); };  // p.b > q.b
+        for (const Line& line : candidates) {
+            if (!hull.empty() && hull.back().b == line.b) continue;
+            // Steeper lines win for small x; a line optimal nowhere in [0, inf) is dropped.
+            while (!hull.empty()) {
+                const double from = crossing(hull.back(), line);
+                if (from <= hull.back().from) {
+                    hull.pop_back();
+                    continue;
+                }
+                break;
+            }
+            Line next = line;
+            next.from = hull.empty() ? 0.0 : std::max(0.0, crossing(hull.back(), line));
+            if (!hull.empty() && next.from <= 0.0) hull.clear();
+            hull.push_back(next);
+        }
+        hull.front().from = 0.0;
+        node.lineBegin = static_cast<std::uint32_t>(lines.size());
+        lines.insert(lines.end(), hull.begin(), hull.end());
+        node.lineEnd = static_cast<std::uint32_t>(lines.size());
     }
 
     std::uint32_t build(std::uint32_t begin, std::uint32_t end, const std::vector<EmComponent>& components,
-                        const std::vector<double>& lambda, const std::vector<double>& logWeightedNorm) {
+                        const std::vector<Line>& own) {
         const auto index = static_cast<std::uint32_t>(nodes.size());
         nodes.emplace_back();
         Node node;
@@ -64,8 +107,6 @@ struct ComponentTree {
             const std::uint32_t s = order[i];
             node.lo = glm::min(node.lo, components[s].gaussian.mean);
             node.hi = glm::max(node.hi, components[s].gaussian.mean);
-            node.maxLogWeightedNorm = std::max(node.maxLogWeightedNorm, logWeightedNorm[s]);
-            node.maxLambda = std::max(node.maxLambda, lambda[s]);
         }
         if (end - begin > kComponentLeafSize) {
             const Vec3d extent = node.hi - node.lo;
@@ -78,17 +119,23 @@ struct ComponentTree {
                                  return xa < xb || (xa == xb && a < b);
                              });
             node.leaf = false;
-            node.left = build(begin, mid, components, lambda, logWeightedNorm);
-            node.right = build(mid, end, components, lambda, logWeightedNorm);
+            node.left = build(begin, mid, components, own);
+            node.right = build(mid, end, components, own);
         }
+        envelope(begin, end, own, node);
         nodes[index] = node;
         return index;
     }
 
-    double logBound(std::uint32_t n, const Vec3d& m) const {
+    // Bound on log w_s + <log g_s>_A over the node's components; `spread` = tr(C_A).
+    double logBound(std::uint32_t n, const Vec3d& m, double spread) const {
         const Node& node = nodes[n];
         const Vec3d gap = glm::max(Vec3d(0.0), glm::max(node.lo - m, m - node.hi));
-        return node.maxLogWeightedNorm - glm::dot(gap, gap) / (2.0 * node.maxLambda);
+        const double x = glm::dot(gap, gap) + spread;
+        const Line* first = lines.data() + node.lineBegin;
+        const Line* last = lines.data() + node.lineEnd;
+        const Line* line = std::upper_bound(first + 1, last, x, [](double v, const Line& l) { return v < l.from; }) - 1;
+        return line->a - line->b * x;
     }
 };
 
@@ -110,7 +157,8 @@ void allTerms(const std::vector<EmComponent>& components, const std::vector<doub
 // Best-first walk of the component tree for one cell (§5.3).
 void sparseTerms(const ComponentTree& tree, const std::vector<EmComponent>& components, const Vec3d& mean,
                  const Sym3& covariance, double tau, CellTerms& terms) {
-    const double reference = tree.logBound(0, mean);
+    const double spread = covariance.trace();
+    const double reference = tree.logBound(0, mean, spread);
     using Entry = std::pair<double, std::uint32_t>;  // (log bound, node); ties by the larger node index first
     std::priority_queue<Entry> open;
     const auto mass = [&](std::uint32_t n, double logBound) {
@@ -136,7 +184,7 @@ void sparseTerms(const ComponentTree& tree, const std::vector<EmComponent>& comp
             continue;
         }
         for (const std::uint32_t child : {node.left, node.right}) {
-            const double childBound = tree.logBound(child, mean);
+            const double childBound = tree.logBound(child, mean, spread);
             open.push({childBound, child});
             queued += mass(child, childBound);
         }

@@ -15,8 +15,9 @@
 // (Eq. 10) and the component's power Phi_s = sum_A q_A(s) Phi_A.
 //
 // Sparsity (§5.3): for tau > 0 a cell's terms w_s exp<log g_s>_A are visited
-// best first down a hierarchy over the components, bounded per node by
-// max(w N) exp(-|m_A - box of means|^2 / 2 max lambda_max), and the walk stops
+// best first down a hierarchy over the components, bounded per node by the
+// upper envelope over its components of w_s N_s exp(-(|m_A - box of means|^2 +
+// tr C_A) / 2 lambda_max(Sigma_s)) (see em.cpp), and the walk stops
 // once the bound on what is left is at most tau times the Z_A found so far;
 // the pruned terms are dropped (their mass <= tau Z_A). tau = 0 visits all pairs.
 //

@@ -57,6 +57,18 @@
 // volume-photon target the powers are final only at the end, so streamed
 // maps are then handed over once, whole.
 //
+// Later volume photons on demand (volume_batch > 0, volume_photons streamed,
+// as progressive EM reads them: Jakob et al. 2011 Alg. 2, line 9). After the
+// target's map, paths go on with the next path indices and every further
+// volume_batch volume photons are handed over as a map of their own, while a
+// reader wants more. The photons handed over are thus always the first N of
+// the same sequence, whatever the thread count or batch sizes. Each later
+// map's `emitted` is the number of paths up to and including the one that
+// stored its last photon, and its powers are normalised to that count; a
+// reader that pools maps rescales each by its emitted / the last one's.
+// Surface photons of the later paths are dropped: the stored surface maps are
+// those of the target, exactly as without later batches.
+//
 // Surfaces without a BSDF or with a `null` one are crossed without an event.
 //
 // Determinism: path i draws from the stream (seed, instance, i); a batch is
@@ -114,6 +126,7 @@ struct Settings {
     bool recordRays = false;
     float clampDistance2 = 0.0f;  // D~^2 of Eq. 7
     float specularPdf = 100.0f;   // stands in for p_s^perp at specular events, which have no density
+    std::uint64_t volumeBatch = 0;  // later volume photons per streamed map; 0: none
 };
 
 // A photon and the path that stored it, for stopping at a photon-count target.
@@ -485,6 +498,68 @@ void renormalise(Map& map, std::uint64_t planned, std::uint64_t emitted) {
 }
 
 class PhotonPass final : public Pass {
+private:
+    // Hands over maps of settings.volumeBatch further volume photons while a
+    // reader wants more; `pending` holds the records traced beyond the
+    // target's last photon, from paths below `pathsTraced`.
+    static void traceLaterVolumePhotons(PassContext& ctx, const PhotonTracer& tracer, const Settings& settings,
+                                        std::int64_t targetPhotons, std::uint64_t targetPaths,
+                                        std::uint64_t pathsTraced, std::vector<VolumePhotonRecord>& pending) {
+        // Paths per volume photon so far, to size the path batches (the photons do not depend on the sizes).
+        const double rate = static_cast<double>(targetPhotons) / static_cast<double>(std::max<std::uint64_t>(targetPaths, 1));
+        std::int64_t maps = 0, photons = 0, segments = 0;
+        std::uint64_t lastEmitted = targetPaths;
+        const auto handOverFirst = [&](std::size_t count, std::uint64_t emitted) {
+            auto map = std::make_shared<VolumePhotonMap>();
+            map->photons.append(std::span<const VolumePhotonRecord>(pending).first(count));
+            renormalise(*map, settings.photons, emitted);
+            map->emitted = emitted;
+            pending.erase(pending.begin(), pending.begin() + static_cast<std::ptrdiff_t>(count));
+            ++maps;
+            photons += static_cast<std::int64_t>(count);
+            lastEmitted = emitted;
+            return ctx.emitBatch<VolumePhotonMap>("volume_photons", std::move(map));
+        };
+        bool wanted = true;
+        while (wanted) {
+            while (wanted && pending.size() >= settings.volumeBatch)
+                wanted = handOverFirst(static_cast<std::size_t>(settings.volumeBatch),
+                                       pending[static_cast<std::size_t>(settings.volumeBatch) - 1].path + 1);
+            if (!wanted) break;
+            if (pathsTraced >= settings.photons) {
+                // The path cap: what is left, over every path traced.
+                if (!pending.empty()) handOverFirst(pending.size(), settings.photons);
+                break;
+            }
+            if (ctx.stopRequested()) {
+                ctx.keptPartial(ctx.instanceName() + ": " + std::to_string(photons) +
+                                " later volume photons before the interrupt");
+                break;
+            }
+            const double missing = static_cast<double>(settings.volumeBatch - pending.size());
+            const double estimate = rate > 0.0 ? 1.1 * missing / rate + 1024.0 : static_cast<double>(settings.batchSize);
+            const auto count = static_cast<std::size_t>(std::min<std::uint64_t>(
+                std::min<std::uint64_t>(settings.batchSize, static_cast<std::uint64_t>(std::min(estimate, 1e15))),
+                settings.photons - pathsTraced));
+            std::vector<ChunkResult> chunks((count + kGrain - 1) / kGrain);
+            jobs::parallelForChunks(count, kGrain, [&](jobs::IndexRange r) {
+                ChunkResult& out = chunks[r.begin / kGrain];
+                for (std::size_t i = r.begin; i != r.end; ++i) tracer.trace(pathsTraced + i, out);
+            });
+            for (const ChunkResult& chunk : chunks) {
+                pending.insert(pending.end(), chunk.volume.begin(), chunk.volume.end());
+                segments += chunk.segments;
+            }
+            ctx.addItems(static_cast<std::int64_t>(count));
+            pathsTraced += count;
+            ctx.completedUnit();
+        }
+        ctx.addCounter("later_volume_maps", maps);
+        ctx.addCounter("later_volume_photons", photons);
+        ctx.addCounter("later_paths", static_cast<std::int64_t>(lastEmitted - targetPaths));
+        ctx.addCounter("later_photon_segments", segments);
+    }
+
 public:
     void run(PassContext& ctx) override {
         const Scene& scene = ctx.scene();
@@ -510,6 +585,7 @@ public:
                                         : 0.01f * glm::length(scene.boundsMax - scene.boundsMin);
         settings.clampDistance2 = clampDistance * clampDistance;
         settings.specularPdf = static_cast<float>(params.getFloat("specular_pdf"));
+        settings.volumeBatch = static_cast<std::uint64_t>(params.getInt("volume_batch"));
         // An own seed gives an independent photon set at the same eye vertices (the job's
         // seed keys the camera paths): what variance measurements and comparisons against a
         // reference rendered with the job's seed need.
@@ -576,6 +652,10 @@ public:
         std::uint64_t collapsed = 0;
         std::uint64_t emitted = 0;
         bool targetReached = false;
+        // Later volume photons: what the target's batch traced beyond its last photon.
+        const bool laterVolume = targetMode && settings.volumeBatch > 0 && ctx.streamed("volume_photons");
+        std::vector<VolumePhotonRecord> laterRecords;
+        std::uint64_t pathsTraced = 0;
         for (std::uint64_t batchStart = 0; batchStart < settings.photons && !targetReached;) {
             std::uint64_t wanted = settings.batchSize;
             if (targetMode) {
@@ -642,7 +722,15 @@ public:
                 storedCaustic += static_cast<std::int64_t>(take.caustic);
                 storedVolume += static_cast<std::int64_t>(take.volume);
                 segments += chunk.segments;
-                if (targetReached) break;
+                if (targetReached) {
+                    if (laterVolume) {
+                        laterRecords.assign(chunk.volume.begin() + static_cast<std::ptrdiff_t>(take.volume),
+                                            chunk.volume.end());
+                        for (const ChunkResult* rest = &chunk + 1; rest != chunks.data() + chunks.size(); ++rest)
+                            laterRecords.insert(laterRecords.end(), rest->volume.begin(), rest->volume.end());
+                    }
+                    break;
+                }
             }
             causticMap->photons.resize(causticEnd);
             globalMap->photons.resize(globalEnd);
@@ -669,6 +757,7 @@ public:
             }
             ctx.addItems(static_cast<std::int64_t>(count));
             batchStart += count;
+            pathsTraced = batchStart;
             if (!targetMode) handOver();
             if (!targetMode && anyStreamed && allSatisfied) {
                 ctx.addCounter("stopped_by_readers", 1);
@@ -703,6 +792,8 @@ public:
         photonRays.clampDistance = clampDistance;
         ctx.addCounter("photon_rays", static_cast<std::int64_t>(photonRays.rays.size()));
         handOver();
+        if (laterVolume && targetReached && anyStreamed && !allSatisfied)
+            traceLaterVolumePhotons(ctx, tracer, settings, storedVolume, emitted, pathsTraced, laterRecords);
 
         ctx.addCounter("caustic_photons", storedCaustic);
         ctx.addCounter("global_photons", storedGlobal);
@@ -764,6 +855,9 @@ PassRegistration photonPass() {
          "D~ of Eq. 7: segment lengths below it count as this long in the density (0 = 0.01 x scene diagonal)"},
         {"specular_pdf", ParamType::Float, 100.0, 1e-6, 1e30, {},
          "p_s^perp (1/sr) used at specular events in Eq. 7, which have no density: large = small caustic bandwidths"},
+        {"volume_batch", ParamType::Int, std::int64_t{0}, 0, 2147483647, {},
+         "with volume_photons > 0 and a streamed volume map: further maps of this many volume photons while a "
+         "reader wants more (progressive EM; 0 = none)"},
         {"seed", ParamType::Int, std::int64_t{0}, 0, 1e15, {},
          "seed of the photon paths' random streams (0 = the job's seed); another seed traces an independent "
          "photon set at the same eye vertices"},

@@ -216,6 +216,24 @@ TEST(PemRender, OneAndTwoThreadsGiveIdenticalMixturesAndImages) {
     EXPECT_EQ(std::memcmp(images[0].data(), images[1].data(), images[0].size() * sizeof(Rgb)), 0);
 }
 
+TEST(PemPyramid, KdTreePairingEqualsBruteForce) {
+    const Scene scene = mediumScene();
+    const Chain c = fitChain(scene, clusteredPhotons(60000, 5), 256);
+    std::map<std::string, BufferHandle> pyramids[2];
+    const char* pairings[2] = {"kdtree", "brute"};
+    for (int p = 0; p < 2; ++p)
+        pyramids[p] = test::runPass(*findPass("gmm_pyramid"), scene, nullptr, boxFilm(4, 4), {{"gmm", c.fit.at("gmm")}},
+                                    {{"pairing", std::string(pairings[p])}});
+    const GmmPyramidBuffer& a = test::bufferAs<GmmPyramid>(pyramids[0].at("pyramid")).nodes;
+    const GmmPyramidBuffer& b = test::bufferAs<GmmPyramid>(pyramids[1].at("pyramid")).nodes;
+    ASSERT_EQ(a.size(), b.size());
+    ASSERT_GT(a.size(), 256u);
+    EXPECT_EQ(std::memcmp(a.column<GmmMean>().data(), b.column<GmmMean>().data(), a.size() * sizeof(Vec3d)), 0);
+    EXPECT_EQ(std::memcmp(a.column<GmmCovariance>().data(), b.column<GmmCovariance>().data(), a.size() * sizeof(Sym3)), 0);
+    EXPECT_EQ(std::memcmp(a.column<GmmWeight>().data(), b.column<GmmWeight>().data(), a.size() * sizeof(double)), 0);
+    EXPECT_EQ(std::memcmp(a.column<GmmRight>().data(), b.column<GmmRight>().data(), a.size() * sizeof(std::uint32_t)), 0);
+}
+
 TEST(PemPreflight, AnisotropicMediaAreRefused) {
     const Scene scene = mediumScene(0.5f);
     PassParams params;

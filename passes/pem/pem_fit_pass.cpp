@@ -1,0 +1,301 @@
+// Progressive EM pass (`pem_fit`): Jakob et al. 2011 Alg. 2 (§5.2-5.4) on
+// the statistics kd-tree of §5.1.
+//
+// The volume photons arrive as a demand-driven stream from the one photon pass
+// (its volume_photons target first, then maps of volume_batch further photons
+// while this pass wants more). The fit therefore happens while the stream is
+// read: a pass reading a stream is run with its producer, and a statistics
+// tree made by a separate pass would not exist before the producer ends. So
+// the first map (n0 = 128 k photons in the paper, §5.1) is built into the
+// tree here, with the code `em_stats` uses, and freed; later maps are binned
+// down the frozen splits and blended in with Chan's update (§5.2), and freed.
+// Memory is bounded by n0, never by the photons streamed.
+//
+// Alg. 2, as run here:
+//   initial guess: one Gaussian per cell of a k-cell cut (§5.4); cut: 8 k cells (§5.1);
+//   repeat
+//     inner EM (Alg. 1: E-step Eq. 7, M-step Eq. 9 centred, sparse as §5.3) until F/n settles (ε);
+//     if a live component has n_eff (Eq. 10) < n_eff_threshold (64, §5.2) and fewer than
+//       max_photons have been used: take the next map of the stream and update the statistics;
+//     expand the cut: for every cut node with children, ΔF = n_A1 log Z_A1 + n_A2 log Z_A2 -
+//       n_A log Z_A (Eq. 8's terms); the expand_fraction (50 %, §5.2) with the largest ΔF are
+//       replaced by their children (ties by node index);
+//   until F/n after the expansion changes by less than ε (relative, as the inner test),
+//   or the cut is all leaves, or max_outer.
+// The paper's line 7 compares F between iterations; F/n is used so that a
+// larger sample after line 9 is no progress in itself (the ε of em.h).
+// Components with n_eff < min_n_eff are dropped (counted). After the last
+// expansion one E-step on the final cut gives n_eff and the powers.
+//
+// Powers: the first map's powers are normalised to its paths (`emitted`), a
+// later map's to the paths up to its last photon. The tree holds every
+// photon's power times its map's emitted / the first map's, and the mixture's
+// powers are rescaled by the first map's emitted / the last one's at the end:
+// Phi_s = sum_A q_A(s) Phi_A / N_paths over all photons the fit used.
+//
+// Determinism: maps arrive in emission order and their photons are the first
+// N of one sequence (photon pass), tree updates and EM reduce in fixed blocks,
+// so the mixture is bit-identical for any thread count.
+#include "passes/passes.h"
+
+#include "engine/buffers/photon_buffers.h"
+#include "engine/core/error.h"
+#include "passes/pem/pem_common.h"
+#include "jobs/work_context.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <numeric>
+
+namespace fg {
+
+namespace {
+
+class PemFitPass final : public Pass {
+public:
+    void consumeBatch(PassContext& ctx, const std::string& slot) override {
+        const VolumePhotonMap& map = ctx.input<VolumePhotonMap>(slot);
+        const std::int64_t start = jobs::wallNanos();
+        if (!started_) {
+            begin(ctx, map);
+        } else if (!map.photons.empty() && !done_) {
+            const double scale = static_cast<double>(map.emitted) / static_cast<double>(firstEmitted_);
+            tree_.update(map.photons.column<PhotonPosition>(), map.photons.column<PhotonPower>(), scale);
+            photons_ += map.photons.size();
+            lastEmitted_ = map.emitted;
+            ++batches_;
+        }
+        if (started_ && !done_) advance(true);
+        fitNs_ += jobs::wallNanos() - start;
+        if (done_ || !needPhotons_) ctx.wantNoMoreBatches(slot);
+    }
+
+    void run(PassContext& ctx) override {
+        const std::int64_t start = jobs::wallNanos();
+        if (started_ && !done_) advance(false);
+        if (started_) finish();
+        fitNs_ += jobs::wallNanos() - start;
+        GaussianMixture& mixture = ctx.createOutput<GaussianMixture>("gmm");
+        if (!started_) return;
+        storeMixture(components_, photons_, mixture);
+        // Powers over all paths the used photons came from (see the file comment).
+        const double powerScale = static_cast<double>(firstEmitted_) / static_cast<double>(lastEmitted_);
+        for (glm::dvec3& p : mixture.components.column<GmmPower>()) p *= powerScale;
+        ctx.addItems(static_cast<std::int64_t>(photons_));
+        ctx.addCounter("photons", static_cast<std::int64_t>(photons_));
+        ctx.addCounter("batches", batches_);
+        ctx.addCounter("inner_iterations", inner_);
+        ctx.addCounter("outer_iterations", outer_);
+        ctx.addCounter("cells", static_cast<std::int64_t>(cells_.size()));
+        std::int64_t leaves = 0;
+        for (const std::uint32_t node : cut_) leaves += tree_.isLeaf(node) ? 1 : 0;
+        ctx.addCounter("cut_leaves", leaves);
+        ctx.addCounter("tree_leaves", static_cast<std::int64_t>(treeLeaves_));
+        ctx.addCounter("fit_us", fitNs_ / 1000);
+        gmm::EmRun summary;
+        summary.dropped = dropped_;
+        summary.responsibilities.pairsKept = responsibilities_.pairsKept;
+        summary.responsibilities.pairsPruned = responsibilities_.pairsPruned;
+        summary.bounds = {boundPerPhoton_ * cells_.totalCount()};
+        reportFit(ctx, summary, components_, cells_.totalCount());
+    }
+
+private:
+    void begin(PassContext& ctx, const VolumePhotonMap& map) {
+        const PassParams& params = ctx.params();
+        const auto k = static_cast<std::size_t>(params.getInt("k"));
+        cellsPerComponent_ = static_cast<std::size_t>(params.getInt("cut"));
+        options_.tau = params.getFloat("tau");
+        options_.epsilon = params.getFloat("epsilon");
+        options_.maxIterations = static_cast<int>(params.getInt("max_iterations"));
+        options_.minEffectiveCount = params.getFloat("min_n_eff");
+        threshold_ = params.getFloat("n_eff_threshold");
+        expandFraction_ = params.getFloat("expand_fraction");
+        maxOuter_ = static_cast<int>(params.getInt("max_outer"));
+        started_ = true;
+        if (map.photons.empty()) {
+            done_ = true;
+            return;
+        }
+        tree_.build(map.photons.column<PhotonPosition>(), map.photons.column<PhotonPower>(),
+                    static_cast<std::uint32_t>(params.getInt("leaf_size")));
+        photons_ = map.photons.size();
+        firstEmitted_ = lastEmitted_ = std::max<std::uint64_t>(map.emitted, 1);
+        const auto maxPhotons = static_cast<std::uint64_t>(params.getInt("max_photons"));
+        maxPhotons_ = maxPhotons > 0 ? maxPhotons : 64 * photons_;
+        for (std::uint32_t node = 0; node < tree_.size(); ++node) treeLeaves_ += tree_.isLeaf(node) ? 1 : 0;
+        options_.regCovar = ridgeInSceneUnits(tree_, params.getFloat("reg_covar"));
+        components_ = gmm::componentsFromCells(cellsOf(tree_, tree_.cut(k)), options_.regCovar);
+        cut_ = tree_.cut(k * cellsPerComponent_);
+    }
+
+    // Runs Alg. 2 until it ends or (streamOpen) needs the next map of photons.
+    void advance(bool streamOpen) {
+        while (!done_) {
+            if (!expandNext_) {
+                cells_ = cellsOf(tree_, cut_);
+                gmm::EmRun inner = gmm::runEm(cells_, components_, options_);
+                inner_ += inner.iterations;
+                ++outer_;
+                dropped_ += inner.dropped;
+                expandNext_ = true;
+                if (components_.empty()) {
+                    done_ = true;
+                    break;
+                }
+                double minEffective = std::numeric_limits<double>::infinity();
+                for (const gmm::EmComponent& c : components_) minEffective = std::min(minEffective, c.effectiveCount);
+                if (streamOpen && minEffective < threshold_ && photons_ < maxPhotons_) {
+                    needPhotons_ = true;
+                    return;
+                }
+            }
+            expandNext_ = false;
+            needPhotons_ = false;
+            if (outer_ >= maxOuter_ || !expandCut()) {
+                done_ = true;
+                break;
+            }
+            cells_ = cellsOf(tree_, cut_);
+            const double bound = gmm::eStep(cells_, components_, options_.tau, responsibilities_) / cells_.totalCount();
+            const bool settled = haveBound_ && std::abs(bound - boundPerPhoton_) <=
+                                                   options_.epsilon * std::max(1.0, std::abs(bound));
+            boundPerPhoton_ = bound;
+            haveBound_ = true;
+            if (settled) done_ = true;
+        }
+    }
+
+    // Replaces the expand_fraction of the cut's expandable nodes with the
+    // largest gain in F by their children; false when none can be expanded.
+    bool expandCut() {
+        std::vector<std::uint32_t> expandable;
+        for (const std::uint32_t node : cut_)
+            if (!tree_.isLeaf(node) && tree_.statistics(node).count > 0) expandable.push_back(node);
+        if (expandable.empty()) return false;
+        std::vector<std::uint32_t> children;
+        for (const std::uint32_t node : expandable) {
+            children.push_back(tree_.left(node));
+            children.push_back(tree_.right(node));
+        }
+        // cellsOf skips empty nodes; log Z of an empty child is not needed (n = 0).
+        const auto logZOf = [&](const std::vector<std::uint32_t>& nodes) {
+            std::vector<double> logZ(nodes.size(), 0.0);
+            std::vector<std::uint32_t> nonEmpty;
+            std::vector<std::size_t> where;
+            for (std::size_t i = 0; i < nodes.size(); ++i) {
+                if (tree_.statistics(nodes[i]).count == 0) continue;
+                nonEmpty.push_back(nodes[i]);
+                where.push_back(i);
+            }
+            gmm::Responsibilities r;
+            gmm::eStep(cellsOf(tree_, nonEmpty), components_, options_.tau, r);
+            for (std::size_t j = 0; j < where.size(); ++j) logZ[where[j]] = r.logZ[j];
+            return logZ;
+        };
+        const std::vector<double> parentLogZ = logZOf(expandable);
+        const std::vector<double> childLogZ = logZOf(children);
+        const auto n = [&](std::uint32_t node) { return static_cast<double>(tree_.statistics(node).count); };
+        std::vector<double> gain(expandable.size());
+        for (std::size_t i = 0; i < expandable.size(); ++i) {
+            gain[i] = n(children[2 * i]) * childLogZ[2 * i] + n(children[2 * i + 1]) * childLogZ[2 * i + 1] -
+                      n(expandable[i]) * parentLogZ[i];
+        }
+        std::vector<std::size_t> order(expandable.size());
+        std::iota(order.begin(), order.end(), std::size_t{0});
+        std::sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) {
+            return gain[a] > gain[b] || (gain[a] == gain[b] && expandable[a] < expandable[b]);
+        });
+        const auto take = std::max<std::size_t>(
+            1, static_cast<std::size_t>(std::ceil(expandFraction_ * static_cast<double>(expandable.size()))));
+        std::vector<std::uint32_t> chosen;
+        for (std::size_t i = 0; i < std::min(take, order.size()); ++i) chosen.push_back(expandable[order[i]]);
+        std::sort(chosen.begin(), chosen.end());
+        std::vector<std::uint32_t> next;
+        next.reserve(cut_.size() + chosen.size());
+        for (const std::uint32_t node : cut_) {
+            if (std::binary_search(chosen.begin(), chosen.end(), node)) {
+                next.push_back(tree_.left(node));
+                next.push_back(tree_.right(node));
+            } else {
+                next.push_back(node);
+            }
+        }
+        std::sort(next.begin(), next.end());
+        cut_ = std::move(next);
+        return true;
+    }
+
+    // n_eff and powers of the final components on the final cut.
+    void finish() {
+        if (components_.empty() || tree_.nodes.empty()) return;
+        cells_ = cellsOf(tree_, cut_);
+        boundPerPhoton_ = gmm::eStep(cells_, components_, options_.tau, responsibilities_) / cells_.totalCount();
+        gmm::mStep(cells_, responsibilities_, options_.regCovar, components_, false);
+    }
+
+    gmm::EmOptions options_;
+    std::size_t cellsPerComponent_ = 8;
+    double threshold_ = 64.0, expandFraction_ = 0.5;
+    int maxOuter_ = 64;
+    EmTree tree_;
+    std::vector<std::uint32_t> cut_;
+    std::vector<gmm::EmComponent> components_;
+    gmm::EmCells cells_;
+    gmm::Responsibilities responsibilities_;
+    bool started_ = false, done_ = false, needPhotons_ = false, expandNext_ = false, haveBound_ = false;
+    double boundPerPhoton_ = 0.0;
+    std::uint64_t photons_ = 0, maxPhotons_ = 0, firstEmitted_ = 1, lastEmitted_ = 1;
+    std::int64_t batches_ = 0, inner_ = 0, outer_ = 0, treeLeaves_ = 0, fitNs_ = 0;
+    std::size_t dropped_ = 0;
+};
+
+}  // namespace
+
+PassRegistration pemFitPass() {
+    PassSpec spec;
+    spec.name = "pem_fit";
+    spec.doc = "Progressive EM (Jakob et al. 2011 Alg. 2): a k-term Gaussian mixture fitted on a refined kd-tree cut, "
+               "taking further volume photons from the stream while a component has too few";
+    spec.inputs = {{"photons", "VolumePhotonMap",
+                    "volume photons, streamed: the photon pass's volume_photons target (n0 = 128 k), then maps of "
+                    "volume_batch (32 k) while wanted",
+                    true}};
+    spec.outputs = {{"gmm", "GaussianMixture", "the fitted mixture: weight, power, mean, covariance and factors, n_eff"}};
+    spec.params = {
+        {"k", ParamType::Int, std::int64_t{4096}, 1, 1 << 22, {}, "Gaussian components (initial guess: a k-cell cut)"},
+        {"cut", ParamType::Int, std::int64_t{8}, 1, 1 << 10, {}, "cells of the initial cut per component (§5.1: 8)"},
+        {"tau", ParamType::Float, 1e-4, 0.0, 1.0, {},
+         "sparsity: pruned responsibility mass per cell <= tau Z_A (0: all cell-component pairs)"},
+        {"epsilon", ParamType::Float, 1e-4, 0.0, 1.0, {},
+         "inner and outer convergence: F/n changes by less than this (relative above |F/n| = 1)"},
+        {"max_iterations", ParamType::Int, std::int64_t{100}, 1, 100000, {}, "most EM iterations per inner loop"},
+        {"max_outer", ParamType::Int, std::int64_t{64}, 1, 100000, {}, "most outer iterations (cut expansions)"},
+        {"n_eff_threshold", ParamType::Float, 64.0, 0.0, 1e12, {},
+         "more photons are taken while a live component explains fewer than this (§5.2: 64)"},
+        {"expand_fraction", ParamType::Float, 0.5, 1e-6, 1.0, {},
+         "share of the expandable cut nodes replaced by their children per outer iteration (§5.2: 50 %)"},
+        {"max_photons", ParamType::Int, std::int64_t{0}, 0, 1e15, {},
+         "no more photons are taken beyond this many (0 = 64 times the first map's)"},
+        {"leaf_size", ParamType::Int, std::int64_t{4}, 1, 64, {},
+         "largest photon count of a statistics-tree leaf (§5.1: a leaf below 5 photons)"},
+        {"reg_covar", ParamType::Float, 1e-6, 0.0, 1.0, {},
+         "ridge added to covariance diagonals, in unit-box coordinates (the photons' longest side = 1)"},
+        {"min_n_eff", ParamType::Float, 1.0, 0.0, 1e12, {}, "components explaining fewer photons are dropped"},
+    };
+    const auto preflight = [](const PreflightContext& pf) {
+        refuseAnisotropicMedia(pf);
+        // Powers are rescaled by the maps' path counts, which only a volume-photon target gives.
+        const PassParams* producer = pf.producerParams ? pf.producerParams("photons") : nullptr;
+        if (producer && pf.producerPass && pf.producerPass("photons") == "photon" &&
+            producer->getInt("volume_photons") == 0) {
+            throw InputError(pf.source + ": pass '" + pf.instance +
+                             "': the photon pass feeding pem_fit needs volume_photons > 0 (the first n0 photons; "
+                             "volume_batch sets the later maps)");
+        }
+    };
+    return {spec, [] { return std::make_unique<PemFitPass>(); }, preflight};
+}
+
+}  // namespace fg
