@@ -5,6 +5,7 @@ packages=(
   build-essential cmake pkg-config
   libembree-dev libtbb-dev libopenimageio-dev libopenexr-dev libglm-dev
   libtomlplusplus-dev libtinyobjloader-dev libpugixml-dev libcli11-dev zlib1g-dev
+  openimageio-tools   # oiiotool: tools/render_bdpt_references.sh averages the halves
   libgtest-dev libbenchmark-dev python3 python3-numpy python3-skimage python3-matplotlib
   embree-tools   # tools/bench_vs_embree.sh: Embree's tutorial path tracer as a yardstick
   slurm-wlm munge   # the Slurm test's local cluster (tools/slurm_local.sh)
