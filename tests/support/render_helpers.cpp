@@ -2,6 +2,9 @@
 
 #include "passes/passes.h"
 #include "engine/accel/ray_query.h"
+#include "engine/shading/bsdf.h"
+#include "engine/shading/light.h"
+#include "engine/shading/texture.h"
 #include "jobs/parallel.h"
 
 #include <stdexcept>
@@ -12,6 +15,34 @@ Rgb RenderedImage::mean() const {
     glm::dvec3 sum(0.0);
     for (const Rgb& p : pixels) sum += glm::dvec3(p);
     return Rgb(sum / static_cast<double>(std::max<std::size_t>(1, pixels.size())));
+}
+
+int addDiffuse(Scene& scene, const Rgb& albedo) {
+    scene.bsdfs.push_back(makeDiffuse(makeConstantTexture(albedo)));
+    return static_cast<int>(scene.bsdfs.size()) - 1;
+}
+
+FilmSettings smallFilm(int width, int height) {
+    FilmSettings film;
+    film.width = width;
+    film.height = height;
+    return film;
+}
+
+Scene furnaceSphereScene() {
+    Scene scene;
+    Shape sphere;
+    sphere.geometry = Sphere{Vec3(0.0f), 1.0f};
+    sphere.flipNormals = true;
+    sphere.bsdf = addDiffuse(scene, Rgb(0.5f));
+    scene.shapes.push_back(sphere);
+    scene.lights.push_back(makePointLight(Vec3(0.0f), Rgb(kPi)));
+    scene.lightShape.push_back(-1);
+    scene.camera.eye = Vec3(0.0f, 0.0f, 0.3f);
+    scene.camera.target = Vec3(0.3f, 0.2f, -1.0f);
+    scene.camera.fovYDegrees = 90.0f;
+    scene.finalize();
+    return scene;
 }
 
 RenderedImage renderPipeline(const Scene& scene, const std::string& pipeline,

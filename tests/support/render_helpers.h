@@ -20,6 +20,16 @@ struct RenderedImage {
     Rgb mean() const;
 };
 
+// A diffuse BSDF of constant albedo added to the scene; returns its index.
+int addDiffuse(Scene& scene, const Rgb& albedo);
+// Film settings of the given size, everything else default.
+FilmSettings smallFilm(int width, int height);
+// The furnace: a camera inside a diffuse sphere (radius 1, albedo 0.5, normals
+// inward) around a point light of intensity pi at its centre. Direct radiance
+// is 0.5 and every bounce adds half the previous, so every pixel sees radiance
+// 1 (less 0.5^(d+1) at a depth limit of d scattering events).
+Scene furnaceSphereScene();
+
 // Runs a built-in pipeline on `scene` with the given pass parameters
 // ("instance.param" -> value) and returns its "image" result.
 RenderedImage renderPipeline(const Scene& scene, const std::string& pipeline,

@@ -39,34 +39,14 @@ Film renderBdptFilm(const Scene& scene, const std::map<std::string, ParamValue>&
     return *static_cast<const Film*>(result.results.at("image").data.get());
 }
 
-int addDiffuse(Scene& scene, const Rgb& albedo) {
-    scene.bsdfs.push_back(makeDiffuse(makeConstantTexture(albedo)));
-    return static_cast<int>(scene.bsdfs.size()) - 1;
-}
-
-FilmSettings smallFilm(int w, int h) {
-    FilmSettings f;
-    f.width = w;
-    f.height = h;
-    return f;
-}
+using test::addDiffuse;
+using test::smallFilm;
 
 // pt's furnace: a camera inside a diffuse sphere of albedo 0.5 around a point
 // light of intensity pi sees radiance 1 (sum of 0.5^k over k bounces; the
 // depth limit of 64 segments leaves out 0.5^64).
 TEST(BdptPass, FurnaceSphereHasUnitRadiance) {
-    Scene scene;
-    Shape sphere;
-    sphere.geometry = Sphere{Vec3(0.0f), 1.0f};
-    sphere.flipNormals = true;
-    sphere.bsdf = addDiffuse(scene, Rgb(0.5f));
-    scene.shapes.push_back(sphere);
-    scene.lights.push_back(makePointLight(Vec3(0.0f), Rgb(kPi)));
-    scene.lightShape.push_back(-1);
-    scene.camera.eye = Vec3(0.0f, 0.0f, 0.3f);
-    scene.camera.target = Vec3(0.3f, 0.2f, -1.0f);
-    scene.camera.fovYDegrees = 90.0f;
-    scene.finalize();
+    const Scene scene = test::furnaceSphereScene();
 
     const auto image = renderPipeline(scene, "bdpt", {{"bdpt.spp", std::int64_t{16}}, {"bdpt.max_depth", std::int64_t{64}}},
                                       smallFilm(24, 24), 1, 2);

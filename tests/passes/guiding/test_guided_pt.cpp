@@ -12,6 +12,7 @@
 #include "passes/passes.h"
 #include "tests/support/cli_helpers.h"
 #include "tests/support/pass_helpers.h"
+#include "tests/support/render_helpers.h"
 
 #include <gtest/gtest.h>
 
@@ -69,19 +70,7 @@ FilmSettings film(int w, int h) {
 std::vector<Rgb> pixels(const Film& image) { return image.resolve(); }
 
 TEST(GuidedPt, FurnaceSphereHasUnitRadiance) {
-    Scene scene;
-    Shape sphere;
-    sphere.geometry = Sphere{Vec3(0.0f), 1.0f};
-    sphere.flipNormals = true;
-    scene.bsdfs.push_back(makeDiffuse(makeConstantTexture(Rgb(0.5f))));
-    sphere.bsdf = 0;
-    scene.shapes.push_back(sphere);
-    scene.lights.push_back(makePointLight(Vec3(0.0f), Rgb(kPi)));
-    scene.lightShape.push_back(-1);
-    scene.camera.eye = Vec3(0.0f, 0.0f, 0.3f);
-    scene.camera.target = Vec3(0.3f, 0.2f, -1.0f);
-    scene.camera.fovYDegrees = 90.0f;
-    scene.finalize();
+    const Scene scene = test::furnaceSphereScene();
     auto params = trainingParams(4000, 32);
     params["pt.max_depth"] = std::int64_t{1000};
     const BufferHandle image =

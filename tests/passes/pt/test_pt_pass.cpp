@@ -16,34 +16,14 @@ namespace {
 using test::airlight;
 using test::renderPipeline;
 
-int addDiffuse(Scene& scene, const Rgb& albedo) {
-    scene.bsdfs.push_back(makeDiffuse(makeConstantTexture(albedo)));
-    return static_cast<int>(scene.bsdfs.size()) - 1;
-}
-
-FilmSettings smallFilm(int w, int h) {
-    FilmSettings f;
-    f.width = w;
-    f.height = h;
-    return f;
-}
+using test::addDiffuse;
+using test::smallFilm;
 
 // Camera inside a diffuse sphere of albedo 0.5 lit by a point light of
 // intensity pi at its centre: direct radiance 0.5 / R^2, and every bounce adds
 // half the previous, so the radiance is exactly 1 everywhere for R = 1.
 TEST(PathTracer, FurnaceSphereHasUnitRadiance) {
-    Scene scene;
-    Shape sphere;
-    sphere.geometry = Sphere{Vec3(0.0f), 1.0f};
-    sphere.flipNormals = true;
-    sphere.bsdf = addDiffuse(scene, Rgb(0.5f));
-    scene.shapes.push_back(sphere);
-    scene.lights.push_back(makePointLight(Vec3(0.0f), Rgb(kPi)));
-    scene.lightShape.push_back(-1);
-    scene.camera.eye = Vec3(0.0f, 0.0f, 0.3f);
-    scene.camera.target = Vec3(0.3f, 0.2f, -1.0f);
-    scene.camera.fovYDegrees = 90.0f;
-    scene.finalize();
+    const Scene scene = test::furnaceSphereScene();
 
     const auto image = renderPipeline(scene, "pt", {{"pt.spp", std::int64_t{64}}, {"pt.max_depth", std::int64_t{1000}}},
                                       smallFilm(24, 24));
