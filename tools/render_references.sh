@@ -56,6 +56,7 @@ declare -A spp=(
   [water-wave]=16384
   [metal-ring]=16384
   [spot-fog]=8192
+  [conference]=16384
 )
 declare -A exposure=(
   [cornell-box]=0
@@ -64,6 +65,7 @@ declare -A exposure=(
   [water-wave]=-0.5
   [metal-ring]=0
   [spot-fog]=1
+  [conference]=2
 )
 binary="$build/fluxgraph"
 [[ -x "$binary" ]] || { echo "render_references.sh: no $binary; build first (cmake --build $build)" >&2; exit 2; }
@@ -97,7 +99,7 @@ if ((photon_references)); then
 fi
 
 if ((${#scenes[@]} == 0)); then
-  scenes=(cornell-box volumetric-caustic gold-ring water-wave metal-ring spot-fog)
+  scenes=(cornell-box volumetric-caustic gold-ring water-wave metal-ring spot-fog conference)
 fi
 
 for scene in "${scenes[@]}"; do
