@@ -12,7 +12,8 @@
 # --spp: samples per pixel of the reference, split between the halves
 #   (default: the per-scene counts below).
 # --out: where the halves and the average go (default out/bdpt-references/<scene>/).
-# --install: also copy the average to data/<scene>/reference/bdpt-reference.exr.
+# --install: make the average the scene's reference, data/<scene>/reference/reference.exr
+#   (half-float, with the halves' noise in its metadata), and its preview data/<scene>/preview.png.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -93,8 +94,20 @@ for scene in "${scenes[@]}"; do
     printf '  %-22s %s\n' "$name" "$(rmse "$out/half1.exr" "$out/half2.exr" "$x,$y,$w,$h")"
   done
   if ((install)); then
+    # The average becomes the scene's reference: half-float, ZIP, with the
+    # halves' job and timings (oiiotool keeps the first input's metadata), the
+    # command that made it and the noise record in its metadata; and its preview.
     mkdir -p "data/$scene/reference"
-    cp "$out/reference.exr" "data/$scene/reference/bdpt-reference.exr"
-    echo "  installed data/$scene/reference/bdpt-reference.exr"
+    noise="RMSE between halves: whole image $(rmse "$out/half1.exr" "$out/half2.exr")"
+    for region in ${extra_regions[$scene]:-}; do
+      name=${region%%=*}; geometry=${region#*=}
+      w=${geometry%%x*}; rest=${geometry#*x}; h=${rest%%+*}; rest=${rest#*+}; x=${rest%%+*}; y=${rest#*+}
+      noise+=", $name $(rmse "$out/half1.exr" "$out/half2.exr" "$x,$y,$w,$h")"
+    done
+    oiiotool "$out/reference.exr" -d half --compression zip \
+      --attrib "fluxgraph:command" "tools/render_bdpt_references.sh --spp $total --install $scene (seeds 1 and 2, $half spp each, averaged)" \
+      --attrib "fluxgraph:reference_noise" "$noise" -o "data/$scene/reference/reference.exr"
+    oiiotool "$out/reference.exr" --colorconvert linear sRGB -d uint8 -o "data/$scene/preview.png"
+    echo "  installed data/$scene/reference/reference.exr and data/$scene/preview.png ($noise)"
   fi
 done

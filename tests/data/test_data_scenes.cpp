@@ -435,17 +435,26 @@ TEST(DataReferences, MatchTheirJobs) {
         const fs::path reference = entry.path() / "reference" / "reference.exr";
         if (!fs::exists(reference)) continue;
         const std::string name = entry.path().filename().string();
-        const fs::path jobPath = entry.path() / "pt.toml";
-        ASSERT_TRUE(fs::exists(jobPath)) << name;
         Metadata metadata;
         const ImageChannels image = readExr(reference.string(), &metadata);
+        std::map<std::string, std::string> meta(metadata.begin(), metadata.end());
+        // Path-traced (tools/render_references.sh, from pt.toml) or bidirectional
+        // (tools/render_bdpt_references.sh --install, from bdpt.toml, two halves
+        // whose difference is recorded as the reference's noise).
+        const bool bidirectional = meta["command"].find("render_bdpt_references.sh") != std::string::npos;
+        const fs::path jobPath = entry.path() / (bidirectional ? "bdpt.toml" : "pt.toml");
+        ASSERT_TRUE(fs::exists(jobPath)) << name;
         const Job job = loadJob(jobPath.string());
         EXPECT_EQ(image.width, job.film.width) << name;
         EXPECT_EQ(image.height, job.film.height) << name;
-        std::map<std::string, std::string> meta(metadata.begin(), metadata.end());
-        EXPECT_NE(meta["command"].find("output.half=true"), std::string::npos) << name;
-        EXPECT_NE(meta["command"].find("passes.pt.spp="), std::string::npos) << name;
-        EXPECT_EQ(meta["job"], job.text) << name << ": the reference was rendered from another version of pt.toml";
+        if (bidirectional) {
+            EXPECT_NE(meta["reference_noise"].find("RMSE between halves"), std::string::npos) << name;
+        } else {
+            EXPECT_NE(meta["command"].find("output.half=true"), std::string::npos) << name;
+            EXPECT_NE(meta["command"].find("passes.pt.spp="), std::string::npos) << name;
+        }
+        EXPECT_EQ(meta["job"], job.text) << name << ": the reference was rendered from another version of "
+                                         << jobPath.filename().string();
         EXPECT_FALSE(meta["pass_timings"].empty()) << name;
         ++checked;
     }
