@@ -121,7 +121,8 @@ public:
 
 private:
     // What a deposit needs of its eye vertex, in tree order. At a Lambertian
-    // vertex f_s times the throughput is one constant (rho / pi) T.
+    // vertex f_s times the throughput is one constant (rho / pi) T:
+    // Bsdf::constantReflectance is f_r itself, rho / pi already.
     struct Target {
         Vec3 geometricNormal{0.0f};
         Rgb weight{0.0f};
@@ -145,7 +146,7 @@ private:
             t.lambertian = true;
             // Seen from below its shading normal, a Lambertian surface reflects nothing.
             if (glm::dot(vertex.get<EyeOutgoing>(), vertex.get<EyeNormal>()) > 0.0f)
-                t.weight = kInvPi * *reflectance * vertex.get<EyeThroughput>();
+                t.weight = *reflectance * vertex.get<EyeThroughput>();
         });
     }
 
