@@ -80,12 +80,12 @@ public:
                 if (!(ray.h0 > 0.0f || ray.dh > 0.0f)) continue;
                 ++acc.splatted;
                 const Vec3 incident = -ray.direction;
+                const SplatFrustum frustum(ray, cap);
                 index.tree.forEachCandidate(
                     splatCone(ray, cap),
                     [&](std::uint32_t slot) {
                         ++acc.candidates;
-                        const float weight =
-                            splatWeight(ray, cap, index.tree.slotPosition(slot), index.tree.slotNormal(slot));
+                        const float weight = frustum.weight(index.tree.slotPosition(slot), index.tree.slotNormal(slot));
                         if (!(weight > 0.0f)) return;
                         const Target& target = targets_[slot];
                         Rgb f;
