@@ -24,6 +24,7 @@ PassRegistration compositePass();
 PassRegistration rayBandwidthPass();
 PassRegistration splatIndexPass();
 PassRegistration raySplatPass();
+PassRegistration radianceIntegratePass();
 
 // The passes and the pipelines of passes/pipelines/*.toml.
 const Registry& builtinRegistry();

@@ -17,7 +17,7 @@ const Registry& builtinRegistry() {
             photonIndexPass(), gatherPass(), gatherGlobalPass(), splatPass(),
             volumeEyePass(),   photonRadiusPass(), photonBvhPass(), beamQueryPass(), lightTracePass(),
             filmNoisePass(),   compositePass(),
-            rayBandwidthPass(), splatIndexPass(), raySplatPass(),
+            rayBandwidthPass(), splatIndexPass(), raySplatPass(), radianceIntegratePass(),
         };
         for (const auto& [file, text] : embeddedPipelineFiles()) r.pipelines.push_back(parsePipelineFile(text, file));
         return r;
