@@ -25,6 +25,9 @@
 #include <cstring>
 #include <numeric>
 #include <span>
+#include <stdexcept>
+#include <string>
+#include <utility>
 #include <vector>
 
 namespace fg {
@@ -91,6 +94,70 @@ public:
     const Vec3& slotNormal(std::uint32_t slot) const { return normals_[slot]; }
     Vec3 boundsMin() const { return lo_; }
     Vec3 boundsMax() const { return hi_; }
+    const SplatKdTreeOptions& options() const { return options_; }
+    std::span<const std::uint32_t> ids() const { return ids_; }
+    std::span<const Vec3> slotPositions() const { return positions_; }
+    std::span<const Vec3> slotNormals() const { return normals_; }
+
+    // A tree as saved (buffer codecs), checked so that every query on it stays
+    // inside its arrays: ids a permutation, children after their parents and
+    // inside the node array, the leaves covering the slots once, in order.
+    static SplatKdTree restore(const SplatKdTreeOptions& options, const Vec3& lo, const Vec3& hi,
+                               std::vector<SplatKdNode> nodes, std::vector<std::uint32_t> ids,
+                               std::vector<Vec3> positions, std::vector<Vec3> normals) {
+        const std::size_t n = ids.size();
+        if (positions.size() != n || normals.size() != n)
+            throw std::invalid_argument("SplatKdTree: " + std::to_string(positions.size()) + " positions and " +
+                                        std::to_string(normals.size()) + " normals for " + std::to_string(n) + " ids");
+        std::vector<bool> seen(n, false);
+        for (std::uint32_t id : ids) {
+            if (id >= n || seen[id]) throw std::invalid_argument("SplatKdTree: ids are not a permutation");
+            seen[id] = true;
+        }
+        if (nodes.empty() != (n == 0)) throw std::invalid_argument("SplatKdTree: nodes and vertices disagree");
+        // Depth-first from the root, left before right: leaves must cover 0 .. n-1 in order.
+        std::uint64_t covered = 0;
+        std::vector<std::pair<std::size_t, int>> stack;
+        if (!nodes.empty()) stack.push_back({0, 0});
+        std::size_t visited = 0;
+        while (!stack.empty()) {
+            const auto [i, depth] = stack.back();
+            stack.pop_back();
+            if (i >= nodes.size() || depth > 127 || ++visited > nodes.size())
+                throw std::invalid_argument("SplatKdTree: node " + std::to_string(i) + " outside the tree");
+            const SplatKdNode node = nodes[i];
+            switch (node.kind()) {
+            case SplatKdNode::Empty:
+                break;
+            case SplatKdNode::Leaf:
+                if (node.a != covered) throw std::invalid_argument("SplatKdTree: leaves out of order");
+                covered += node.b >> 2;
+                if (covered > n) throw std::invalid_argument("SplatKdTree: leaf past the vertices");
+                break;
+            case SplatKdNode::Cull:
+                stack.push_back({i + 1, depth + 1});
+                break;
+            case SplatKdNode::Interior: {
+                const std::uint32_t axis = (node.b >> 2) & 3u;
+                const std::uint32_t right = node.b >> 4;
+                if (axis > 2 || right < 2) throw std::invalid_argument("SplatKdTree: corrupt interior node");
+                stack.push_back({i + right, depth + 1});
+                stack.push_back({i + 1, depth + 1});
+                break;
+            }
+            }
+        }
+        if (covered != n) throw std::invalid_argument("SplatKdTree: leaves do not cover the vertices");
+        SplatKdTree tree;
+        tree.options_ = options;
+        tree.lo_ = lo;
+        tree.hi_ = hi;
+        tree.nodes_ = std::move(nodes);
+        tree.ids_ = std::move(ids);
+        tree.positions_ = std::move(positions);
+        tree.normals_ = std::move(normals);
+        return tree;
+    }
 
     static Vec3 decodeNormal(std::uint32_t packed) {
         const float u = static_cast<float>(packed & 0xffffu) / 65535.0f * 2.0f - 1.0f;

@@ -9,6 +9,7 @@
 #include "engine/buffers/beam_buffers.h"
 #include "engine/buffers/film_noise.h"
 #include "engine/buffers/photon_buffers.h"
+#include "engine/buffers/photon_ray_buffers.h"
 #include "engine/core/codec.h"
 #include "engine/image/film.h"
 
@@ -245,6 +246,9 @@ std::vector<BufferCodec> builtinCodecs() {
     codecs.push_back(eyeSegmentsCodec());
     codecs.push_back(pointIndexCodec());
     codecs.push_back(photonBvhCodec());
+    codecs.push_back(photonRaysCodec());
+    codecs.push_back(splatIndexCodec());
+    codecs.push_back(radianceMapCodec());
     return codecs;
 }
 

@@ -5,6 +5,7 @@
 #pragma once
 
 #include "engine/accel/splat_kdtree.h"
+#include "engine/core/codec.h"
 #include "engine/core/math.h"
 #include "engine/core/pass.h"
 #include "engine/core/soa.h"
@@ -102,5 +103,10 @@ template <>
 struct BufferTypeName<SplatIndex> {
     static constexpr const char* value = "SplatIndex";
 };
+
+// Codecs for --save / --import (engine/buffers/photon_ray_codecs.cpp).
+BufferCodec photonRaysCodec();
+BufferCodec splatIndexCodec();
+BufferCodec radianceMapCodec();
 
 }  // namespace fg
