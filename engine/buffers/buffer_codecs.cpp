@@ -9,6 +9,7 @@
 #include "engine/buffers/beam_buffers.h"
 #include "engine/buffers/film_noise.h"
 #include "engine/buffers/photon_buffers.h"
+#include "engine/buffers/photon_ray_buffers.h"
 #include "engine/core/codec.h"
 #include "engine/guiding/guiding_cache.h"
 #include "engine/image/film.h"
@@ -304,6 +305,9 @@ std::vector<BufferCodec> builtinCodecs() {
     codecs.push_back(pointIndexCodec());
     codecs.push_back(photonBvhCodec());
     codecs.push_back(guidingCacheCodec());
+    codecs.push_back(photonRaysCodec());
+    codecs.push_back(splatIndexCodec());
+    codecs.push_back(radianceMapCodec());
     return codecs;
 }
 

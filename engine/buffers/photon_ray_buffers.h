@@ -5,6 +5,7 @@
 #pragma once
 
 #include "engine/accel/splat_kdtree.h"
+#include "engine/core/codec.h"
 #include "engine/core/math.h"
 #include "engine/core/pass.h"
 #include "engine/core/soa.h"
@@ -56,6 +57,41 @@ struct BufferTypeName<PhotonRays> {
     static constexpr const char* value = "PhotonRays";
 };
 
+// The radiance map of §5/§8.1 for the glossy eye vertices: per vertex the
+// spherical-harmonic coefficients (order 3, world frame, cos θ folded in;
+// passes/prs/sh_radiance.h) of the light the photon rays splatted onto it,
+// one Rgb column per coefficient, and the sum of the kernel weights.
+FG_SOA_COLUMN(MapVertex, std::uint32_t, "vertex");  // index into the eye vertices
+FG_SOA_COLUMN(MapSh0, Rgb, "sh0");
+FG_SOA_COLUMN(MapSh1, Rgb, "sh1");
+FG_SOA_COLUMN(MapSh2, Rgb, "sh2");
+FG_SOA_COLUMN(MapSh3, Rgb, "sh3");
+FG_SOA_COLUMN(MapSh4, Rgb, "sh4");
+FG_SOA_COLUMN(MapSh5, Rgb, "sh5");
+FG_SOA_COLUMN(MapSh6, Rgb, "sh6");
+FG_SOA_COLUMN(MapSh7, Rgb, "sh7");
+FG_SOA_COLUMN(MapSh8, Rgb, "sh8");
+FG_SOA_COLUMN(MapSh9, Rgb, "sh9");
+FG_SOA_COLUMN(MapSh10, Rgb, "sh10");
+FG_SOA_COLUMN(MapSh11, Rgb, "sh11");
+FG_SOA_COLUMN(MapSh12, Rgb, "sh12");
+FG_SOA_COLUMN(MapSh13, Rgb, "sh13");
+FG_SOA_COLUMN(MapSh14, Rgb, "sh14");
+FG_SOA_COLUMN(MapSh15, Rgb, "sh15");
+FG_SOA_COLUMN(MapWeightSum, float, "weight_sum");  // sum of K_R(d_perp) |cos theta| over the splats
+
+using RadianceMapBuffer = SoaBuffer<MapVertex, MapSh0, MapSh1, MapSh2, MapSh3, MapSh4, MapSh5, MapSh6, MapSh7, MapSh8,
+                                    MapSh9, MapSh10, MapSh11, MapSh12, MapSh13, MapSh14, MapSh15, MapWeightSum>;
+
+struct RadianceMap {
+    RadianceMapBuffer vertices;
+    std::size_t bytes() const { return vertices.bytes(); }
+};
+template <>
+struct BufferTypeName<RadianceMap> {
+    static constexpr const char* value = "RadianceMap";
+};
+
 // The splat kd-tree over the eye vertices (§7.1), in the eye buffer's index space.
 struct SplatIndex {
     SplatKdTree tree;
@@ -67,5 +103,10 @@ template <>
 struct BufferTypeName<SplatIndex> {
     static constexpr const char* value = "SplatIndex";
 };
+
+// Codecs for --save / --import (engine/buffers/photon_ray_codecs.cpp).
+BufferCodec photonRaysCodec();
+BufferCodec splatIndexCodec();
+BufferCodec radianceMapCodec();
 
 }  // namespace fg

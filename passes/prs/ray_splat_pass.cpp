@@ -5,13 +5,17 @@
 // frustum ray_bandwidth gave it (§6), adds f_s Phi |cos theta_x| K_R(d_perp)
 // to the pixel of every feasible eye vertex near it. f_s is evaluated at the
 // vertex directly (Eq. 6): a Lambertian vertex's f_s is one constant, so its
-// light goes straight to the film; glossy vertices are evaluated per ray
-// here, where §8.1 would project into a radiance map first (not built).
+// light goes straight to the film. Glossy vertices are either evaluated per
+// ray here (`glossy = "direct"`) or, as §5 and §8.1 do, get the rays'
+// light projected onto spherical harmonics in a radiance map
+// (`glossy = "sh_map"`, passes/prs/sh_radiance.h) that radiance_integrate
+// turns into radiance.
 // Rays are splatted in fixed blocks into per-block films merged in block
 // order, so the image is the same for any thread count.
 #include "passes/passes.h"
 #include "passes/caustics/photon_estimate.h"
 #include "passes/prs/ray_splat.h"
+#include "passes/prs/sh_radiance.h"
 
 #include "engine/buffers/photon_buffers.h"
 #include "engine/buffers/photon_ray_buffers.h"
@@ -21,7 +25,11 @@
 #include "jobs/parallel.h"
 
 #include <algorithm>
+#include <array>
 #include <optional>
+#include <span>
+#include <tuple>
+#include <utility>
 #include <vector>
 
 namespace fg {
@@ -33,6 +41,8 @@ constexpr std::size_t kAccumulatorBudget = std::size_t{256} << 20;
 
 struct BlockFilm {
     std::vector<Rgb> pixels;
+    std::vector<sh::Coefficients<Rgb>> map;  // per glossy vertex (glossy = "sh_map")
+    std::vector<float> mapWeights;
     std::int64_t deposits = 0;
     std::int64_t candidates = 0;
     std::int64_t splatted = 0;
@@ -51,12 +61,14 @@ public:
                                                                                   : SplatEndCap::TangentPlane;
         const bool withDirect = ctx.params().getString("classes") == "all";
         const bool useCullNodes = ctx.params().getBool("cull_nodes");
+        const bool shMap = ctx.params().getString("glossy") == "sh_map";
 
         Film& image = ctx.createOutput<Film>("radiance", ctx.filmSettings());
         const std::size_t pixelCount = image.pixelCount();
         for (std::uint32_t pixel : eye.column<EyePixel>())
             if (pixel >= pixelCount) throw std::logic_error("ray_splat: eye vertex outside the film");
-        prepareTargets(scene, eye, index.tree);
+        prepareTargets(scene, eye, index.tree, shMap);
+        const std::size_t glossyCount = glossyVertices_.size();
 
         const PhotonRayBuffer& rays = photonRays.rays;
         const auto origin = rays.column<RayOrigin>();
@@ -69,26 +81,46 @@ public:
         const auto originNormal = rays.column<RayOriginNormal>();
         const auto endNormal = rays.column<RayEndNormal>();
 
-        const std::size_t blockBytes = std::max<std::size_t>(1, pixelCount * sizeof(Rgb));
+        const std::size_t blockBytes = std::max<std::size_t>(
+            1, pixelCount * sizeof(Rgb) + glossyCount * (sizeof(sh::Coefficients<Rgb>) + sizeof(float)));
         std::vector<BlockFilm> blocks(std::clamp<std::size_t>(kAccumulatorBudget / blockBytes, 1, 64));
         jobs::parallelForBlocks(rays.size(), blocks.size(), [&](std::size_t b, jobs::IndexRange range) {
             BlockFilm& acc = blocks[b];
             acc.pixels.assign(pixelCount, Rgb(0.0f));
+            if (glossyCount > 0) {
+                sh::Coefficients<Rgb> zero;
+                zero.fill(Rgb(0.0f));
+                acc.map.assign(glossyCount, zero);
+                acc.mapWeights.assign(glossyCount, 0.0f);
+            }
             for (std::size_t r = range.begin; r != range.end; ++r) {
                 if (rayClass[r] == PhotonRayClass::Direct && !withDirect) continue;
                 const SplatRay ray{origin[r], direction[r], h0[r], dh[r], length[r], originNormal[r], endNormal[r]};
                 if (!(ray.h0 > 0.0f || ray.dh > 0.0f)) continue;
                 ++acc.splatted;
                 const Vec3 incident = -ray.direction;
+                const SplatFrustum frustum(ray, cap);
                 index.tree.forEachCandidate(
                     splatCone(ray, cap),
                     [&](std::uint32_t slot) {
                         ++acc.candidates;
-                        const float weight =
-                            splatWeight(ray, cap, index.tree.slotPosition(slot), index.tree.slotNormal(slot));
+                        const float weight = frustum.weight(index.tree.slotPosition(slot), index.tree.slotNormal(slot));
                         if (!(weight > 0.0f)) return;
                         const Target& target = targets_[slot];
                         Rgb f;
+                        if (target.glossy != kNotGlossy) {
+                            // Shading normals must not let light through the geometric surface.
+                            if (!(glm::dot(incident, target.geometricNormal) > 0.0f)) return;
+                            const Rgb value = power[r] * weight;
+                            if (!isFinite(value)) return;
+                            float y[sh::kCoefficients];
+                            sh::evaluate(incident, y);
+                            sh::Coefficients<Rgb>& c = acc.map[target.glossy];
+                            for (int k = 0; k < sh::kCoefficients; ++k) c[static_cast<std::size_t>(k)] += value * y[k];
+                            acc.mapWeights[target.glossy] += weight;
+                            ++acc.deposits;
+                            return;
+                        }
                         if (target.lambertian) {
                             if (!(glm::dot(incident, target.geometricNormal) > 0.0f)) return;
                             f = target.weight;
@@ -105,14 +137,25 @@ public:
             }
         });
         std::vector<Rgb> total(pixelCount, Rgb(0.0f));
+        RadianceMap& map = ctx.createOutput<RadianceMap>("radiance_map");
+        map.vertices.resize(glossyCount);
+        std::vector<sh::Coefficients<Rgb>> mapTotal(glossyCount);
+        for (sh::Coefficients<Rgb>& c : mapTotal) c.fill(Rgb(0.0f));
+        std::vector<float> weightTotal(glossyCount, 0.0f);
         std::int64_t deposits = 0, candidates = 0, splatted = 0;
         for (const BlockFilm& block : blocks) {
             for (std::size_t i = 0; i < block.pixels.size(); ++i) total[i] += block.pixels[i];
+            for (std::size_t g = 0; g < block.map.size(); ++g) {
+                for (int k = 0; k < sh::kCoefficients; ++k)
+                    mapTotal[g][static_cast<std::size_t>(k)] += block.map[g][static_cast<std::size_t>(k)];
+                weightTotal[g] += block.mapWeights[g];
+            }
             deposits += block.deposits;
             candidates += block.candidates;
             splatted += block.splatted;
         }
         image.addToPixels(total, 1.0f);
+        storeMap(map.vertices, mapTotal, weightTotal, std::make_index_sequence<sh::kCoefficients>{});
         ctx.addItems(static_cast<std::int64_t>(rays.size()));
         ctx.addCounter("splatted_rays", splatted);
         ctx.addCounter("vertex_candidates", candidates);
@@ -121,16 +164,34 @@ public:
 
 private:
     // What a deposit needs of its eye vertex, in tree order. At a Lambertian
-    // vertex f_s times the throughput is one constant (rho / pi) T.
+    // vertex f_s times the throughput is one constant (rho / pi) T:
+    // Bsdf::constantReflectance is f_r itself, rho / pi already.
+    static constexpr std::uint32_t kNotGlossy = ~std::uint32_t(0);
     struct Target {
         Vec3 geometricNormal{0.0f};
         Rgb weight{0.0f};
         std::uint32_t pixel = 0;
         std::uint32_t vertex = 0;
+        std::uint32_t glossy = kNotGlossy;  // index into the radiance map (glossy = "sh_map")
         bool lambertian = false;
     };
 
-    void prepareTargets(const Scene& scene, const EyeVertexBuffer::View& eye, const SplatKdTree& tree) {
+    template <std::size_t... K>
+    void storeMap(RadianceMapBuffer& out, const std::vector<sh::Coefficients<Rgb>>& coefficients,
+                  const std::vector<float>& weights, std::index_sequence<K...>) const {
+        using Tags = std::tuple<MapSh0, MapSh1, MapSh2, MapSh3, MapSh4, MapSh5, MapSh6, MapSh7, MapSh8, MapSh9, MapSh10,
+                                MapSh11, MapSh12, MapSh13, MapSh14, MapSh15>;
+        const std::array<std::span<Rgb>, sh::kCoefficients> columns = {out.column<std::tuple_element_t<K, Tags>>()...};
+        const auto vertex = out.column<MapVertex>();
+        const auto weightSum = out.column<MapWeightSum>();
+        for (std::size_t g = 0; g < glossyVertices_.size(); ++g) {
+            vertex[g] = glossyVertices_[g];
+            weightSum[g] = weights[g];
+            for (std::size_t k = 0; k < sh::kCoefficients; ++k) columns[k][g] = coefficients[g][k];
+        }
+    }
+
+    void prepareTargets(const Scene& scene, const EyeVertexBuffer::View& eye, const SplatKdTree& tree, bool shMap) {
         targets_.assign(eye.size(), Target{});
         jobs::parallelFor(eye.size(), 4096, [&](std::size_t slot) {
             Target& t = targets_[slot];
@@ -145,11 +206,20 @@ private:
             t.lambertian = true;
             // Seen from below its shading normal, a Lambertian surface reflects nothing.
             if (glm::dot(vertex.get<EyeOutgoing>(), vertex.get<EyeNormal>()) > 0.0f)
-                t.weight = kInvPi * *reflectance * vertex.get<EyeThroughput>();
+                t.weight = *reflectance * vertex.get<EyeThroughput>();
         });
+        // Map entries in tree order, numbered serially: the same for any thread count.
+        glossyVertices_.clear();
+        if (!shMap) return;
+        for (Target& t : targets_) {
+            if (t.lambertian) continue;
+            t.glossy = static_cast<std::uint32_t>(glossyVertices_.size());
+            glossyVertices_.push_back(t.vertex);
+        }
     }
 
     std::vector<Target> targets_;
+    std::vector<std::uint32_t> glossyVertices_;
 };
 
 }  // namespace
@@ -164,7 +234,12 @@ PassRegistration raySplatPass() {
         {"splat_index", "SplatIndex", "splat kd-tree over eye_vertices"},
         {"splat_rays", "PhotonRays", "photon rays with bandwidths (ray_bandwidth)"},
     };
-    spec.outputs = {{"radiance", "Film", "the splatted indirect light alone (a film from black)"}};
+    spec.outputs = {
+        {"radiance", "Film", "the splatted indirect light alone (a film from black); glossy vertices only with glossy = direct"},
+        {"radiance_map", "RadianceMap",
+         "glossy = sh_map: per glossy eye vertex the SH coefficients (order 3, world frame, cos folded in) of the splatted "
+         "light; empty otherwise"},
+    };
     spec.params = {
         {"end_cap", ParamType::String, std::string("tangent_plane"), 0, 0, {"tangent_plane", "hemisphere"},
          "footprint beyond the hit point: the paper's hemisphere (biased at oblique incidence) or the cylinder "
@@ -172,6 +247,9 @@ PassRegistration raySplatPass() {
         {"classes", ParamType::String, std::string("indirect"), 0, 0, {"indirect", "all"},
          "which rays splat: indirect (caustic and global; the eye pass has the direct light) or all"},
         {"cull_nodes", ParamType::Bool, true, 0, 0, {}, "use the index's backface-culling nodes"},
+        {"glossy", ParamType::String, std::string("direct"), 0, 0, {"direct", "sh_map"},
+         "glossy vertices: f_s evaluated per ray (Eq. 6) into the film, or projected into the SH radiance map for "
+         "radiance_integrate (§8.1)"},
     };
     const auto preflight = [](const PreflightContext& pf) {
         if (!pf.scene.media.empty())

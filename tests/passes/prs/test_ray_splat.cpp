@@ -96,6 +96,32 @@ TEST(PrsPointLightOverPlane, IrradianceFollowsInverseSquareCosine) {
     }
 }
 
+// The hit is rebuilt as origin + length * direction; the photon pass traced
+// from an origin offset by kRayEpsilon (1 + max |p|), so at Cornell-box
+// coordinates (hundreds of mm) the rebuilt hit may sit 0.01-0.05 mm off its
+// plane, in front of it. Vertices on the plane beyond the hit stay feasible
+// (a tolerance of 1e-4 R dropped them: the floor under the light lost 45 %).
+TEST(PrsTangentPlaneCap, RebuiltHitOffItsPlaneKeepsTheFarFootprint) {
+    const Vec3 hit(400.0f, 300.0f, 0.0f);
+    const Vec3 direction = glm::normalize(Vec3(0.3f, 0.0f, -1.0f));
+    for (float off : {0.0f, 0.01f, 0.05f}) {
+        SplatRay ray;
+        ray.length = 548.0f;
+        ray.origin = hit + Vec3(0.0f, 0.0f, off) - ray.length * direction;
+        ray.direction = direction;
+        ray.h0 = 5.0f;
+        ray.dh = 0.0f;
+        ray.endNormal = Vec3(0, 0, 1);
+        // On the plane, beyond the hit along the tilt, inside the footprint's ellipse.
+        const Vec3 beyond = hit + Vec3(3.0f, 0.0f, 0.0f);
+        const Vec3 before = hit - Vec3(3.0f, 0.0f, 0.0f);
+        EXPECT_GT(splatWeight(ray, SplatEndCap::TangentPlane, beyond, Vec3(0, 0, 1)), 0.0f) << "offset " << off;
+        EXPECT_GT(splatWeight(ray, SplatEndCap::TangentPlane, before, Vec3(0, 0, 1)), 0.0f) << "offset " << off;
+        // A surface 1 mm behind the plane stays cut off.
+        EXPECT_EQ(splatWeight(ray, SplatEndCap::TangentPlane, beyond - Vec3(0.0f, 0.0f, 1.0f), Vec3(0, 0, 1)), 0.0f);
+    }
+}
+
 TEST(PrsPipeline, SameImageOnOneAndTwoThreads) {
     const Scene scene = loadScene((std::filesystem::path(FLUXGRAPH_SOURCE_DIR) / "data/cornell-box/cornell-box.xml").string());
     FilmSettings film;

@@ -1,0 +1,104 @@
+// Codecs of photon ray splatting's buffers (Herzog et al. 2007): photon rays
+// with their bandwidths, the splat kd-tree over the eye vertices and the SH
+// radiance map, so that `render --save` writes them and `--import` /
+// `replay --inputs` read them back. Scalars before arrays, as every codec in
+// engine/buffers/buffer_codecs.cpp; the kd-tree is saved as built and checked
+// structurally on loading (SplatKdTree::restore), never rebuilt, so a loaded
+// index visits the same vertices in the same order as the saved one.
+#include "engine/buffers/photon_ray_buffers.h"
+
+#include <utility>
+#include <vector>
+
+namespace fg {
+
+namespace {
+
+template <class T, class Write, class Read>
+BufferCodec codecOf(Write write, Read read) {
+    BufferCodec codec;
+    codec.type = BufferTypeName<T>::value;
+    codec.write = [write](const void* buffer, CodecWriter& writer) { write(*static_cast<const T*>(buffer), writer); };
+    codec.read = [read](CodecReader& reader) { return makeBufferHandle<T>(read(reader)); };
+    return codec;
+}
+
+}  // namespace
+
+BufferCodec photonRaysCodec() {
+    return codecOf<PhotonRays>(
+        [](const PhotonRays& rays, CodecWriter& writer) {
+            writer.setItemCount(rays.rays.size());
+            writer.write<std::uint64_t>(rays.emitted);
+            writer.write<float>(rays.clampDistance);
+            for (std::uint64_t count : rays.countPerClass) writer.write<std::uint64_t>(count);
+            writer.write<double>(rays.normalisation);
+            writer.write<double>(rays.sceneScale);
+            writer.write(rays.hasBandwidths);
+            writer.writeSoa("rays", rays.rays);
+        },
+        [](CodecReader& reader) {
+            PhotonRays rays;
+            rays.emitted = reader.read<std::uint64_t>();
+            rays.clampDistance = reader.read<float>();
+            for (std::uint64_t& count : rays.countPerClass) count = reader.read<std::uint64_t>();
+            rays.normalisation = reader.read<double>();
+            rays.sceneScale = reader.read<double>();
+            rays.hasBandwidths = reader.read<bool>();
+            reader.readSoa("rays", rays.rays);
+            for (std::uint8_t c : rays.rays.column<RayClassColumn>())
+                if (c >= PhotonRayClass::Count) reader.fail("corrupt buffer: photon ray class " + std::to_string(c));
+            return rays;
+        });
+}
+
+BufferCodec splatIndexCodec() {
+    return codecOf<SplatIndex>(
+        [](const SplatIndex& index, CodecWriter& writer) {
+            const SplatKdTree& tree = index.tree;
+            writer.setItemCount(tree.size());
+            writer.write<std::uint32_t>(tree.options().maxLeafSize);
+            writer.write<float>(tree.options().minCellDiagonal);
+            writer.write<float>(tree.options().maxCullDeviationDegrees);
+            for (int a = 0; a < 3; ++a) writer.write<float>(tree.boundsMin()[a]);
+            for (int a = 0; a < 3; ++a) writer.write<float>(tree.boundsMax()[a]);
+            writer.writeVector("nodes", tree.nodes());
+            writer.writeVector("ids", tree.ids());
+            writer.writeVector("positions", tree.slotPositions());
+            writer.writeVector("normals", tree.slotNormals());
+        },
+        [](CodecReader& reader) {
+            SplatKdTreeOptions options;
+            options.maxLeafSize = reader.read<std::uint32_t>();
+            options.minCellDiagonal = reader.read<float>();
+            options.maxCullDeviationDegrees = reader.read<float>();
+            Vec3 lo, hi;
+            for (int a = 0; a < 3; ++a) lo[a] = reader.read<float>();
+            for (int a = 0; a < 3; ++a) hi[a] = reader.read<float>();
+            std::vector<SplatKdNode> nodes = reader.readVector<SplatKdNode>("nodes");
+            std::vector<std::uint32_t> ids = reader.readVector<std::uint32_t>("ids");
+            std::vector<Vec3> positions = reader.readVector<Vec3>("positions");
+            std::vector<Vec3> normals = reader.readVector<Vec3>("normals");
+            // restore() throws std::invalid_argument on arrays that do not fit
+            // together; loadBuffer reports it as a corrupt buffer.
+            SplatIndex index;
+            index.tree = SplatKdTree::restore(options, lo, hi, std::move(nodes), std::move(ids), std::move(positions),
+                                              std::move(normals));
+            return index;
+        });
+}
+
+BufferCodec radianceMapCodec() {
+    return codecOf<RadianceMap>(
+        [](const RadianceMap& map, CodecWriter& writer) {
+            writer.setItemCount(map.vertices.size());
+            writer.writeSoa("vertices", map.vertices);
+        },
+        [](CodecReader& reader) {
+            RadianceMap map;
+            reader.readSoa("vertices", map.vertices);
+            return map;
+        });
+}
+
+}  // namespace fg
