@@ -12,6 +12,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cerrno>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
@@ -51,15 +52,23 @@ std::pair<int, std::string> shell(const std::string& command) {
     return {::pclose(pipe), output};
 }
 
-// The cluster's daemons, stopped when the test ends however it ends.
+// The cluster's daemons, stopped (and their directory removed) when the test
+// ends however it ends. slurmd makes a Unix socket per job step in its spool
+// directory, and a socket path may not exceed 108 bytes, so the cluster lives
+// in a fresh directory under /tmp, not below the build tree, whose path
+// depends on where the checkout is.
 class LocalCluster {
 public:
-    explicit LocalCluster(fs::path directory) : directory_(std::move(directory)) {
+    LocalCluster() : directory_(freshDirectory()) {
         const auto [status, output] = shell(script() + " start " + shellQuote(directory_.string()));
         started_ = status == 0;
         output_ = output;
     }
-    ~LocalCluster() { shell(script() + " stop " + shellQuote(directory_.string())); }
+    ~LocalCluster() {
+        shell(script() + " stop " + shellQuote(directory_.string()));
+        std::error_code ignored;
+        fs::remove_all(directory_, ignored);
+    }
     LocalCluster(const LocalCluster&) = delete;
     LocalCluster& operator=(const LocalCluster&) = delete;
 
@@ -75,6 +84,12 @@ public:
 
 private:
     static std::string script() { return shellQuote(test::sourcePath("tools/slurm_local.sh")); }
+    static fs::path freshDirectory() {
+        char name[] = "/tmp/fluxgraph-slurm-XXXXXX";
+        const char* made = ::mkdtemp(name);
+        EXPECT_NE(made, nullptr) << "cannot create a directory under /tmp: " << std::strerror(errno);
+        return made ? fs::path(made) : fs::temp_directory_path() / "fluxgraph-slurm";
+    }
     fs::path directory_;
     bool started_ = false;
     std::string output_;
@@ -138,7 +153,7 @@ TEST(SlurmCluster, JobArrayMatchesALocalBatch) {
     writePlan(localDir);
     writePlan(clusterDir);
 
-    LocalCluster cluster(dir / "slurm");
+    LocalCluster cluster;
     ASSERT_TRUE(cluster.started()) << "the local SLURM cluster did not start:\n" << cluster.startOutput();
     ::setenv("SLURM_CONF", cluster.configuration().c_str(), 1);
 
