@@ -141,8 +141,8 @@ def normalize(a):
 
 def orthonormal_basis(axis):
     """Two unit vectors perpendicular to the unit vector `axis` and to each other."""
-    helper = (1.0, 0.0, 0.0) if abs(axis[0]) < 0.9 else (0.0, 1.0, 0.0)
-    u = normalize(cross(axis, helper))
+    other_axis = (1.0, 0.0, 0.0) if abs(axis[0]) < 0.9 else (0.0, 1.0, 0.0)
+    u = normalize(cross(axis, other_axis))
     return u, cross(axis, u)
 
 
