@@ -106,9 +106,18 @@ public:
                 ++acc.splatted;
                 const Vec3 incident = -ray.direction;
                 const SplatFrustum frustum(ray, cap);
-                // Every deposit of a ray arrives from the same direction.
-                float y[sh::kCoefficients] = {};
-                if (glossyCount > 0) sh::evaluate(incident, y);
+                // Every deposit of a ray arrives from the same direction, so
+                // Phi Y_lm(incident) is worked out once per ray and a deposit
+                // adds it times its weight: 48 independent multiply-adds the
+                // compiler can vectorise.
+                std::array<float, 3 * sh::kCoefficients> poweredBasis{};
+                if (glossyCount > 0) {
+                    float y[sh::kCoefficients];
+                    sh::evaluate(incident, y);
+                    for (std::size_t k = 0; k < sh::kCoefficients; ++k)
+                        for (int channel = 0; channel < 3; ++channel)
+                            poweredBasis[3 * k + static_cast<std::size_t>(channel)] = power[r][channel] * y[k];
+                }
                 index.tree.forEachCandidate(
                     splatCone(ray, cap),
                     [&](std::uint32_t slot) {
@@ -124,7 +133,11 @@ public:
                             const Rgb value = power[r] * weight;
                             if (!isFinite(value)) return;
                             sh::Coefficients<Rgb>& c = acc.map[target.glossy];
-                            for (int k = 0; k < sh::kCoefficients; ++k) c[static_cast<std::size_t>(k)] += value * y[k];
+                            for (std::size_t k = 0; k < sh::kCoefficients; ++k) {
+                                c[k].x += weight * poweredBasis[3 * k];
+                                c[k].y += weight * poweredBasis[3 * k + 1];
+                                c[k].z += weight * poweredBasis[3 * k + 2];
+                            }
                             acc.mapWeights[target.glossy] += weight;
                             // Feasible vertices lie in front of the origin's surface, so the distance is positive.
                             const float distance = glm::length(position - ray.origin);
