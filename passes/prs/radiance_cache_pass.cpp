@@ -94,6 +94,7 @@ public:
             }
             const double harmonicMean = inverseDistances > 0.0 ? weights / inverseDistances : maxRadius;
             sample.radius = std::min(static_cast<float>(harmonicMean), maxRadius);
+            sample.coefficients.fill(Rgb(0.0f));
             int used = 0;
             for (std::size_t i = begin; i < end; ++i) {
                 const std::uint32_t v = vertexOf[entries[i]];
@@ -138,7 +139,8 @@ public:
                 for (std::size_t i = pixelStart[pixel]; i < pixelStart[pixel + 1]; ++i) {
                     const std::uint32_t g = entries[i];
                     const std::uint32_t v = vertexOf[g];
-                    CacheCoefficientArray sum{};
+                    CacheCoefficientArray sum;
+                    sum.fill(Rgb(0.0f));
                     float weightTotal = 0.0f;
                     for (std::uint32_t k : rowRecords[row]) {
                         if (!placement.windows[k].contains(x, y)) continue;
