@@ -33,6 +33,7 @@ PassRegistration splatIndexPass();
 PassRegistration raySplatPass();
 PassRegistration cacheUpdatePass();
 PassRegistration radianceIntegratePass();
+PassRegistration radianceCachePass();
 
 // The passes and the pipelines of passes/pipelines/*.toml.
 const Registry& builtinRegistry();

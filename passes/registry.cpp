@@ -18,7 +18,7 @@ const Registry& builtinRegistry() {
             volumeEyePass(),   photonRadiusPass(), photonBvhPass(), beamQueryPass(), lightTracePass(),
             emStatsPass(),     emFitPass(),  pemFitPass(),       gmmPyramidPass(),   gmmBbhPass(),   gmmRenderPass(),
             filmNoisePass(),   compositePass(),
-            rayBandwidthPass(), splatIndexPass(), raySplatPass(), radianceIntegratePass(),
+            rayBandwidthPass(), splatIndexPass(), raySplatPass(), radianceIntegratePass(), radianceCachePass(),
             cacheUpdatePass(),
             bdptPass(),
         };

@@ -10,6 +10,7 @@
 #include "engine/buffers/film_noise.h"
 #include "engine/buffers/photon_buffers.h"
 #include "engine/buffers/photon_ray_buffers.h"
+#include "engine/buffers/radiance_cache_buffers.h"
 #include "engine/core/codec.h"
 #include "engine/guiding/guiding_cache.h"
 #include "engine/image/film.h"
@@ -308,6 +309,7 @@ std::vector<BufferCodec> builtinCodecs() {
     codecs.push_back(photonRaysCodec());
     codecs.push_back(splatIndexCodec());
     codecs.push_back(radianceMapCodec());
+    codecs.push_back(cacheRecordsCodec());
     return codecs;
 }
 

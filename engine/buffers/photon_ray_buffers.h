@@ -12,6 +12,8 @@
 
 #include <array>
 #include <cstdint>
+#include <tuple>
+#include <utility>
 
 namespace fg {
 
@@ -60,7 +62,11 @@ struct BufferTypeName<PhotonRays> {
 // The radiance map of §5/§8.1 for the glossy eye vertices: per vertex the
 // spherical-harmonic coefficients (order 3, world frame, cos θ folded in;
 // passes/prs/sh_radiance.h) of the light the photon rays splatted onto it,
-// one Rgb column per coefficient, and the sum of the kernel weights.
+// one Rgb column per coefficient, the sum of the kernel weights and the sum of
+// the kernel weights over the distance to each ray's origin x_i, so that
+// weight_sum / inverse_distance_sum is the kernel-weighted harmonic mean
+// distance of the light's sources (Ward et al. 1988; §3 and §8.3 size the
+// radiance cache records by it).
 FG_SOA_COLUMN(MapVertex, std::uint32_t, "vertex");  // index into the eye vertices
 FG_SOA_COLUMN(MapSh0, Rgb, "sh0");
 FG_SOA_COLUMN(MapSh1, Rgb, "sh1");
@@ -79,9 +85,22 @@ FG_SOA_COLUMN(MapSh13, Rgb, "sh13");
 FG_SOA_COLUMN(MapSh14, Rgb, "sh14");
 FG_SOA_COLUMN(MapSh15, Rgb, "sh15");
 FG_SOA_COLUMN(MapWeightSum, float, "weight_sum");  // sum of K_R(d_perp) |cos theta| over the splats
+FG_SOA_COLUMN(MapInverseDistanceSum, float, "inverse_distance_sum");  // sum of K_R |cos theta| / |x - x_i|
 
 using RadianceMapBuffer = SoaBuffer<MapVertex, MapSh0, MapSh1, MapSh2, MapSh3, MapSh4, MapSh5, MapSh6, MapSh7, MapSh8,
-                                    MapSh9, MapSh10, MapSh11, MapSh12, MapSh13, MapSh14, MapSh15, MapWeightSum>;
+                                    MapSh9, MapSh10, MapSh11, MapSh12, MapSh13, MapSh14, MapSh15, MapWeightSum,
+                                    MapInverseDistanceSum>;
+
+// The 16 coefficient columns of a radiance map, indexed like sh::Coefficients.
+template <class Buffer>
+auto radianceMapShColumns(Buffer& map) {
+    return [&map]<std::size_t... K>(std::index_sequence<K...>) {
+        using Tags = std::tuple<MapSh0, MapSh1, MapSh2, MapSh3, MapSh4, MapSh5, MapSh6, MapSh7, MapSh8, MapSh9, MapSh10,
+                                MapSh11, MapSh12, MapSh13, MapSh14, MapSh15>;
+        using Span = decltype(map.template column<MapSh0>());
+        return std::array<Span, 16>{map.template column<std::tuple_element_t<K, Tags>>()...};
+    }(std::make_index_sequence<16>{});
+}
 
 struct RadianceMap {
     RadianceMapBuffer vertices;

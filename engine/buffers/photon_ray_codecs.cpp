@@ -6,6 +6,7 @@
 // structurally on loading (SplatKdTree::restore), never rebuilt, so a loaded
 // index visits the same vertices in the same order as the saved one.
 #include "engine/buffers/photon_ray_buffers.h"
+#include "engine/buffers/radiance_cache_buffers.h"
 
 #include <utility>
 #include <vector>
@@ -98,6 +99,32 @@ BufferCodec radianceMapCodec() {
             RadianceMap map;
             reader.readSoa("vertices", map.vertices);
             return map;
+        });
+}
+
+// The records' layout has changed before and may again: files name the
+// version they were written with, and others are refused rather than misread.
+inline constexpr std::uint32_t kCacheRecordsCodecVersion = 1;
+
+BufferCodec cacheRecordsCodec() {
+    return codecOf<CacheRecords>(
+        [](const CacheRecords& cache, CodecWriter& writer) {
+            writer.setItemCount(cache.records.size());
+            writer.write<std::uint32_t>(kCacheRecordsCodecVersion);
+            writer.write<float>(cache.error);
+            writer.writeSoa("records", cache.records);
+        },
+        [](CodecReader& reader) {
+            const auto version = reader.read<std::uint32_t>();
+            if (version != kCacheRecordsCodecVersion)
+                reader.fail("cache records of codec version " + std::to_string(version) + " (this build reads version " +
+                            std::to_string(kCacheRecordsCodecVersion) + ")");
+            CacheRecords cache;
+            cache.error = reader.read<float>();
+            reader.readSoa("records", cache.records);
+            for (float radius : cache.records.column<CacheRadius>())
+                if (!(radius > 0.0f)) reader.fail("corrupt buffer: cache record radius " + std::to_string(radius));
+            return cache;
         });
 }
 

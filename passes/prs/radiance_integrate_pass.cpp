@@ -9,6 +9,10 @@
 // (Lambertian vertices went there directly). One table per material, built
 // at the material's uv (0, 0): a glossy material whose specular reflectance
 // is textured would need a table per texel and is integrated as if untextured.
+// Lambertian vertices in the map (ray_splat lambertian = "sh_map", for the
+// radiance cache of §8.3) need no table: as §8.1 says, one coefficient is
+// enough, L_o = f_r ∫ E = f_r c_00 2√π, exact where the table's product with
+// the truncated expansion is not, and with the vertex's own (textured) f_r.
 // Tables are built in material order and vertices summed into pixels in map
 // order, so the film does not depend on the thread count.
 #include "passes/passes.h"
@@ -22,6 +26,7 @@
 
 #include <algorithm>
 #include <map>
+#include <optional>
 #include <span>
 #include <tuple>
 #include <utility>
@@ -30,14 +35,6 @@
 namespace fg {
 
 namespace {
-
-using ShTags = std::tuple<MapSh0, MapSh1, MapSh2, MapSh3, MapSh4, MapSh5, MapSh6, MapSh7, MapSh8, MapSh9, MapSh10,
-                          MapSh11, MapSh12, MapSh13, MapSh14, MapSh15>;
-
-template <std::size_t... K>
-std::array<std::span<const Rgb>, sh::kCoefficients> shColumns(const RadianceMapBuffer& map, std::index_sequence<K...>) {
-    return {map.column<std::tuple_element_t<K, ShTags>>()...};
-}
 
 class RadianceIntegratePass final : public Pass {
 public:
@@ -52,14 +49,15 @@ public:
         if (total.size() != pixelCount) throw std::logic_error("radiance_integrate: the splatted film has another size");
 
         const auto vertexOf = map.vertices.column<MapVertex>();
-        const auto columns = shColumns(map.vertices, std::make_index_sequence<sh::kCoefficients>{});
+        const auto columns = radianceMapShColumns(map.vertices);
         const auto bsdfOf = eye.column<EyeBsdf>();
         for (std::uint32_t v : vertexOf)
             if (v >= eye.size()) throw std::logic_error("radiance_integrate: map vertex outside the eye vertices");
 
         // One table per material the map refers to, in material order.
         std::vector<std::uint32_t> materials;
-        for (std::uint32_t v : vertexOf) materials.push_back(bsdfOf[v]);
+        for (std::uint32_t v : vertexOf)
+            if (!scene.bsdfs[bsdfOf[v]]->constantReflectance(eye.column<EyeUv>()[v])) materials.push_back(bsdfOf[v]);
         std::sort(materials.begin(), materials.end());
         materials.erase(std::unique(materials.begin(), materials.end()), materials.end());
         std::vector<sh::BrdfTable> tables(materials.size());
@@ -80,6 +78,12 @@ public:
             if (!(frame.cosThetaO > 0.0f)) return;  // seen from below its shading normal
             sh::Coefficients<Rgb> world;
             for (std::size_t k = 0; k < sh::kCoefficients; ++k) world[k] = columns[k][g];
+            const std::optional<Rgb> lambertian = scene.bsdfs[vertex.get<EyeBsdf>()]->constantReflectance(vertex.get<EyeUv>());
+            if (lambertian) {
+                const Rgb value = *lambertian * sh::integral(world) * vertex.get<EyeThroughput>();
+                radiance[g] = isFinite(value) ? value : Rgb(0.0f);
+                return;
+            }
             const sh::Coefficients<Rgb> local = sh::Rotator::instance().rotate(world, frame.x, frame.y, frame.z);
             const Rgb value = tableOf(vertex.get<EyeBsdf>()).integrate(local, frame.cosThetaO) * vertex.get<EyeThroughput>();
             radiance[g] = isFinite(value) ? value : Rgb(0.0f);

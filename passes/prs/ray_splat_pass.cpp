@@ -9,7 +9,10 @@
 // ray here (`glossy = "direct"`) or, as §5 and §8.1 do, get the rays'
 // light projected onto spherical harmonics in a radiance map
 // (`glossy = "sh_map"`, passes/prs/sh_radiance.h) that radiance_integrate
-// turns into radiance.
+// turns into radiance. With `lambertian = "sh_map"` the Lambertian vertices
+// go into the map as well, so that the radiance cache (§8.3) serves every
+// vertex. Each map entry also sums the kernel weights over the distance to
+// the rays' origins: the harmonic mean distance that sizes cache records.
 // Rays are splatted in fixed blocks into per-block films merged in block
 // order, so the image is the same for any thread count.
 #include "passes/passes.h"
@@ -43,6 +46,7 @@ struct BlockFilm {
     std::vector<Rgb> pixels;
     std::vector<sh::Coefficients<Rgb>> map;  // per glossy vertex (glossy = "sh_map")
     std::vector<float> mapWeights;
+    std::vector<float> mapInverseDistances;
     std::int64_t deposits = 0;
     std::int64_t candidates = 0;
     std::int64_t splatted = 0;
@@ -62,12 +66,13 @@ public:
         const bool withDirect = ctx.params().getString("classes") == "all";
         const bool useCullNodes = ctx.params().getBool("cull_nodes");
         const bool shMap = ctx.params().getString("glossy") == "sh_map";
+        const bool lambertianToMap = ctx.params().getString("lambertian") == "sh_map";
 
         Film& image = ctx.createOutput<Film>("radiance", ctx.filmSettings());
         const std::size_t pixelCount = image.pixelCount();
         for (std::uint32_t pixel : eye.column<EyePixel>())
             if (pixel >= pixelCount) throw std::logic_error("ray_splat: eye vertex outside the film");
-        prepareTargets(scene, eye, index.tree, shMap);
+        prepareTargets(scene, eye, index.tree, shMap, lambertianToMap);
         const std::size_t glossyCount = glossyVertices_.size();
 
         const PhotonRayBuffer& rays = photonRays.rays;
@@ -82,7 +87,7 @@ public:
         const auto endNormal = rays.column<RayEndNormal>();
 
         const std::size_t blockBytes = std::max<std::size_t>(
-            1, pixelCount * sizeof(Rgb) + glossyCount * (sizeof(sh::Coefficients<Rgb>) + sizeof(float)));
+            1, pixelCount * sizeof(Rgb) + glossyCount * (sizeof(sh::Coefficients<Rgb>) + 2 * sizeof(float)));
         std::vector<BlockFilm> blocks(std::clamp<std::size_t>(kAccumulatorBudget / blockBytes, 1, 64));
         jobs::parallelForBlocks(rays.size(), blocks.size(), [&](std::size_t b, jobs::IndexRange range) {
             BlockFilm& acc = blocks[b];
@@ -92,6 +97,7 @@ public:
                 zero.fill(Rgb(0.0f));
                 acc.map.assign(glossyCount, zero);
                 acc.mapWeights.assign(glossyCount, 0.0f);
+                acc.mapInverseDistances.assign(glossyCount, 0.0f);
             }
             for (std::size_t r = range.begin; r != range.end; ++r) {
                 if (rayClass[r] == PhotonRayClass::Direct && !withDirect) continue;
@@ -100,11 +106,24 @@ public:
                 ++acc.splatted;
                 const Vec3 incident = -ray.direction;
                 const SplatFrustum frustum(ray, cap);
+                // Every deposit of a ray arrives from the same direction, so
+                // Phi Y_lm(incident) is worked out once per ray and a deposit
+                // adds it times its weight: 48 independent multiply-adds the
+                // compiler can vectorise.
+                std::array<float, 3 * sh::kCoefficients> poweredBasis{};
+                if (glossyCount > 0) {
+                    float y[sh::kCoefficients];
+                    sh::evaluate(incident, y);
+                    for (std::size_t k = 0; k < sh::kCoefficients; ++k)
+                        for (int channel = 0; channel < 3; ++channel)
+                            poweredBasis[3 * k + static_cast<std::size_t>(channel)] = power[r][channel] * y[k];
+                }
                 index.tree.forEachCandidate(
                     splatCone(ray, cap),
                     [&](std::uint32_t slot) {
                         ++acc.candidates;
-                        const float weight = frustum.weight(index.tree.slotPosition(slot), index.tree.slotNormal(slot));
+                        const Vec3& position = index.tree.slotPosition(slot);
+                        const float weight = frustum.weight(position, index.tree.slotNormal(slot));
                         if (!(weight > 0.0f)) return;
                         const Target& target = targets_[slot];
                         Rgb f;
@@ -113,11 +132,16 @@ public:
                             if (!(glm::dot(incident, target.geometricNormal) > 0.0f)) return;
                             const Rgb value = power[r] * weight;
                             if (!isFinite(value)) return;
-                            float y[sh::kCoefficients];
-                            sh::evaluate(incident, y);
                             sh::Coefficients<Rgb>& c = acc.map[target.glossy];
-                            for (int k = 0; k < sh::kCoefficients; ++k) c[static_cast<std::size_t>(k)] += value * y[k];
+                            for (std::size_t k = 0; k < sh::kCoefficients; ++k) {
+                                c[k].x += weight * poweredBasis[3 * k];
+                                c[k].y += weight * poweredBasis[3 * k + 1];
+                                c[k].z += weight * poweredBasis[3 * k + 2];
+                            }
                             acc.mapWeights[target.glossy] += weight;
+                            // Feasible vertices lie in front of the origin's surface, so the distance is positive.
+                            const float distance = glm::length(position - ray.origin);
+                            if (distance > 0.0f) acc.mapInverseDistances[target.glossy] += weight / distance;
                             ++acc.deposits;
                             return;
                         }
@@ -142,6 +166,7 @@ public:
         std::vector<sh::Coefficients<Rgb>> mapTotal(glossyCount);
         for (sh::Coefficients<Rgb>& c : mapTotal) c.fill(Rgb(0.0f));
         std::vector<float> weightTotal(glossyCount, 0.0f);
+        std::vector<float> inverseDistanceTotal(glossyCount, 0.0f);
         std::int64_t deposits = 0, candidates = 0, splatted = 0;
         for (const BlockFilm& block : blocks) {
             for (std::size_t i = 0; i < block.pixels.size(); ++i) total[i] += block.pixels[i];
@@ -149,13 +174,14 @@ public:
                 for (int k = 0; k < sh::kCoefficients; ++k)
                     mapTotal[g][static_cast<std::size_t>(k)] += block.map[g][static_cast<std::size_t>(k)];
                 weightTotal[g] += block.mapWeights[g];
+                inverseDistanceTotal[g] += block.mapInverseDistances[g];
             }
             deposits += block.deposits;
             candidates += block.candidates;
             splatted += block.splatted;
         }
         image.addToPixels(total, 1.0f);
-        storeMap(map.vertices, mapTotal, weightTotal, std::make_index_sequence<sh::kCoefficients>{});
+        storeMap(map.vertices, mapTotal, weightTotal, inverseDistanceTotal);
         ctx.addItems(static_cast<std::int64_t>(rays.size()));
         ctx.addCounter("splatted_rays", splatted);
         ctx.addCounter("vertex_candidates", candidates);
@@ -176,22 +202,22 @@ private:
         bool lambertian = false;
     };
 
-    template <std::size_t... K>
     void storeMap(RadianceMapBuffer& out, const std::vector<sh::Coefficients<Rgb>>& coefficients,
-                  const std::vector<float>& weights, std::index_sequence<K...>) const {
-        using Tags = std::tuple<MapSh0, MapSh1, MapSh2, MapSh3, MapSh4, MapSh5, MapSh6, MapSh7, MapSh8, MapSh9, MapSh10,
-                                MapSh11, MapSh12, MapSh13, MapSh14, MapSh15>;
-        const std::array<std::span<Rgb>, sh::kCoefficients> columns = {out.column<std::tuple_element_t<K, Tags>>()...};
+                  const std::vector<float>& weights, const std::vector<float>& inverseDistances) const {
+        const auto columns = radianceMapShColumns(out);
         const auto vertex = out.column<MapVertex>();
         const auto weightSum = out.column<MapWeightSum>();
+        const auto inverseDistanceSum = out.column<MapInverseDistanceSum>();
         for (std::size_t g = 0; g < glossyVertices_.size(); ++g) {
             vertex[g] = glossyVertices_[g];
             weightSum[g] = weights[g];
+            inverseDistanceSum[g] = inverseDistances[g];
             for (std::size_t k = 0; k < sh::kCoefficients; ++k) columns[k][g] = coefficients[g][k];
         }
     }
 
-    void prepareTargets(const Scene& scene, const EyeVertexBuffer::View& eye, const SplatKdTree& tree, bool shMap) {
+    void prepareTargets(const Scene& scene, const EyeVertexBuffer::View& eye, const SplatKdTree& tree, bool shMap,
+                        bool lambertianToMap) {
         targets_.assign(eye.size(), Target{});
         jobs::parallelFor(eye.size(), 4096, [&](std::size_t slot) {
             Target& t = targets_[slot];
@@ -210,9 +236,9 @@ private:
         });
         // Map entries in tree order, numbered serially: the same for any thread count.
         glossyVertices_.clear();
-        if (!shMap) return;
+        if (!shMap && !lambertianToMap) return;
         for (Target& t : targets_) {
-            if (t.lambertian) continue;
+            if (t.lambertian ? !lambertianToMap : !shMap) continue;
             t.glossy = static_cast<std::uint32_t>(glossyVertices_.size());
             glossyVertices_.push_back(t.vertex);
         }
@@ -237,8 +263,9 @@ PassRegistration raySplatPass() {
     spec.outputs = {
         {"radiance", "Film", "the splatted indirect light alone (a film from black); glossy vertices only with glossy = direct"},
         {"radiance_map", "RadianceMap",
-         "glossy = sh_map: per glossy eye vertex the SH coefficients (order 3, world frame, cos folded in) of the splatted "
-         "light; empty otherwise"},
+         "per mapped eye vertex (glossy ones with glossy = sh_map, Lambertian ones with lambertian = sh_map) the SH "
+         "coefficients (order 3, world frame, cos folded in) of the splatted light, its kernel-weight sum and "
+         "inverse-distance sum"},
     };
     spec.params = {
         {"end_cap", ParamType::String, std::string("tangent_plane"), 0, 0, {"tangent_plane", "hemisphere"},
@@ -250,6 +277,8 @@ PassRegistration raySplatPass() {
         {"glossy", ParamType::String, std::string("direct"), 0, 0, {"direct", "sh_map"},
          "glossy vertices: f_s evaluated per ray (Eq. 6) into the film, or projected into the SH radiance map for "
          "radiance_integrate (§8.1)"},
+        {"lambertian", ParamType::String, std::string("film"), 0, 0, {"film", "sh_map"},
+         "Lambertian vertices: straight into the film, or into the SH radiance map too, for the radiance cache (§8.3)"},
     };
     const auto preflight = [](const PreflightContext& pf) {
         if (!pf.scene.media.empty())

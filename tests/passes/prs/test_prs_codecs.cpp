@@ -2,8 +2,10 @@
 // photon rays, the splat kd-tree and the SH radiance map survive a save and a
 // load byte for byte, the loaded tree answers frustum queries with the same
 // vertices in the same order, and a tree whose arrays do not fit together is
-// refused.
+// refused; so do the radiance cache's records, and records of another codec
+// version are refused.
 #include "engine/buffers/photon_ray_buffers.h"
+#include "engine/buffers/radiance_cache_buffers.h"
 #include "engine/core/error.h"
 
 #include <gtest/gtest.h>
@@ -159,6 +161,37 @@ TEST(PrsCodecs, SplatTreeWhoseArraysDoNotFitIsRefused) {
         EXPECT_THROW(restore(broken, ids), std::invalid_argument);
         break;
     }
+}
+
+TEST(PrsCodecs, CacheRecordsRoundTrip) {
+    auto cache = std::make_shared<CacheRecords>();
+    cache->error = 0.7f;
+    cache->records.resize(3);
+    for (std::size_t k = 0; k < 3; ++k) {
+        CacheCoefficientArray c{};
+        for (std::size_t i = 0; i < c.size(); ++i) c[i] = Rgb(static_cast<float>(k + i), 0.5f, -0.25f * static_cast<float>(i));
+        cache->records.set(k, CacheRecordBuffer::Record(Vec3(static_cast<float>(k), 1.0f, 2.0f), Vec3(0.0f, 0.0f, 1.0f),
+                                                        0.1f + static_cast<float>(k), static_cast<std::uint32_t>(7 * k), c));
+    }
+    const fs::path dir = scratch();
+    const auto loaded = roundTrip(cache, dir);
+    EXPECT_EQ(loaded->error, 0.7f);
+    ASSERT_EQ(loaded->records.size(), 3u);
+    EXPECT_EQ(loaded->records.column<CachePixel>()[2], 14u);
+    EXPECT_EQ(loaded->records.column<CacheCoefficients>()[1][15], cache->records.column<CacheCoefficients>()[1][15]);
+
+    // The codec version is the first scalar of the payload, right after the
+    // header; a file claiming version 2 must be refused, not misread.
+    const fs::path file = dir / "CacheRecords.fgbuf";
+    std::string bytes = readBytes(file);
+    const std::string header = "test\n";
+    const std::size_t payload = bytes.find(header);
+    ASSERT_NE(payload, std::string::npos);
+    const std::size_t version = payload + header.size();
+    ASSERT_EQ(bytes[version], '\x01');
+    bytes[version] = '\x02';
+    std::ofstream(file, std::ios::binary | std::ios::trunc) << bytes;
+    EXPECT_THROW(loadBuffer(file.string(), "CacheRecords", "buffer"), InputError);
 }
 
 }  // namespace

@@ -1,0 +1,151 @@
+// The image-space radiance cache of photon ray splatting (Herzog et al. 2007,
+// §8.3), placed by the multi-pass cache splatting of Gautron et al. 2005,
+// shared by the radiance_cache pass and its tests.
+//
+// Records are taken at pixels and need no gathering: a record's SH
+// coefficients are those the photon rays splatted into the radiance map at
+// the pixel, and its radius R_k is the pixel's kernel-weighted harmonic mean
+// distance to the rays' origins. A record k is used at a point x with normal
+// n where Ward et al.'s (1988) weight
+//   w_k(x) = 1 / (‖x − x_k‖ / R_k + √(1 − n·n_k))
+// exceeds 1/ε, i.e. where the denominator is below ε; within that set
+// ‖x − x_k‖ < ε R_k, so the record's footprint on the image is the
+// projection of the sphere of radius ε R_k around x_k (Gautron et al.'s
+// "cache splatting"). Placement runs in passes over ever finer grids (32, 16
+// and 8 pixels by default): a grid pixel gets a record when fewer than
+// `minRecords` records cover it so far. After the last pass, pixels still
+// covered by fewer are reported. The interpolated coefficients at x are
+//   c(x) = Σ_k w_k(x) c_k / Σ_k w_k(x)
+// over the records valid at x (no gradients), in record order.
+#pragma once
+
+#include "engine/buffers/radiance_cache_buffers.h"
+#include "engine/core/math.h"
+#include "engine/scene/scene.h"
+#include "jobs/parallel.h"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdint>
+#include <vector>
+
+namespace fg {
+
+struct RadianceCacheSettings {
+    float error = 0.7f;  // ε
+    int grid = 32;       // pixel spacing of the first pass; halved in every later pass
+    int passes = 3;
+    int minRecords = 4;
+};
+
+// A record's candidate at one pixel: where it would sit and what it would
+// hold. Pixels without a mapped eye vertex are not valid (no record, never
+// reported).
+struct CachePixelSample {
+    Vec3 position{0.0f};
+    Vec3 normal{0.0f, 0.0f, 1.0f};
+    float radius = 0.0f;
+    CacheCoefficientArray coefficients{};
+    bool valid = false;
+};
+
+// The Ward weight's denominator ‖x − x_k‖ / R_k + √(1 − n·n_k): record k is
+// valid at x where it is below ε, and w_k = 1 / denominator.
+inline float wardDenominator(const Vec3& x, const Vec3& n, const Vec3& recordPosition, const Vec3& recordNormal,
+                             float recordRadius) {
+    return glm::length(x - recordPosition) / recordRadius +
+           std::sqrt(std::max(0.0f, 1.0f - glm::dot(n, recordNormal)));
+}
+
+// At the record's own position the weight is infinite; a floor on the
+// denominator keeps it finite (10^6) so that the average stays defined while
+// the record still dominates it.
+inline float wardWeight(float denominator) { return 1.0f / std::max(denominator, 1e-6f); }
+
+// Pixels [x0, x1) × [y0, y1) a record may be valid in.
+struct PixelWindow {
+    int x0 = 0, y0 = 0, x1 = 0, y1 = 0;
+    bool contains(int x, int y) const { return x >= x0 && x < x1 && y >= y0 && y < y1; }
+};
+
+// The bounding box on the image of the sphere of radius `reach` around
+// `centre`, from the projections of its bounding cube's corners (the image of
+// a convex set lies in the hull of the images of a convex set around it).
+// If a corner is behind the camera the whole image is returned. The camera's
+// width and height must be the film's.
+inline PixelWindow recordWindow(const Camera& camera, const Vec3& centre, float reach) {
+    const PixelWindow whole{0, 0, camera.width, camera.height};
+    Vec2 lo(kInfinity), hi(-kInfinity);
+    for (int corner = 0; corner < 8; ++corner) {
+        const Vec3 p = centre + reach * Vec3(corner & 1 ? 1.0f : -1.0f, corner & 2 ? 1.0f : -1.0f, corner & 4 ? 1.0f : -1.0f);
+        Vec2 raster;
+        if (!camera.project(p, &raster) || !std::isfinite(raster.x) || !std::isfinite(raster.y)) return whole;
+        lo = glm::min(lo, raster);
+        hi = glm::max(hi, raster);
+    }
+    const auto pixelIndex = [](float v, int size) { return static_cast<int>(std::clamp(v, 0.0f, static_cast<float>(size))); };
+    return {pixelIndex(std::floor(lo.x), camera.width), pixelIndex(std::floor(lo.y), camera.height),
+            pixelIndex(std::floor(hi.x) + 1.0f, camera.width), pixelIndex(std::floor(hi.y) + 1.0f, camera.height)};
+}
+
+struct RadianceCachePlacement {
+    std::vector<std::uint32_t> recordPixels;  // in placement order
+    std::vector<PixelWindow> windows;         // per record
+    std::vector<std::size_t> recordsPerPass;
+    std::vector<std::uint32_t> coverage;            // per pixel: records valid at its sample
+    std::vector<std::uint32_t> undercoveredPixels;  // valid pixels with coverage < minRecords, ascending
+};
+
+// Gautron et al.'s multi-pass placement over `samples` (one per pixel of a
+// camera.width × camera.height image, row-major). Records of one pass are
+// chosen from the coverage left by the previous passes, so each pass is
+// independent of the thread count; coverage is updated row by row.
+inline RadianceCachePlacement placeCacheRecords(const std::vector<CachePixelSample>& samples, const Camera& camera,
+                                                const RadianceCacheSettings& settings) {
+    const int width = camera.width, height = camera.height;
+    RadianceCachePlacement placement;
+    placement.coverage.assign(samples.size(), 0);
+    std::vector<bool> hasRecord(samples.size(), false);
+    for (int pass = 0; pass < settings.passes; ++pass) {
+        const int step = std::max(1, settings.grid >> pass);
+        const std::size_t first = placement.recordPixels.size();
+        for (int y = step / 2; y < height; y += step)
+            for (int x = step / 2; x < width; x += step) {
+                const auto pixel = static_cast<std::uint32_t>(y * width + x);
+                if (!samples[pixel].valid || hasRecord[pixel] ||
+                    placement.coverage[pixel] >= static_cast<std::uint32_t>(settings.minRecords))
+                    continue;
+                hasRecord[pixel] = true;
+                placement.recordPixels.push_back(pixel);
+            }
+        const std::size_t last = placement.recordPixels.size();
+        placement.windows.resize(last);
+        jobs::parallelFor(last - first, 64, [&](std::size_t i) {
+            const CachePixelSample& record = samples[placement.recordPixels[first + i]];
+            placement.windows[first + i] = recordWindow(camera, record.position, settings.error * record.radius);
+        });
+        jobs::parallelFor(static_cast<std::size_t>(height), 1, [&](std::size_t row) {
+            const int y = static_cast<int>(row);
+            for (std::size_t k = first; k < last; ++k) {
+                const PixelWindow& window = placement.windows[k];
+                if (y < window.y0 || y >= window.y1) continue;
+                const CachePixelSample& record = samples[placement.recordPixels[k]];
+                for (int x = window.x0; x < window.x1; ++x) {
+                    const std::size_t pixel = row * static_cast<std::size_t>(width) + static_cast<std::size_t>(x);
+                    const CachePixelSample& at = samples[pixel];
+                    if (at.valid && wardDenominator(at.position, at.normal, record.position, record.normal,
+                                                    record.radius) < settings.error)
+                        ++placement.coverage[pixel];
+                }
+            }
+        });
+        placement.recordsPerPass.push_back(last - first);
+    }
+    for (std::size_t pixel = 0; pixel < samples.size(); ++pixel)
+        if (samples[pixel].valid && placement.coverage[pixel] < static_cast<std::uint32_t>(settings.minRecords))
+            placement.undercoveredPixels.push_back(static_cast<std::uint32_t>(pixel));
+    return placement;
+}
+
+}  // namespace fg
