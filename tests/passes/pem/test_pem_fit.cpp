@@ -13,14 +13,11 @@
 #include "engine/scene/scene_loader.h"
 #include "jobs/parallel.h"
 #include "passes/passes.h"
-#include "engine/shading/bsdf.h"
-#include "engine/shading/light.h"
 #include "engine/image/film.h"
-#include "tests/support/airlight.h"
+#include "tests/support/airlight_scene.h"
 #include "tests/support/cli_helpers.h"
 #include "tests/support/pass_helpers.h"
 
-#include <glm/gtc/matrix_transform.hpp>
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -257,48 +254,6 @@ TEST(PemFit, TakesPhotonsOnDemandAndFitsTheSameMixtureAtOneAndTwoThreads) {
     for (int c = 0; c < 3; ++c) EXPECT_NEAR(fixed.power[c], one.power[c], 0.08 * one.power[c]);
 }
 
-// A point light in an infinite grey medium seen against a black wall (the
-// setup of the bre test): single scattering has the closed form of
-// tests/support/airlight.h.
-struct Airlight {
-    float sigmaS = 0.4f, sigmaA = 0.1f, intensity = 10.0f;
-    float wallDistance = 3.0f, h = 0.5f, delta = 1.2f;
-    Scene scene;
-    Airlight() {
-        scene.media.emplace_back(Rgb(sigmaA), Rgb(sigmaS), 0.0f);
-        Shape wall;
-        TriangleMesh plane = makeRectangleMesh();
-        plane.transform(glm::translate(Mat4(1.0f), Vec3(0, 0, -wallDistance)) * glm::scale(Mat4(1.0f), Vec3(10.0f)));
-        wall.geometry = plane;
-        scene.bsdfs.push_back(makeDiffuse(makeConstantTexture(Rgb(0.0f))));
-        wall.bsdf = 0;
-        scene.shapes.push_back(wall);
-        scene.lights.push_back(makePointLight(light(), Rgb(intensity)));
-        scene.lightShape.push_back(-1);
-        scene.camera.eye = Vec3(0.0f);
-        scene.camera.target = Vec3(0, 0, -1);
-        scene.camera.fovYDegrees = 30.0f;
-        scene.camera.medium = 0;
-        scene.finalize();
-    }
-    Vec3 light() const { return Vec3(h, 0.0f, -delta); }
-    double expected(int x, int y, int size) const {
-        Camera cam = scene.camera;
-        cam.width = cam.height = size;
-        double sum = 0.0;
-        for (int sy = 0; sy < 4; ++sy) {
-            for (int sx = 0; sx < 4; ++sx) {
-                const Ray ray = cam.generateRay(Vec2(x + (sx + 0.5f) / 4.0f, y + (sy + 0.5f) / 4.0f));
-                const Vec3 d = glm::normalize(ray.direction);
-                const double foot = glm::dot(light(), d);
-                const double perp = glm::length(light() - static_cast<float>(foot) * d);
-                sum += test::airlight(sigmaS, sigmaS + sigmaA, intensity, perp, foot, wallDistance / -d.z);
-            }
-        }
-        return sum / 16.0;
-    }
-};
-
 // Single scattering only (max_depth 1): the mixture's image approaches the
 // airlight integral as k grows (k = 256, 1K, 4K at 32 k photons each, so the
 // photons per component stay fixed and the fit resolves the 1 / r^2 peak
@@ -307,7 +262,7 @@ struct Airlight {
 // and 2 and 8 iterations on 8 k cells: 0.102, 0.061, 0.048. Each step is far
 // larger than the spread between the two settings.
 TEST(PemAirlight, ErrorFallsOverK) {
-    const Airlight setup;
+    const test::AirlightScene setup;
     const int size = 8;
     std::vector<double> expected;
     for (int y = 0; y < size; ++y)
