@@ -22,7 +22,9 @@
 
 #include <cmath>
 #include <cstring>
+#include <map>
 #include <memory>
+#include <string>
 
 namespace fg {
 
@@ -191,7 +193,8 @@ struct PemRun {
     glm::dvec3 power{0.0};
 };
 
-PemRun runPem(const Scene& scene, int threads, std::int64_t maxPhotons) {
+PemRun runPem(const Scene& scene, int threads, std::int64_t maxPhotons,
+             const std::map<std::string, ParamValue>& fitParams = {}) {
     Pipeline pipeline;
     pipeline.name = "pem_fit";
     PipelineNode fit = node("pem_fit", "pem_fit");
@@ -204,6 +207,7 @@ PemRun runPem(const Scene& scene, int threads, std::int64_t maxPhotons) {
     params.values["photon"]["volume_batch"] = {std::int64_t{1024}, "test"};
     params.values["pem_fit"]["k"] = {std::int64_t{32}, "test"};
     params.values["pem_fit"]["max_photons"] = {maxPhotons, "test"};
+    for (const auto& [name, value] : fitParams) params.values["pem_fit"][name] = {value, "test"};
     const ExecutionPlan plan = ExecutionPlan::build(pipeline, params, "test");
     EXPECT_TRUE(plan.streamed("volume_photons"));
     const jobs::ThreadLimit limit(threads);
@@ -235,6 +239,7 @@ TEST(PemFit, TakesPhotonsOnDemandAndFitsTheSameMixtureAtOneAndTwoThreads) {
     EXPECT_EQ(std::memcmp(one.parameters.data(), two.parameters.data(), one.parameters.size() * sizeof(double)), 0);
     EXPECT_EQ(one.fit, two.fit);
     // The photons used are exactly those the photon pass handed over.
+    EXPECT_GE(one.fit.at("batches"), 1);
     EXPECT_EQ(one.fit.at("batches"), one.photon.at("later_volume_maps"));
     EXPECT_EQ(one.fit.at("photons"), 4096 + 1024 * one.fit.at("batches"));
     EXPECT_GE(one.fit.at("outer_iterations"), 1);
@@ -252,6 +257,27 @@ TEST(PemFit, TakesPhotonsOnDemandAndFitsTheSameMixtureAtOneAndTwoThreads) {
     EXPECT_EQ(fixed.photon.count("later_volume_maps") ? fixed.photon.at("later_volume_maps") : 0, 0);
     // Relative noise of a sum of ~4096 photons' powers: a few 1/sqrt(4096) = 1.6 %.
     for (int c = 0; c < 3; ++c) EXPECT_NEAR(fixed.power[c], one.power[c], 0.08 * one.power[c]);
+}
+
+// A component in a sparse region explains a share w_s of the photons that
+// more photons do not change, so its n_eff grows only as w_s per photon. Read
+// literally, §5.2 takes maps while any component is below the threshold,
+// here until the budget (2 n0) is spent. With a threshold of 1e5 photons, which no
+// component's n_eff (at most the 4096 photons of the first map, times 2 at
+// the budget) can reach, every component is short and sparse, and the fit
+// must take no map at all; with the default threshold (the test above) it
+// takes maps.
+TEST(PemFit, TakesNoPhotonsForComponentsThatCannotReachTheThresholdWithinTheBudget) {
+    const Scene& scene = spotFog();
+    constexpr std::int64_t kBudget = 2 * 4096;
+    const PemRun run = runPem(scene, 2, kBudget, {{"n_eff_threshold", 1e5}});
+    ASSERT_GT(run.fit.at("components"), 0);
+    EXPECT_EQ(run.fit.at("batches"), 0);
+    EXPECT_EQ(run.fit.at("photons"), 4096);
+    EXPECT_EQ(run.photon.count("later_volume_maps") ? run.photon.at("later_volume_maps") : 0, 0);
+    EXPECT_EQ(run.fit.at("short_components"), run.fit.at("components"));
+    EXPECT_EQ(run.fit.at("sparse_components"), run.fit.at("components"));
+    EXPECT_GE(run.fit.at("outer_iterations"), 2);  // the cut was still refined
 }
 
 // Single scattering only (max_depth 1): the mixture's image approaches the
