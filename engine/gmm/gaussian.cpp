@@ -176,4 +176,42 @@ double segmentIntegral(const Gaussian& g, const Vec3d& origin, const Vec3d& dire
     return scale * std::exp(logPeak) * (upperErf - std::erf(za));
 }
 
+Vec3d segmentIntegralRgb(const SegmentGaussian& g, const Vec3d& origin, const Vec3d& direction, const Vec3d& sigmaT,
+                         double a, double b) {
+    if (!(b > a)) return Vec3d(0.0);
+    const Sym3& precision = g.precision;
+    const Vec3d d = origin - g.mean;
+    const Vec3d pw = precision * direction;
+    const double c2 = 0.5 * glm::dot(direction, pw);
+    const double wPd = glm::dot(pw, d);
+    const double rootC2 = std::sqrt(c2);
+    const double scale = kSqrtPi / (2.0 * rootC2);
+    const bool bInfinite = std::isinf(b);
+    // The sigma_t-free parts of segmentIntegral's logIntegrand at a and b and
+    // of its logPeak, in the same order of operations so that both give the
+    // same values.
+    const double quadraticA = g.logNormaliser - 0.5 * precision.quadratic(d + a * direction);
+    const double quadraticB = bInfinite ? 0.0 : g.logNormaliser - 0.5 * precision.quadratic(d + b * direction);
+    const double halfDPd = 0.5 * precision.quadratic(d);
+    const auto channel = [&](double sigma) {
+        const double c3 = wPd + sigma;
+        const double za = rootC2 * a + c3 / (2.0 * rootC2);
+        const double zb = bInfinite ? std::numeric_limits<double>::infinity() : rootC2 * b + c3 / (2.0 * rootC2);
+        if (za >= 0.0) {
+            const double lower = std::exp(quadraticA - sigma * a) * erfcx(za);
+            const double upper = bInfinite ? 0.0 : std::exp(quadraticB - sigma * b) * erfcx(zb);
+            return scale * (lower - upper);
+        }
+        if (zb <= 0.0)
+            return scale * (std::exp(quadraticB - sigma * b) * erfcx(-zb) - std::exp(quadraticA - sigma * a) * erfcx(-za));
+        const double logPeak = g.logNormaliser + c3 * c3 / (4.0 * c2) - halfDPd;
+        const double upperErf = bInfinite ? 1.0 : std::erf(zb);
+        return scale * std::exp(logPeak) * (upperErf - std::erf(za));
+    };
+    const double red = channel(sigmaT.x);
+    const double green = sigmaT.y == sigmaT.x ? red : channel(sigmaT.y);
+    const double blue = sigmaT.z == sigmaT.x ? red : sigmaT.z == sigmaT.y ? green : channel(sigmaT.z);
+    return {red, green, blue};
+}
+
 }  // namespace fg::gmm

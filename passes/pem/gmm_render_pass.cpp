@@ -8,7 +8,8 @@
 // leaves are always evaluated. A node contributes Eq. 15,
 //   1/4 pi Phi_j int_0^len g_j(x + t w) e^{-sigma_t t} dt,
 // per RGB channel with the closed form of Eqs. 16-17 in corrected form
-// (engine/gmm/gaussian.h), times the segment's throughput; Phi_j, the node's
+// (engine/gmm/gaussian.h; the channels share everything but sigma_t, and grey
+// media evaluate the erf/exp part once), times the segment's throughput; Phi_j, the node's
 // power, is the paper's w-bar_j (our fit keeps weights and powers apart, see
 // em_fit). `mode = flat` evaluates every leaf whose box the segment meets (so
 // hierarchical with eps_Omega = eps_Tr = 0 equals it), `level` the nodes of
@@ -27,6 +28,7 @@
 #include "jobs/work_context.h"
 
 #include <cmath>
+#include <limits>
 #include <stdexcept>
 
 namespace fg {
@@ -43,12 +45,12 @@ struct SegmentResult {
     float timeNs = 0.0f;
 };
 
-// Slab test of the ray x + t w against a box, clipped to [0, len]: the entry
-// distance, or a negative value when missed.
-double boxEntry(const Vec3& lo, const Vec3& hi, const glm::dvec3& x, const glm::dvec3& w, double len) {
+// Slab test of the ray x + t w (inverseW = 1 / w per axis) against a box,
+// clipped to [0, len]: the entry distance, or a negative value when missed.
+double boxEntry(const Vec3& lo, const Vec3& hi, const glm::dvec3& x, const glm::dvec3& inverseW, double len) {
     double t0 = 0.0, t1 = len;
     for (int a = 0; a < 3; ++a) {
-        const double inv = 1.0 / w[a];
+        const double inv = inverseW[a];
         double ta = (lo[a] - x[a]) * inv, tb = (hi[a] - x[a]) * inv;
         if (ta > tb) std::swap(ta, tb);
         if (std::isnan(ta) || std::isnan(tb)) {  // parallel to the slab and on its boundary
@@ -83,9 +85,16 @@ public:
                                   std::max(1, film.height);
         const double pixelSolidAngle = pixelAngle * pixelAngle;
 
+        // Alg. 4's solid-angle test, omega = 2 pi (1 - sqrt(1 - sin^2 alpha)) <
+        // eps_Omega Omega(r) with sin alpha = radius / distance, is monotone in
+        // sin^2 alpha: radius^2 < sinSquaredLimit distance^2 tests the same
+        // without a square root per node.
+        const double omegaShare = epsOmega * pixelSolidAngle / (2.0 * M_PI);
+        const double sinSquaredLimit = omegaShare >= 1.0 ? 1.0 : 1.0 - (1.0 - omegaShare) * (1.0 - omegaShare);
+
         const std::size_t nodeCount = pyramid.nodes.size();
-        std::vector<gmm::Gaussian> gaussians(nodeCount);
-        for (std::size_t j = 0; j < nodeCount; ++j) gaussians[j] = gaussianAt(pyramid.nodes, j);
+        std::vector<gmm::SegmentGaussian> gaussians(nodeCount);
+        for (std::size_t j = 0; j < nodeCount; ++j) gaussians[j] = gmm::SegmentGaussian(gaussianAt(pyramid.nodes, j));
         const auto power = pyramid.nodes.column<GmmPower>();
         const auto right = pyramid.nodes.column<GmmRight>();
         const auto nodeLevel = pyramid.nodes.column<GmmLevel>();
@@ -112,7 +121,11 @@ public:
                 const HomogeneousMedium& medium = scene.media.at(static_cast<std::size_t>(mediumOf[i]));
                 const glm::dvec3 sigmaT(medium.sigmaT());
                 const double minSigmaT = std::min({sigmaT.x, sigmaT.y, sigmaT.z});
+                // Alg. 4's transmittance test e^{-sigma_t entry} < eps_Tr as a distance.
+                const double opaqueBeyond = minSigmaT > 0.0 ? -std::log(epsTr) / minSigmaT
+                                                            : std::numeric_limits<double>::infinity();
                 const glm::dvec3 w(direction[i]);
+                const glm::dvec3 inverseW = 1.0 / w;
                 const glm::dvec3 eye(origin[i]);
                 const glm::dvec3 x = eye + static_cast<double>(tNear[i]) * w;
                 const double len = tFar[i] >= 0.5f * kInfinity ? std::numeric_limits<double>::infinity()
@@ -122,14 +135,13 @@ public:
                 glm::dvec3 sum(0.0);
                 const auto evaluate = [&](std::uint32_t j) {
                     ++result.gaussians;
-                    for (int c = 0; c < 3; ++c)
-                        sum[c] += power[j][c] * gmm::segmentIntegral(gaussians[j], x, w, sigmaT[c], 0.0, len);
+                    sum += power[j] * gmm::segmentIntegralRgb(gaussians[j], x, w, sigmaT, 0.0, len);
                 };
                 if (mode == Mode::Flat) {
                     for (std::uint32_t j = 0; j < nodeCount; ++j) {
                         if (right[j] != kNoGmmNode) continue;
                         ++result.nodes;
-                        if (boxEntry(lo[j], hi[j], x, w, boxLen) >= 0.0) evaluate(j);
+                        if (boxEntry(lo[j], hi[j], x, inverseW, boxLen) >= 0.0) evaluate(j);
                     }
                 } else {
                     stack.assign(1, 0);
@@ -137,7 +149,7 @@ public:
                         const std::uint32_t j = stack.back();
                         stack.pop_back();
                         ++result.nodes;
-                        const double entry = boxEntry(lo[j], hi[j], x, w, boxLen);
+                        const double entry = boxEntry(lo[j], hi[j], x, inverseW, boxLen);
                         if (entry < 0.0) continue;
                         bool stop = right[j] == kNoGmmNode;
                         if (!stop && mode == Mode::Level) stop = nodeLevel[j] <= level;
@@ -146,13 +158,12 @@ public:
                             // camera-path vertex, and the transmittance up to the box.
                             const glm::dvec3 centre(sphere[j].x, sphere[j].y, sphere[j].z);
                             const double radius = sphere[j].w;
-                            const double distance = glm::length(centre - eye);
-                            if (distance > radius) {
-                                const double sinAlpha = radius / distance;
-                                const double omega = 2.0 * M_PI * (1.0 - std::sqrt(1.0 - sinAlpha * sinAlpha));
-                                stop = omega < epsOmega * pixelSolidAngle;
-                            }
-                            if (!stop) stop = std::exp(-minSigmaT * entry) < epsTr;
+                            const glm::dvec3 toCentre = centre - eye;
+                            const double distanceSquared = glm::dot(toCentre, toCentre);
+                            const double radiusSquared = radius * radius;
+                            if (distanceSquared > radiusSquared)
+                                stop = radiusSquared < sinSquaredLimit * distanceSquared;
+                            if (!stop) stop = entry > opaqueBeyond;
                         }
                         if (stop) {
                             evaluate(j);

@@ -147,6 +147,25 @@ TEST(GmmSegmentIntegral, TailsNeitherOverflowNorCancel) {
     EXPECT_NEAR(whole / (std::exp(-0.0004 / 2e-4) / (2.0 * M_PI * 1e-4)), 1.0, 1e-10);
 }
 
+// The renderer's three-channel form shares the sigma_t-free terms and copies
+// equal channels: it must give exactly the scalar integral per channel, for
+// grey and coloured extinction, on every case above (random and needle-thin).
+TEST(GmmSegmentIntegral, RgbFormEqualsThreeScalarIntegralsExactly) {
+    std::mt19937_64 rng(13);
+    std::vector<SegmentCase> cases = segmentCases(rng, 0.01, 0.5);
+    for (const SegmentCase& c : segmentCases(rng, 1e-8, 0.2)) cases.push_back(c);
+    for (const SegmentCase& c : cases) {
+        const SegmentGaussian compact(c.gaussian);
+        for (const Vec3d sigmaT : {Vec3d(0.0), Vec3d(1.0), Vec3d(0.1, 1.0, 10.0), Vec3d(2.0, 2.0, 0.5)}) {
+            const Vec3d rgb = segmentIntegralRgb(compact, c.origin, c.direction, sigmaT, c.a, c.b);
+            for (int channel = 0; channel < 3; ++channel) {
+                const double scalar = segmentIntegral(c.gaussian, c.origin, c.direction, sigmaT[channel], c.a, c.b);
+                ASSERT_EQ(rgb[channel], scalar) << "channel " << channel << " a " << c.a << " b " << c.b;
+            }
+        }
+    }
+}
+
 TEST(GmmGaussian, FactorsMatchDirectInverseAndDeterminant) {
     std::mt19937_64 rng(3);
     for (int i = 0; i < 20; ++i) {

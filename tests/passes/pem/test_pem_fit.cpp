@@ -13,19 +13,18 @@
 #include "engine/scene/scene_loader.h"
 #include "jobs/parallel.h"
 #include "passes/passes.h"
-#include "engine/shading/bsdf.h"
-#include "engine/shading/light.h"
 #include "engine/image/film.h"
-#include "tests/support/airlight.h"
+#include "tests/support/airlight_scene.h"
 #include "tests/support/cli_helpers.h"
 #include "tests/support/pass_helpers.h"
 
-#include <glm/gtc/matrix_transform.hpp>
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <cstring>
+#include <map>
 #include <memory>
+#include <string>
 
 namespace fg {
 
@@ -194,7 +193,8 @@ struct PemRun {
     glm::dvec3 power{0.0};
 };
 
-PemRun runPem(const Scene& scene, int threads, std::int64_t maxPhotons) {
+PemRun runPem(const Scene& scene, int threads, std::int64_t maxPhotons,
+             const std::map<std::string, ParamValue>& fitParams = {}) {
     Pipeline pipeline;
     pipeline.name = "pem_fit";
     PipelineNode fit = node("pem_fit", "pem_fit");
@@ -207,6 +207,7 @@ PemRun runPem(const Scene& scene, int threads, std::int64_t maxPhotons) {
     params.values["photon"]["volume_batch"] = {std::int64_t{1024}, "test"};
     params.values["pem_fit"]["k"] = {std::int64_t{32}, "test"};
     params.values["pem_fit"]["max_photons"] = {maxPhotons, "test"};
+    for (const auto& [name, value] : fitParams) params.values["pem_fit"][name] = {value, "test"};
     const ExecutionPlan plan = ExecutionPlan::build(pipeline, params, "test");
     EXPECT_TRUE(plan.streamed("volume_photons"));
     const jobs::ThreadLimit limit(threads);
@@ -238,6 +239,7 @@ TEST(PemFit, TakesPhotonsOnDemandAndFitsTheSameMixtureAtOneAndTwoThreads) {
     EXPECT_EQ(std::memcmp(one.parameters.data(), two.parameters.data(), one.parameters.size() * sizeof(double)), 0);
     EXPECT_EQ(one.fit, two.fit);
     // The photons used are exactly those the photon pass handed over.
+    EXPECT_GE(one.fit.at("batches"), 1);
     EXPECT_EQ(one.fit.at("batches"), one.photon.at("later_volume_maps"));
     EXPECT_EQ(one.fit.at("photons"), 4096 + 1024 * one.fit.at("batches"));
     EXPECT_GE(one.fit.at("outer_iterations"), 1);
@@ -257,47 +259,26 @@ TEST(PemFit, TakesPhotonsOnDemandAndFitsTheSameMixtureAtOneAndTwoThreads) {
     for (int c = 0; c < 3; ++c) EXPECT_NEAR(fixed.power[c], one.power[c], 0.08 * one.power[c]);
 }
 
-// A point light in an infinite grey medium seen against a black wall (the
-// setup of the bre test): single scattering has the closed form of
-// tests/support/airlight.h.
-struct Airlight {
-    float sigmaS = 0.4f, sigmaA = 0.1f, intensity = 10.0f;
-    float wallDistance = 3.0f, h = 0.5f, delta = 1.2f;
-    Scene scene;
-    Airlight() {
-        scene.media.emplace_back(Rgb(sigmaA), Rgb(sigmaS), 0.0f);
-        Shape wall;
-        TriangleMesh plane = makeRectangleMesh();
-        plane.transform(glm::translate(Mat4(1.0f), Vec3(0, 0, -wallDistance)) * glm::scale(Mat4(1.0f), Vec3(10.0f)));
-        wall.geometry = plane;
-        scene.bsdfs.push_back(makeDiffuse(makeConstantTexture(Rgb(0.0f))));
-        wall.bsdf = 0;
-        scene.shapes.push_back(wall);
-        scene.lights.push_back(makePointLight(light(), Rgb(intensity)));
-        scene.lightShape.push_back(-1);
-        scene.camera.eye = Vec3(0.0f);
-        scene.camera.target = Vec3(0, 0, -1);
-        scene.camera.fovYDegrees = 30.0f;
-        scene.camera.medium = 0;
-        scene.finalize();
-    }
-    Vec3 light() const { return Vec3(h, 0.0f, -delta); }
-    double expected(int x, int y, int size) const {
-        Camera cam = scene.camera;
-        cam.width = cam.height = size;
-        double sum = 0.0;
-        for (int sy = 0; sy < 4; ++sy) {
-            for (int sx = 0; sx < 4; ++sx) {
-                const Ray ray = cam.generateRay(Vec2(x + (sx + 0.5f) / 4.0f, y + (sy + 0.5f) / 4.0f));
-                const Vec3 d = glm::normalize(ray.direction);
-                const double foot = glm::dot(light(), d);
-                const double perp = glm::length(light() - static_cast<float>(foot) * d);
-                sum += test::airlight(sigmaS, sigmaS + sigmaA, intensity, perp, foot, wallDistance / -d.z);
-            }
-        }
-        return sum / 16.0;
-    }
-};
+// A component in a sparse region explains a share w_s of the photons that
+// more photons do not change, so its n_eff grows only as w_s per photon. Read
+// literally, §5.2 takes maps while any component is below the threshold,
+// here until the budget (2 n0) is spent. With a threshold of 1e5 photons, which no
+// component's n_eff (at most the 4096 photons of the first map, times 2 at
+// the budget) can reach, every component is short and sparse, and the fit
+// must take no map at all; with the default threshold (the test above) it
+// takes maps.
+TEST(PemFit, TakesNoPhotonsForComponentsThatCannotReachTheThresholdWithinTheBudget) {
+    const Scene& scene = spotFog();
+    constexpr std::int64_t kBudget = 2 * 4096;
+    const PemRun run = runPem(scene, 2, kBudget, {{"n_eff_threshold", 1e5}});
+    ASSERT_GT(run.fit.at("components"), 0);
+    EXPECT_EQ(run.fit.at("batches"), 0);
+    EXPECT_EQ(run.fit.at("photons"), 4096);
+    EXPECT_EQ(run.photon.count("later_volume_maps") ? run.photon.at("later_volume_maps") : 0, 0);
+    EXPECT_EQ(run.fit.at("short_components"), run.fit.at("components"));
+    EXPECT_EQ(run.fit.at("sparse_components"), run.fit.at("components"));
+    EXPECT_GE(run.fit.at("outer_iterations"), 2);  // the cut was still refined
+}
 
 // Single scattering only (max_depth 1): the mixture's image approaches the
 // airlight integral as k grows (k = 256, 1K, 4K at 32 k photons each, so the
@@ -307,7 +288,7 @@ struct Airlight {
 // and 2 and 8 iterations on 8 k cells: 0.102, 0.061, 0.048. Each step is far
 // larger than the spread between the two settings.
 TEST(PemAirlight, ErrorFallsOverK) {
-    const Airlight setup;
+    const test::AirlightScene setup;
     const int size = 8;
     std::vector<double> expected;
     for (int y = 0; y < size; ++y)

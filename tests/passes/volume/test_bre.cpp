@@ -18,7 +18,7 @@
 #include "engine/core/scheduler.h"
 #include "jobs/parallel.h"
 #include "passes/passes.h"
-#include "tests/support/airlight.h"
+#include "tests/support/airlight_scene.h"
 #include "tests/support/pass_helpers.h"
 #include "tests/support/photon_fixtures.h"
 
@@ -395,46 +395,6 @@ TEST(VolumeEye, SegmentsSpanTheMediumAndAttenuateWhatLiesBehind) {
 // ---------------------------------------------------------------------------
 // The whole pipeline
 
-// The airlight scene of the path-tracer test: a point light in an infinite
-// medium, camera rays ending on a black wall at distance 3.
-struct AirlightSetup {
-    float sigmaS = 0.4f, sigmaA = 0.1f, intensity = 10.0f;
-    float wallDistance = 3.0f, h = 0.5f, delta = 1.2f;
-    Scene scene;
-    AirlightSetup() {
-        scene.media.emplace_back(Rgb(sigmaA), Rgb(sigmaS), 0.0f);
-        Shape wall;
-        TriangleMesh plane = makeRectangleMesh();
-        plane.transform(glm::translate(Mat4(1.0f), Vec3(0, 0, -wallDistance)) * glm::scale(Mat4(1.0f), Vec3(10.0f)));
-        wall.geometry = plane;
-        wall.bsdf = addDiffuse(scene, Rgb(0.0f));
-        scene.shapes.push_back(wall);
-        addPointLight(scene, light(), Rgb(intensity));
-        scene.camera.eye = Vec3(0.0f);
-        scene.camera.target = Vec3(0, 0, -1);
-        scene.camera.fovYDegrees = 30.0f;
-        scene.camera.medium = 0;
-        scene.finalize();
-    }
-    Vec3 light() const { return Vec3(h, 0.0f, -delta); }
-    // The closed form averaged over a pixel (4 x 4 sub-pixel rays).
-    double expected(int x, int y, int size) const {
-        Camera cam = scene.camera;
-        cam.width = cam.height = size;
-        double sum = 0.0;
-        for (int sy = 0; sy < 4; ++sy) {
-            for (int sx = 0; sx < 4; ++sx) {
-                const Ray ray = cam.generateRay(Vec2(x + (sx + 0.5f) / 4.0f, y + (sy + 0.5f) / 4.0f));
-                const Vec3 d = glm::normalize(ray.direction);
-                const double foot = glm::dot(light(), d);
-                const double perp = glm::length(light() - static_cast<float>(foot) * d);
-                sum += test::airlight(sigmaS, sigmaS + sigmaA, intensity, perp, foot, wallDistance / -d.z);
-            }
-        }
-        return sum / 16.0;
-    }
-};
-
 // Single scattering only (photons stored at their first event, max_depth 1):
 // the BRE converges to the airlight integral as the photon count grows and
 // the radii shrink. The photons in a beam's reach number about rho pi r^2 L,
@@ -443,7 +403,7 @@ struct AirlightSetup {
 // radii (as N^(-1/6)) while the noise falls as N^(-1/3), a factor 0.63 per
 // fourfold photon count.
 TEST(Bre, SingleScatteringConvergesToTheAirlightIntegral) {
-    const AirlightSetup setup;
+    const test::AirlightScene setup;
     const int size = 8;
     std::vector<double> expected;
     for (int y = 0; y < size; ++y)
@@ -493,7 +453,7 @@ TEST(Bre, SingleScatteringConvergesToTheAirlightIntegral) {
 // the image by far more than the tolerance (checked with g = -0.6).
 TEST(Bre, AnisotropicSingleScatteringMatchesThePathTracer) {
     const auto render = [](float g, const std::string& pipeline) {
-        AirlightSetup setup;
+        test::AirlightScene setup;
         setup.scene.media[0] = HomogeneousMedium(Rgb(setup.sigmaA), Rgb(setup.sigmaS), g);
         const Pipeline& p = *findPipeline(pipeline);
         const std::map<std::string, ParamValue> params =
