@@ -94,11 +94,9 @@ const FidelityCase kScenes[] = {
     {"participating_media/test_surf_area_light_volpath.xml", Expect::Pass},
     {"projector/test_projector_constant_direct.xml", Expect::Pass},
     {"projector/test_projector_textured_direct.xml", Expect::Pass},
-    {"spot_light/test_spot_direct.xml", Expect::KnownFailure, "textured spot: pattern or falloff differs",
-     0.6659, 0.9868},
+    {"spot_light/test_spot_direct.xml", Expect::Pass},
     {"texture_interp/test_texture_interp_direct.xml", Expect::Pass},
-    {"various_emitters/test_various_emitters_ptracer.xml", Expect::KnownFailure,
-     "just below the threshold at 61 spp; cause not found", 0.9942, 0.9996},
+    {"various_emitters/test_various_emitters_ptracer.xml", Expect::Pass},
     {"various_shapes/test_various_shapes_path.xml", Expect::Unsupported, "sdfgrid"},
 };
 
