@@ -3,10 +3,11 @@
 // fov_axis = "y"), its orthographic variant (Mitsuba's orthographic sensor) and the scene-wide bookkeeping done once after loading:
 // bounds, the bounding sphere that infinite lights need, and light selection in
 // proportion to emitted power (luminance of Light::power(), as pbrt-v3's
-// PowerLightDistribution).
+// PowerLightDistribution), or for next-event estimation by the loader's weights.
 #include "engine/scene/scene.h"
 
 #include <cmath>
+#include <stdexcept>
 #include <limits>
 #include <vector>
 
@@ -100,9 +101,18 @@ void Scene::finalize() {
     const float radius = glm::length(boundsMax - center);
     for (const auto& light : lights) light->setSceneBounds(center, radius);
 
+    if (!lightChoiceWeights.empty()) {
+        if (lightChoiceWeights.size() != lights.size()) {
+            throw std::invalid_argument("Scene::lightChoiceWeights must hold one weight per light");
+        }
+        for (const float w : lightChoiceWeights) {
+            if (!(std::isfinite(w) && w >= 0.0f)) throw std::invalid_argument("light choice weights must be finite and >= 0");
+        }
+    }
     // Power depends on the bounds for infinite lights, so it is read afterwards.
     if (lights.empty()) {
         lightPower = Distribution1D();
+        lightChoice = Distribution1D();
         return;
     }
     std::vector<float> weights(lights.size());
@@ -111,6 +121,7 @@ void Scene::finalize() {
         weights[i] = std::isfinite(w) && w > 0.0f ? w : 0.0f;
     }
     lightPower = Distribution1D(weights);
+    lightChoice = lightChoiceWeights.empty() ? lightPower : Distribution1D(lightChoiceWeights);
 }
 
 std::vector<int> Scene::infiniteLights() const {

@@ -71,10 +71,18 @@ struct Scene {
     std::vector<std::shared_ptr<Light>> lights;  // area lights point back to their shape via Shape::areaLight
     std::vector<int> lightShape;                 // per light: emitting shape index, -1 otherwise
     Distribution1D lightPower;                   // light selection in proportion to power
+    // Per light, the weight with which next-event estimation picks it; empty:
+    // in proportion to power. Mitsuba scenes give every light weight 1, as
+    // Mitsuba's integrators pick emitters (a small light beside a large
+    // environment is then not starved of shadow rays).
+    std::vector<float> lightChoiceWeights;
+    Distribution1D lightChoice;  // next-event estimation's choice of light, built from the above
     Vec3 boundsMin{0.0f}, boundsMax{0.0f};
     RenderHints hints;
 
-    // Computes bounds, tells infinite lights the scene radius, builds lightPower.
+    // Computes bounds, tells infinite lights the scene radius, builds lightPower
+    // and lightChoice (throws std::invalid_argument if lightChoiceWeights is
+    // neither empty nor one finite non-negative weight per light).
     // Loaders call it once after filling the scene.
     void finalize();
     // Indices of infinite lights (environment, directional): rays that escape meet the environment ones.

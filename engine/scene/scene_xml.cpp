@@ -2000,6 +2000,8 @@ Scene loadXmlScene(const std::string& path, const std::map<std::string, std::str
     Scene scene;
     scene.sourcePath = path;
     SceneBuilder(scene, resolver).build(root);
+    // Mitsuba's integrators pick every emitter with the same probability.
+    scene.lightChoiceWeights.assign(scene.lights.size(), 1.0f);
     scene.finalize();
     return scene;
 }

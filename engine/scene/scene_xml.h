@@ -141,6 +141,8 @@
 //   constant      radiance (1)
 //   envmap        filename, scale (1), to_world (rotation only); looked up as Mitsuba 3 does
 //                 (rows on the corners, v (height - 1); engine/shading/light.cpp)
+//   Next-event estimation picks every emitter (one per shape for area emitters) with
+//   the same probability, as Mitsuba's integrators do (Scene::lightChoiceWeights).
 //
 // Media
 //   homogeneous   sigma_t (1) + albedo (0.75), or sigma_s + sigma_a (0.x scenes must give

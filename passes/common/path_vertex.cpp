@@ -28,7 +28,7 @@ namespace {
 constexpr float kShadowEpsilon = 1e-3f;
 
 float lightSelectionPmf(const Scene& scene, int light) {
-    return scene.lightPower.discretePmf(static_cast<std::size_t>(light));
+    return scene.lightChoice.discretePmf(static_cast<std::size_t>(light));
 }
 
 // Samples one light for next-event estimation from p. `scatter(wi)` returns the
@@ -41,7 +41,7 @@ void queueLightSample(const PathTracerScene& pts, const Vec3& p, const Vec3& ng,
     const float uLight = rng.uniform();
     const Vec2 uPoint = rng.uniform2();
     float pmf = 0.0f;
-    const std::size_t index = scene.lightPower.sampleDiscrete(uLight, &pmf);
+    const std::size_t index = scene.lightChoice.sampleDiscrete(uLight, &pmf);
     const Light& light = *scene.lights[index];
     const std::optional<LightSample> ls = light.sampleLi(p, uPoint);
     if (!ls || ls->pdf <= 0.0f || isBlack(ls->value)) return;

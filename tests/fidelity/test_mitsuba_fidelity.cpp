@@ -4,7 +4,8 @@
 // mitsuba-renderer/mitsuba-data).
 //
 // The criterion is Mitsuba's, unchanged: a scene of N pixels is rendered with
-// spp = 2e6 / N samples per pixel (box filter, seed fixed); the image, the
+// spp = 2e6 / N samples per pixel (the scene's reconstruction filter, Mitsuba's
+// default Gaussian where it names none; seed fixed); the image, the
 // reference mean and the reference's per-sample variance are converted from
 // linear sRGB to XYZ; the variance is clamped to >= 1e-4; every pixel channel
 // gets z = |img - ref| sqrt(spp / var) and the two-sided p-value
@@ -32,6 +33,7 @@
 // ptracer (Mitsuba's light tracer) renders the same expectation as a path
 // tracer, so every scene renders with `pt`.
 #include "engine/core/error.h"
+#include "engine/image/image_io.h"
 #include "engine/scene/scene_loader.h"
 #include "engine/shading/texture.h"
 #include "jobs/parallel.h"
@@ -90,18 +92,11 @@ const FidelityCase kScenes[] = {
     {"participating_media/test_homo_roughdielectric_spot_volpath.xml", Expect::Pass},
     {"participating_media/test_homo_spectral_sigmat_volpathmis.xml", Expect::Pass},
     {"participating_media/test_surf_area_light_volpath.xml", Expect::Pass},
-    // The reference's projected square has a soft edge (about a pixel wider than
-    // the film's box filter gives); fluxgraph's edge is sharp. Means agree.
-    {"projector/test_projector_constant_direct.xml", Expect::KnownFailure, "projector edge sharper than Mitsuba's",
-     0.8906, 1.0004},
-    {"projector/test_projector_textured_direct.xml", Expect::KnownFailure,
-     "projector edge sharper than Mitsuba's", 0.8092, 0.9997},
-    {"spot_light/test_spot_direct.xml", Expect::KnownFailure, "textured spot: pattern or falloff differs",
-     0.6659, 0.9868},
-    {"texture_interp/test_texture_interp_direct.xml", Expect::KnownFailure,
-     "means agree; some texel edges differ (filtering details not found)", 0.9836, 0.9995},
-    {"various_emitters/test_various_emitters_ptracer.xml", Expect::KnownFailure,
-     "just below the threshold at 61 spp; cause not found", 0.9942, 0.9996},
+    {"projector/test_projector_constant_direct.xml", Expect::Pass},
+    {"projector/test_projector_textured_direct.xml", Expect::Pass},
+    {"spot_light/test_spot_direct.xml", Expect::Pass},
+    {"texture_interp/test_texture_interp_direct.xml", Expect::Pass},
+    {"various_emitters/test_various_emitters_ptracer.xml", Expect::Pass},
     {"various_shapes/test_various_shapes_path.xml", Expect::Unsupported, "sdfgrid"},
 };
 
@@ -122,6 +117,7 @@ glm::dvec3 srgbToXyz(const Rgb& c) {
 struct Outcome {
     double passFraction = 0.0;
     glm::dvec3 meanRatio{0.0};  // per RGB channel: sum of the image / sum of the reference
+    std::vector<Rgb> signedZ;   // per pixel, XYZ: (img - ref) sqrt(spp / var), for locating failures
 };
 
 Outcome zTest(const std::vector<Rgb>& image, const RgbImage& reference, const RgbImage& variance, int spp) {
@@ -129,18 +125,22 @@ Outcome zTest(const std::vector<Rgb>& image, const RgbImage& reference, const Rg
     const double alpha = 1.0 - std::pow(1.0 - kSignificance, 1.0 / static_cast<double>(n));
     std::size_t accepted = 0;
     glm::dvec3 sumImage(0.0), sumReference(0.0);
+    Outcome out;
+    out.signedZ.reserve(n);
     for (std::size_t i = 0; i < n; ++i) {
+        Rgb zs(0.0f);
         const glm::dvec3 img = srgbToXyz(image[i]), ref = srgbToXyz(reference.pixels[i]);
         const glm::dvec3 var = glm::max(srgbToXyz(variance.pixels[i]), glm::dvec3(1e-4));
         for (int c = 0; c < 3; ++c) {
-            const double z = std::abs(img[c] - ref[c]) * std::sqrt(spp / var[c]);
-            const double p = std::erfc(z / std::sqrt(2.0));
+            const double signedZ = (img[c] - ref[c]) * std::sqrt(spp / var[c]);
+            const double p = std::erfc(std::abs(signedZ) / std::sqrt(2.0));
             if (p > alpha) ++accepted;
+            zs[c] = static_cast<float>(signedZ);
         }
+        out.signedZ.push_back(zs);
         sumImage += glm::dvec3(image[i]);
         sumReference += glm::dvec3(reference.pixels[i]);
     }
-    Outcome out;
     out.passFraction = static_cast<double>(accepted) / (3.0 * static_cast<double>(n));
     out.meanRatio = sumImage / glm::max(sumReference, glm::dvec3(1e-12));
     return out;
@@ -154,6 +154,21 @@ int sppScale() {
     const int scale = std::atoi(text);
     if (scale < 1 || scale > 1000) throw std::invalid_argument("FLUXGRAPH_FIDELITY_SPP_SCALE must be an integer in [1, 1000]");
     return scale;
+}
+
+// FLUXGRAPH_FIDELITY_IMAGES=DIR writes DIR/<scene>_img.exr (the render) and
+// DIR/<scene>_z.exr (signed z of X, Y, Z in the R, G, B channels), to see
+// where a scene's failing pixels lie.
+void writeDiagnostics(const fs::path& dir, const std::string& stem, const test::RenderedImage& image,
+                      const Outcome& outcome) {
+    fs::create_directories(dir);
+    ImageChannels channels;
+    channels.width = image.width;
+    channels.height = image.height;
+    channels.rgb = image.pixels;
+    writeExr((dir / (stem + "_img.exr")).string(), channels, {});
+    channels.rgb = outcome.signedZ;
+    writeExr((dir / (stem + "_z.exr")).string(), channels, {});
 }
 
 class SceneRender : public testing::TestWithParam<FidelityCase> {};
@@ -195,14 +210,18 @@ TEST_P(SceneRender, MeetsMitsubasCriterion) {
     const int spp = sppScale() * std::max(1, static_cast<int>(kSampleBudget) / pixels / c.sppDivisor);
     // Unlimited depth (-1): Russian roulette ends the paths long before this.
     const int maxDepth = scene.hints.maxDepth > 0 ? scene.hints.maxDepth : 1024;
+    // The scene's own reconstruction filter, as Mitsuba's test renders it
+    // (Mitsuba's default is a Gaussian of standard deviation 0.5 pixels).
     FilmSettings film;
     film.width = reference.width;
     film.height = reference.height;
-    film.filter = FilterKind::Box;
-    film.filterRadius = 0.5f;
+    film.filter = scene.hints.filter.value_or(FilterKind::Box);
+    film.filterRadius = scene.hints.filter ? scene.hints.filterRadius : 0.5f;
+    if (film.filter == FilterKind::Gaussian) film.gaussianSigma = scene.hints.gaussianSigma;
     const test::RenderedImage image =
         test::renderPipeline(scene, "pt", {{"pt.spp", std::int64_t{spp}}, {"pt.max_depth", std::int64_t{maxDepth}}}, film, 7);
     const Outcome outcome = zTest(image.pixels, reference, variance, spp);
+    if (const char* dir = std::getenv("FLUXGRAPH_FIDELITY_IMAGES"); dir && *dir) writeDiagnostics(dir, stem, image, outcome);
     const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     std::printf("[fidelity] %-48s %s  pass fraction %.4f  mean ratio (%.4f, %.4f, %.4f)  spp %d  depth %d  %.1f s\n",
                 stem.c_str(), outcome.passFraction >= kRequiredPassFraction ? "PASS" : "FAIL", outcome.passFraction,

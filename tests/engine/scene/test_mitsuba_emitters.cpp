@@ -85,6 +85,24 @@ TEST(MitsubaEmitters, TexturedSpotAndArea) {
     EXPECT_NEAR(scene.lights[1]->emittedAt(Vec3(0, 0, 1), Vec3(0, 0, 1), Vec2(0.3f, 0.7f)).x, 0.5f, 1e-6f);
 }
 
+TEST(MitsubaEmitters, NextEventEstimationPicksEveryEmitterAlike) {
+    const fs::path dir = scratchDir();
+    // A dim environment carries far more power (over the scene's bounding disk)
+    // than a spot or a point light; Mitsuba picks each of the four alike.
+    const std::string text = sceneText(R"(    <emitter type="constant"><rgb name="radiance" value="0.1"/></emitter>
+    <emitter type="spot"><rgb name="intensity" value="5"/></emitter>
+    <emitter type="point"><rgb name="intensity" value="50"/></emitter>
+    <shape type="rectangle"><emitter type="area"><rgb name="radiance" value="1"/></emitter></shape>
+)");
+    const Scene scene = loadXmlScene(writeFile(dir / "choice.xml", text).string());
+    ASSERT_EQ(scene.lights.size(), 4u);
+    for (std::size_t i = 0; i < scene.lights.size(); ++i) {
+        EXPECT_FLOAT_EQ(scene.lightChoice.discretePmf(i), 0.25f) << "light " << i;
+    }
+    // Photons still leave the lights in proportion to power.
+    EXPECT_GT(scene.lightPower.discretePmf(2), 4.0f * scene.lightPower.discretePmf(1));
+}
+
 TEST(MitsubaEmitters, BadParametersAreOneLineErrors) {
     const fs::path dir = scratchDir();
     struct Case {
