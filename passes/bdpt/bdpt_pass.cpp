@@ -42,6 +42,7 @@
 // in three stages (camera subpaths, light subpaths, connections), the
 // connections of each group of samples resolved as one stream of shadow rays.
 #include "passes/bdpt/bdpt_path.h"
+#include "passes/common/light_media.h"
 #include "passes/common/path_vertex.h"
 #include "passes/passes.h"
 
@@ -595,7 +596,7 @@ private:
         origin.beta = emission->flux;
         origin.pdfFwd = bdptPdfLightOrigin(bs, origin);
         int medium = info.medium;
-        if (medium == -2) {
+        if (medium == kMediumBySide) {
             const Shape& shape = scene.shapes[static_cast<std::size_t>(scene.lightShape[index])];
             medium = mediumAfterCrossing(shape, emission->normal, emission->direction, -1);
         }

@@ -2,6 +2,7 @@
 // See bdpt_path.h for the conventions.
 #include "passes/bdpt/bdpt_path.h"
 
+#include "passes/common/light_media.h"
 #include "passes/common/path_vertex.h"
 
 #include <algorithm>
@@ -12,27 +13,6 @@
 namespace fg {
 
 namespace {
-
-// Null-boundary crossings a medium probe follows; only degenerate geometry needs more.
-constexpr int kMaxProbeCrossings = 64;
-
-// The medium on p's side of the first boundary that declares media along a fixed
-// direction, or nothing if the probe escapes.
-std::optional<int> probeMedium(const Scene& scene, const RayQuery& rays, const Vec3& p) {
-    // Off the axes that scene walls tend to align with.
-    const Vec3 direction = glm::normalize(Vec3(0.267f, 0.803f, 0.535f));
-    Ray ray{p, direction, kInfinity};
-    for (int crossing = 0; crossing < kMaxProbeCrossings; ++crossing) {
-        const Hit hit = rays.intersect(ray);
-        if (!hit.valid()) return std::nullopt;
-        const SurfacePoint sp = rays.surface(ray, hit);
-        const Shape& shape = scene.shapes[sp.shape];
-        if (shape.interiorMedium >= 0 || shape.exteriorMedium >= 0)
-            return glm::dot(direction, sp.ng) > 0.0f ? shape.interiorMedium : shape.exteriorMedium;
-        ray.origin = offsetRayOrigin(sp.p, sp.ng, direction);
-    }
-    return std::nullopt;
-}
 
 float remapZero(float pdf) { return pdf != 0.0f ? pdf : 1.0f; }
 
@@ -57,16 +37,13 @@ BdptScene::BdptScene(const Scene& s, const RayQuery& r, const Camera& c)
 
     connectionsNeedTransmittance = tracer.shadowsNeedTransmittance;
 
-    // Light subpaths start in the medium around their light: the side of the
-    // emitting shape they leave by when it declares media, otherwise the medium
-    // a probe finds (or the camera's, when light and camera both lie outside
-    // every boundary that declares one).
-    const std::optional<int> cameraProbe = s.media.empty() ? std::nullopt : probeMedium(s, r, camera.eye);
-    const int outside = cameraProbe || s.media.empty() ? -1 : camera.medium;
+    // Light subpaths start in the medium around their light, as photons do.
+    const std::vector<int> startMedia = lightStartMedia(s, r);
     lights.resize(s.lights.size());
     for (std::size_t l = 0; l < s.lights.size(); ++l) {
         const Light& light = *s.lights[l];
         BdptLightInfo& info = lights[l];
+        info.medium = startMedia[l];
         const int shapeIndex = l < s.lightShape.size() ? s.lightShape[l] : -1;
         const std::optional<EmissionSample> sample = light.sampleEmission(Vec2(0.5f), Vec2(0.5f));
         if (shapeIndex >= 0) {
@@ -77,22 +54,12 @@ BdptScene::BdptScene(const Scene& s, const RayQuery& r, const Camera& c)
                 const float cosine = std::abs(glm::dot(sample->direction, sample->normal));
                 info.directionScale = sample->pdfDirection < 0.75f * cosineHemispherePdf(cosine) ? 0.5f : 1.0f;
             }
-            const Shape& shape = s.shapes[static_cast<std::size_t>(shapeIndex)];
-            if (shape.interiorMedium >= 0 || shape.exteriorMedium >= 0) {
-                info.medium = -2;
-                continue;
-            }
         } else if (light.isInfinite()) {
             info.kind = light.isDelta() ? BdptLightInfo::Kind::Directional : BdptLightInfo::Kind::Environment;
             if (sample) info.positionPdf = sample->pdfPosition;
-            info.medium = outside;
-            continue;
         } else {
             info.kind = BdptLightInfo::Kind::Point;
         }
-        if (s.media.empty() || !sample) continue;
-        const std::optional<int> found = probeMedium(s, r, sample->origin);
-        info.medium = found ? *found : outside;
     }
 }
 

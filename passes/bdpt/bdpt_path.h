@@ -58,7 +58,7 @@ struct BdptLightInfo {
     Kind kind = Kind::Point;
     float positionPdf = 1.0f;       // area density of emission origins (area lights, bounding disks)
     float directionScale = 1.0f;    // area lights: 1 one-sided, 1/2 two-sided (cosine-weighted directions)
-    int medium = -1;                // medium photons start in; -2: the side of the emitting shape
+    int medium = -1;                // medium subpaths start in, or kMediumBySide (light_media.h)
 };
 
 // The camera as the weights see it: a pinhole whose rays have the solid-angle
