@@ -46,6 +46,11 @@ declare -A spp=(
   [water-wave]=4096
   [metal-ring]=4096
 )
+# Exposure of each preview, in stops (as tools/render_references.sh's).
+declare -A exposure=(
+  [spot-fog]=1
+  [water-wave]=-0.5
+)
 # Regions whose noise is reported besides the whole image: name=WxH+X+Y (128 x 128 jobs).
 declare -A extra_regions=(
   [volumetric-caustic]="below-light=128x112+0+16"
@@ -107,7 +112,8 @@ for scene in "${scenes[@]}"; do
     oiiotool "$out/reference.exr" -d half --compression zip \
       --attrib "fluxgraph:command" "tools/render_bdpt_references.sh --spp $total --install $scene (seeds 1 and 2, $half spp each, averaged)" \
       --attrib "fluxgraph:reference_noise" "$noise" -o "data/$scene/reference/reference.exr"
-    oiiotool "$out/reference.exr" --colorconvert linear sRGB -d uint8 -o "data/$scene/preview.png"
+    gain=$(python3 -c "print(2 ** float('${exposure[$scene]:-0}'))")
+    oiiotool "$out/reference.exr" --ch R,G,B --mulc "$gain" --colorconvert linear sRGB -d uint8 -o "data/$scene/preview.png"
     echo "  installed data/$scene/reference/reference.exr and data/$scene/preview.png ($noise)"
   fi
 done

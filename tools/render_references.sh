@@ -1,9 +1,12 @@
 #!/usr/bin/env bash
-# Renders the path-traced reference of each scene in data/ with its pt.toml job
+# Renders the reference of each scene in data/ with its pt.toml job
 # (128 x 128) at a high sample count: data/<scene>/reference/reference.exr,
 # half-float RGB (the time_ns / samples AOVs stay 32-bit), ZIP-compressed, with
 # the command line, job text, seed, overrides (the sample count) and pass
 # timings in its metadata; the sRGB preview goes to data/<scene>/preview.png.
+# The scenes whose light a path tracer rarely finds (volumetric-caustic,
+# spot-fog, gold-ring, water-wave, metal-ring) are handed to
+# tools/render_bdpt_references.sh, which renders them with bdpt.
 #
 #   tools/render_references.sh [--build DIR] [--divide N] [SCENE ...]
 #   tools/render_references.sh --caustic [--build DIR] [--divide N] [SCENE ...]
@@ -43,29 +46,28 @@ while (($#)); do
     --divide) divide="$2"; shift 2 ;;
     --caustic) photon_references=1; shift ;;
     --lt) photon_references=1; kind=lt-reference; shift ;;
-    -h|--help) sed -n '2,31p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,34p' "$0"; exit 0 ;;
     *) scenes+=("$1"); shift ;;
   esac
 done
 
-# Samples per pixel of each reference, and the preview's exposure (stops).
+# Samples per pixel of each path-traced reference, and the preview's exposure (stops).
 declare -A spp=(
   [cornell-box]=8192
-  [volumetric-caustic]=8192
-  [gold-ring]=16384
-  [water-wave]=16384
-  [metal-ring]=16384
-  [spot-fog]=8192
   [conference]=16384
 )
 declare -A exposure=(
   [cornell-box]=0
-  [volumetric-caustic]=0
-  [gold-ring]=0
-  [water-wave]=-0.5
-  [metal-ring]=0
-  [spot-fog]=1
   [conference]=2
+)
+# Scenes whose reference is rendered by bdpt (tools/render_bdpt_references.sh,
+# which these scenes are handed to), with its sample count.
+declare -A bidirectional=(
+  [volumetric-caustic]=4096
+  [spot-fog]=4096
+  [gold-ring]=4096
+  [water-wave]=4096
+  [metal-ring]=4096
 )
 binary="$build/fluxgraph"
 [[ -x "$binary" ]] || { echo "render_references.sh: no $binary; build first (cmake --build $build)" >&2; exit 2; }
@@ -103,6 +105,14 @@ if ((${#scenes[@]} == 0)); then
 fi
 
 for scene in "${scenes[@]}"; do
+  if [[ -n "${bidirectional[$scene]:-}" ]]; then
+    # A path tracer rarely finds these scenes' small lights through glass,
+    # mirrors or fog: their references are bidirectional.
+    bdpt_options=(--build "$build" --spp $(( bidirectional[$scene] / divide > 1 ? bidirectional[$scene] / divide : 2 )))
+    if ((divide == 1)); then bdpt_options+=(--install); else bdpt_options+=(--out out/references); fi
+    tools/render_bdpt_references.sh "${bdpt_options[@]}" "$scene"
+    continue
+  fi
   [[ -n "${spp[$scene]:-}" ]] || { echo "render_references.sh: unknown scene '$scene'" >&2; exit 2; }
   samples=$(( spp[$scene] / divide ))
   ((samples >= 1)) || samples=1

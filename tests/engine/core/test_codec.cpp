@@ -11,6 +11,8 @@
 #include "engine/image/film.h"
 #include "tests/support/cli_helpers.h"
 
+#include "tests/support/pass_helpers.h"
+
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -42,19 +44,7 @@ void writeBytes(const fs::path& path, const std::string& bytes) {
     out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
 }
 
-template <class T>
-BufferHandle handleOf(std::shared_ptr<T> data) {
-    BufferHandle handle;
-    handle.type = BufferTypeName<T>::value;
-    handle.bytes = [raw = data.get()] { return raw->bytes(); };
-    handle.data = std::move(data);
-    return handle;
-}
-
-template <class T>
-const T& as(const BufferHandle& handle) {
-    return *static_cast<const T*>(handle.data.get());
-}
+using test::makeBuffer;
 
 // Bitwise, so that NaNs, infinities and signed zeros count.
 template <class T>
@@ -291,13 +281,13 @@ std::string expectRoundTrip(std::shared_ptr<T> original, const fs::path& dir) {
     const std::string first = (dir / (type + ".fgbuf")).string();
     const std::string second = (dir / (type + "-again.fgbuf")).string();
     const std::string job = "[job]\npipeline = \"test\"\n# " + type + "\n";
-    saveBuffer(handleOf(original), first, job);
+    saveBuffer(makeBuffer(original), first, job);
     const BufferHandle loaded = loadBuffer(first, type, "buffer");
     EXPECT_EQ(loaded.type, type);
     EXPECT_TRUE(loaded.bytes);
     if (!loaded.data) return {};
-    expectSame(*original, as<T>(loaded));
-    EXPECT_EQ(loaded.bytes(), as<T>(loaded).bytes());
+    expectSame(*original, test::bufferAs<T>(loaded));
+    EXPECT_EQ(loaded.bytes(), test::bufferAs<T>(loaded).bytes());
 
     const BufferFileInfo info = readBufferInfo(first);
     EXPECT_EQ(info.type, type);
@@ -328,13 +318,13 @@ std::string expectRefused(const std::string& path, const std::string& expectedTy
 // The buffers of every type, for the tests that run over all of them.
 std::vector<std::pair<std::string, std::function<BufferHandle()>>> everyBuffer() {
     return {
-        {"Film", [] { return handleOf(std::make_shared<Film>(makeFilm(1))); }},
-        {"PhotonMap", [] { return handleOf(std::make_shared<PhotonMap>(makePhotonMap(2, 3))); }},
-        {"EyeVertices", [] { return handleOf(std::make_shared<EyeVertices>(makeEyeVertices(3))); }},
-        {"PhotonRadii", [] { return handleOf(std::make_shared<PhotonRadii>(makePhotonRadii(4))); }},
-        {"EyeSegments", [] { return handleOf(std::make_shared<EyeSegments>(makeEyeSegments(5))); }},
-        {"PointIndex", [] { return handleOf(std::make_shared<PointIndex>(makePointIndex(6))); }},
-        {"PhotonBvh", [] { return handleOf(std::make_shared<PhotonBvh>(makePhotonBvh(7))); }},
+        {"Film", [] { return makeBuffer(std::make_shared<Film>(makeFilm(1))); }},
+        {"PhotonMap", [] { return makeBuffer(std::make_shared<PhotonMap>(makePhotonMap(2, 3))); }},
+        {"EyeVertices", [] { return makeBuffer(std::make_shared<EyeVertices>(makeEyeVertices(3))); }},
+        {"PhotonRadii", [] { return makeBuffer(std::make_shared<PhotonRadii>(makePhotonRadii(4))); }},
+        {"EyeSegments", [] { return makeBuffer(std::make_shared<EyeSegments>(makeEyeSegments(5))); }},
+        {"PointIndex", [] { return makeBuffer(std::make_shared<PointIndex>(makePointIndex(6))); }},
+        {"PhotonBvh", [] { return makeBuffer(std::make_shared<PhotonBvh>(makePhotonBvh(7))); }},
     };
 }
 
@@ -409,7 +399,7 @@ TEST(CodecRoundTrip, EmptyPhotonBvh) { expectRoundTrip(std::make_shared<PhotonBv
 TEST(CodecInfo, HeaderListsTypeJobItemsAndColumns) {
     const fs::path dir = scratchDirectory();
     const std::string path = (dir / "photons.fgbuf").string();
-    saveBuffer(handleOf(std::make_shared<PhotonMap>(makePhotonMap(19, 9))), path, "seed = 3");
+    saveBuffer(makeBuffer(std::make_shared<PhotonMap>(makePhotonMap(19, 9))), path, "seed = 3");
     const BufferFileInfo info = readBufferInfo(path);
     EXPECT_EQ(info.type, "PhotonMap");
     EXPECT_EQ(info.jobText, "seed = 3");
@@ -423,7 +413,7 @@ TEST(CodecInfo, HeaderListsTypeJobItemsAndColumns) {
 TEST(CodecInfo, EmptyJobText) {
     const fs::path dir = scratchDirectory();
     const std::string path = (dir / "radii.fgbuf").string();
-    saveBuffer(handleOf(std::make_shared<PhotonRadii>(makePhotonRadii(20))), path, "");
+    saveBuffer(makeBuffer(std::make_shared<PhotonRadii>(makePhotonRadii(20))), path, "");
     EXPECT_EQ(readBufferInfo(path).jobText, "");
     EXPECT_EQ(readBufferInfo(path).items, 30u);
 }
@@ -433,7 +423,7 @@ TEST(CodecInfo, EmptyJobText) {
 TEST(CodecRefuses, WrongTypeNamingFileAndBothTypes) {
     const fs::path dir = scratchDirectory();
     const std::string path = (dir / "photons.fgbuf").string();
-    saveBuffer(handleOf(std::make_shared<PhotonMap>(makePhotonMap(21))), path, "");
+    saveBuffer(makeBuffer(std::make_shared<PhotonMap>(makePhotonMap(21))), path, "");
     try {
         loadBuffer(path, "Film", "image");
         FAIL() << "a PhotonMap file loaded as a Film";
@@ -470,7 +460,7 @@ TEST(CodecRefuses, NotABufferFile) {
 TEST(CodecRefuses, UnsupportedFormatVersion) {
     const fs::path dir = scratchDirectory();
     const std::string path = (dir / "radii.fgbuf").string();
-    saveBuffer(handleOf(std::make_shared<PhotonRadii>(makePhotonRadii(22))), path, "");
+    saveBuffer(makeBuffer(std::make_shared<PhotonRadii>(makePhotonRadii(22))), path, "");
     std::string bytes = readBytes(path);
     const std::uint32_t future = kBufferFormatVersion + 1;
     std::memcpy(bytes.data() + sizeof kBufferFileMagic, &future, sizeof future);
@@ -597,7 +587,7 @@ TEST(CodecRefuses, ColumnsThatDoNotMatchTheDeclaration) {
 TEST(CodecRefuses, SoaColumnsOfDifferentLengths) {
     const fs::path dir = scratchDirectory();
     const std::string path = (dir / "photons.fgbuf").string();
-    saveBuffer(handleOf(std::make_shared<PhotonMap>(makePhotonMap(24, 4))), path, "");
+    saveBuffer(makeBuffer(std::make_shared<PhotonMap>(makePhotonMap(24, 4))), path, "");
     std::string bytes = readBytes(path);
     // The second column's count: magic, version, type, count, then "photons.position" 12 4.
     const std::size_t offset = sizeof kBufferFileMagic + 4 + (4 + 9) + 4 + (4 + 16 + 4 + 8) + (4 + 16 + 4);
@@ -615,7 +605,7 @@ TEST(CodecRefuses, CorruptPointIndex) {
     const fs::path dir = scratchDirectory();
     const std::string path = (dir / "index.fgbuf").string();
     auto index = std::make_shared<PointIndex>(makePointIndex(25));
-    saveBuffer(handleOf(index), path, "");
+    saveBuffer(makeBuffer(index), path, "");
     std::string bytes = readBytes(path);
     // The last two columns are the permutation and the splits.
     const std::size_t splitBytes = index->tree().splits().size_bytes();
@@ -636,7 +626,7 @@ TEST(CodecRefuses, CorruptPhotonBvh) {
     const std::string path = (dir / "bvh.fgbuf").string();
     auto bvh = std::make_shared<PhotonBvh>(makePhotonBvh(26));
     ASSERT_EQ(bvh->nodes().column<BvhNodeCount>()[0], 0u);  // the root is an inner node
-    saveBuffer(handleOf(bvh), path, "");
+    saveBuffer(makeBuffer(bvh), path, "");
     const std::string bytes = readBytes(path);
     // Columns at the end: nodes.lo, .hi, .link, .count, then the sphere columns.
     const std::size_t sphereBytes = bvh->spheres().size() * (4 * sizeof(float) + sizeof(std::uint32_t));
@@ -662,7 +652,7 @@ TEST(CodecRefuses, CorruptFilm) {
     const fs::path dir = scratchDirectory();
     const std::string path = (dir / "film.fgbuf").string();
     auto film = std::make_shared<Film>(makeFilm(27));
-    saveBuffer(handleOf(film), path, "");
+    saveBuffer(makeBuffer(film), path, "");
     std::string bytes = readBytes(path);
     // The header is followed by width and height: make the image claim 2^31 - 1 rows.
     const std::size_t payloadAt = bytes.size() - (film->pixelCount() * (2 * sizeof(Rgb) + sizeof(float)) +
@@ -704,7 +694,7 @@ TEST(CodecRefuses, EverySingleByteDamageIsHandled) {
 
 TEST(CodecSave, FailsWithoutLeavingFiles) {
     const fs::path dir = scratchDirectory();
-    const BufferHandle photons = handleOf(std::make_shared<PhotonMap>(makePhotonMap(28)));
+    const BufferHandle photons = makeBuffer(std::make_shared<PhotonMap>(makePhotonMap(28)));
     EXPECT_THROW(saveBuffer(photons, (dir / "missing" / "photons.fgbuf").string(), ""), InputError);
 
     BufferHandle streamed;
@@ -720,8 +710,8 @@ TEST(CodecSave, FailsWithoutLeavingFiles) {
 TEST(CodecSave, ReplacesAnExistingFile) {
     const fs::path dir = scratchDirectory();
     const std::string path = (dir / "photons.fgbuf").string();
-    saveBuffer(handleOf(std::make_shared<PhotonMap>(makePhotonMap(29, 5))), path, "first");
-    saveBuffer(handleOf(std::make_shared<PhotonMap>(makePhotonMap(30, 8))), path, "second");
+    saveBuffer(makeBuffer(std::make_shared<PhotonMap>(makePhotonMap(29, 5))), path, "first");
+    saveBuffer(makeBuffer(std::make_shared<PhotonMap>(makePhotonMap(30, 8))), path, "second");
     EXPECT_EQ(readBufferInfo(path).items, 8u);
     EXPECT_EQ(readBufferInfo(path).jobText, "second");
     EXPECT_EQ(std::distance(fs::directory_iterator(dir), fs::directory_iterator()), 1);
@@ -767,10 +757,10 @@ TEST(CodecRegistry, RegisteredCodecIsUsed) {
     auto counter = std::make_shared<CodecTestCounter>();
     counter->value = 42;
     counter->history = {-3, 5, 7};
-    saveBuffer(handleOf(counter), path, "");
+    saveBuffer(makeBuffer(counter), path, "");
     const BufferHandle loaded = loadBuffer(path, "CodecTestCounter");
-    EXPECT_EQ(as<CodecTestCounter>(loaded).value, 42u);
-    EXPECT_EQ(as<CodecTestCounter>(loaded).history, counter->history);
+    EXPECT_EQ(test::bufferAs<CodecTestCounter>(loaded).value, 42u);
+    EXPECT_EQ(test::bufferAs<CodecTestCounter>(loaded).history, counter->history);
     EXPECT_EQ(readBufferInfo(path).columns, std::vector<std::string>{"history"});
 }
 

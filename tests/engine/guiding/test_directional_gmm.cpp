@@ -5,6 +5,7 @@
 
 #include "jobs/random.h"
 #include "tests/support/chi2.h"
+#include "tests/support/gmm_fixtures.h"
 
 #include <gtest/gtest.h>
 
@@ -14,23 +15,8 @@
 namespace fg {
 namespace {
 
-GmmComponent component(float weight, Vec2 mean, float xx, float xy, float yy) {
-    GmmComponent c;
-    c.weight = weight;
-    c.mean = mean;
-    c.covXX = xx;
-    c.covXY = xy;
-    c.covYY = yy;
-    return c;
-}
-
-DirectionalGmm mixture(const std::vector<GmmComponent>& parts) {
-    DirectionalGmm gmm;
-    for (GmmComponent& c : gmm.components) c.weight = 0.0f;
-    for (std::size_t j = 0; j < parts.size(); ++j) gmm.components[j] = parts[j];
-    EXPECT_TRUE(gmm.finalize());
-    return gmm;
-}
+using test::gmmComponent;
+using test::gmmMixture;
 
 DirectionalGmm randomMixture(std::uint64_t key) {
     jobs::Rng rng(7, jobs::streamKey("gmm-random"), key);
@@ -41,10 +27,10 @@ DirectionalGmm randomMixture(std::uint64_t key) {
         total += w;
         const float sx = 0.03f + 0.2f * rng.uniform(), sy = 0.03f + 0.2f * rng.uniform();
         const float rho = 1.6f * rng.uniform() - 0.8f;
-        parts.push_back(component(w, Vec2(rng.uniform(), rng.uniform()), sx * sx, rho * sx * sy, sy * sy));
+        parts.push_back(gmmComponent(w, Vec2(rng.uniform(), rng.uniform()), sx * sx, rho * sx * sy, sy * sy));
     }
     for (GmmComponent& c : parts) c.weight /= total;
-    return mixture(parts);
+    return gmmMixture(parts);
 }
 
 // Mass of an axis-aligned Gaussian inside [0,1]².
@@ -94,9 +80,9 @@ TEST(GuidingMap, InverseRoundTrips) {
 // closed-form mass of the axis-aligned Gaussians inside the square: the map,
 // its Jacobian and the density's normalisation agree.
 TEST(DirectionalGmm, PdfIntegratesToMassInsideSquare) {
-    const DirectionalGmm gmm = mixture({component(0.3f, Vec2(0.05f, 0.5f), 0.01f, 0.0f, 0.02f),
-                                        component(0.2f, Vec2(0.9f, 0.95f), 0.03f, 0.0f, 0.005f),
-                                        component(0.5f, Vec2(0.5f, 0.4f), 0.02f, 0.0f, 0.01f)});
+    const DirectionalGmm gmm = gmmMixture({gmmComponent(0.3f, Vec2(0.05f, 0.5f), 0.01f, 0.0f, 0.02f),
+                                        gmmComponent(0.2f, Vec2(0.9f, 0.95f), 0.03f, 0.0f, 0.005f),
+                                        gmmComponent(0.5f, Vec2(0.5f, 0.4f), 0.02f, 0.0f, 0.01f)});
     double expected = 0.0;
     for (const GmmComponent& c : gmm.components)
         if (c.weight > 0.0f) expected += c.weight * massInsideSquare(c);
@@ -130,21 +116,21 @@ void expectSamplingMatchesPdf(const DirectionalGmm& gmm, const char* what) {
 TEST(DirectionalGmm, Chi2RandomMixture) { expectSamplingMatchesPdf(randomMixture(1), "random"); }
 
 TEST(DirectionalGmm, Chi2AnisotropicMixture) {
-    expectSamplingMatchesPdf(mixture({component(0.6f, Vec2(0.3f, 0.6f), 0.04f, 0.0f, 0.0009f),
-                                      component(0.4f, Vec2(0.7f, 0.3f), 0.0016f, 0.0f, 0.05f)}),
+    expectSamplingMatchesPdf(gmmMixture({gmmComponent(0.6f, Vec2(0.3f, 0.6f), 0.04f, 0.0f, 0.0009f),
+                                      gmmComponent(0.4f, Vec2(0.7f, 0.3f), 0.0016f, 0.0f, 0.05f)}),
                              "anisotropic");
 }
 
 TEST(DirectionalGmm, Chi2NearSingularMixture) {
     // Correlation 0.999: the Gaussian is almost a line segment across the square.
-    expectSamplingMatchesPdf(mixture({component(0.7f, Vec2(0.5f, 0.5f), 0.02f, 0.01998f, 0.02f),
-                                      component(0.3f, Vec2(0.2f, 0.8f), 0.0004f, 0.0f, 0.0004f)}),
+    expectSamplingMatchesPdf(gmmMixture({gmmComponent(0.7f, Vec2(0.5f, 0.5f), 0.02f, 0.01998f, 0.02f),
+                                      gmmComponent(0.3f, Vec2(0.2f, 0.8f), 0.0004f, 0.0f, 0.0004f)}),
                              "near-singular");
 }
 
 TEST(DirectionalGmm, FinalizeRejectsIndefiniteCovariance) {
     DirectionalGmm gmm;
-    gmm.components[0] = component(1.0f, Vec2(0.5f), 0.01f, 0.02f, 0.01f);
+    gmm.components[0] = gmmComponent(1.0f, Vec2(0.5f), 0.01f, 0.02f, 0.01f);
     EXPECT_FALSE(gmm.finalize());
     EXPECT_FALSE(gmm.usable());
 }

@@ -10,6 +10,7 @@
 #include "engine/shading/texture.h"
 #include "jobs/random.h"
 #include "tests/support/chi2.h"
+#include "tests/support/gmm_fixtures.h"
 
 #include <gtest/gtest.h>
 
@@ -19,31 +20,16 @@
 namespace fg {
 namespace {
 
-GmmComponent component(float weight, Vec2 mean, float xx, float xy, float yy) {
-    GmmComponent c;
-    c.weight = weight;
-    c.mean = mean;
-    c.covXX = xx;
-    c.covXY = xy;
-    c.covYY = yy;
-    return c;
-}
-
-DirectionalGmm mixture(const std::vector<GmmComponent>& parts) {
-    DirectionalGmm gmm;
-    for (GmmComponent& c : gmm.components) c.weight = 0.0f;
-    for (std::size_t j = 0; j < parts.size(); ++j) gmm.components[j] = parts[j];
-    EXPECT_TRUE(gmm.finalize());
-    return gmm;
-}
+using test::gmmComponent;
+using test::gmmMixture;
 
 // Lobes near the square's edge (mass outside it, directions near the record's
 // horizon), an anisotropic one and a narrow one.
 DirectionalGmm testMixture() {
-    return mixture({component(0.35f, Vec2(0.95f, 0.5f), 0.01f, 0.0f, 0.02f),
-                    component(0.25f, Vec2(0.3f, 0.7f), 0.04f, 0.012f, 0.006f),
-                    component(0.2f, Vec2(0.55f, 0.45f), 0.0004f, 0.0f, 0.0004f),
-                    component(0.2f, Vec2(0.1f, 0.05f), 0.003f, 0.0f, 0.003f)});
+    return gmmMixture({gmmComponent(0.35f, Vec2(0.95f, 0.5f), 0.01f, 0.0f, 0.02f),
+                    gmmComponent(0.25f, Vec2(0.3f, 0.7f), 0.04f, 0.012f, 0.006f),
+                    gmmComponent(0.2f, Vec2(0.55f, 0.45f), 0.0004f, 0.0f, 0.0004f),
+                    gmmComponent(0.2f, Vec2(0.1f, 0.05f), 0.003f, 0.0f, 0.003f)});
 }
 
 void expectMixtureMatchesSampling(const Bsdf& bsdf, const Vec3& woLocal, float alpha, const char* what) {
@@ -112,7 +98,7 @@ TEST(GuidedSampling, PdfAtSampledDirectionMatchesSquareDensity) {
     for (int lobe = 0; lobe < 64; ++lobe) {
         const Vec2 mean(0.02f + 0.96f * rng.uniform(), 0.02f + 0.96f * rng.uniform());
         const float sigma = 0.002f;
-        const DirectionalGmm gmm = mixture({component(1.0f, mean, sigma * sigma, 0.0f, sigma * sigma)});
+        const DirectionalGmm gmm = gmmMixture({gmmComponent(1.0f, mean, sigma * sigma, 0.0f, sigma * sigma)});
         for (int k = 0; k < 200; ++k) {
             const Vec2 s = gmm.samplePlane(rng.uniform(), rng.uniform2());
             if (!(s.x >= 0.0f && s.x <= 1.0f && s.y >= 0.0f && s.y <= 1.0f)) continue;
