@@ -165,10 +165,21 @@ float bdptPdf(const BdptScene& bs, const BdptVertex* prev, const BdptVertex& cur
     return 0.0f;
 }
 
-float bdptMisWeight(const BdptScene& bs, std::span<const BdptVertex> light, std::span<const BdptVertex> camera,
-                    const BdptVertex* sampledLight, int s, int t, MisHeuristic heuristic) {
+float bdptDistancePdf(const FreeFlightSegment& segment, const BdptVertex& start, const BdptVertex& end, bool towardsEnd) {
+    if (start.infinite || end.infinite) return 1.0f;
+    return towardsEnd ? segment.towardEnd(end.kind == BdptVertexKind::Medium)
+                      : segment.towardStart(start.kind == BdptVertexKind::Medium);
+}
+
+BdptWeightTerms bdptMisTerms(const BdptScene& bs, std::span<const BdptVertex> light, std::span<const BdptVertex> camera,
+                             const BdptVertex* sampledLight, int s, int t, MisHeuristic heuristic) {
+    BdptWeightTerms terms;
+    terms.heuristic = heuristic;
     const auto S = static_cast<std::size_t>(s), T = static_cast<std::size_t>(t);
-    if (S > kMaxSubpath || T > kMaxSubpath) return 0.0f;
+    if (S > kMaxSubpath || T > kMaxSubpath) {
+        terms.cameraSum = kInfinity;  // weight 0
+        return terms;
+    }
     // Copies of the densities the connection changes: the ratios need the reverse
     // densities at the four vertices beside it as this strategy sees them.
     std::array<float, kMaxSubpath> camFwd, camRev, lightFwd, lightRev;
@@ -191,24 +202,31 @@ float bdptMisWeight(const BdptScene& bs, std::span<const BdptVertex> light, std:
     const BdptVertex* qs = s > 0 ? &lightVertex(S - 1) : nullptr;
     const BdptVertex* qsMinus = s > 1 ? &lightVertex(S - 2) : nullptr;
 
+    // The segments beside the connection were sampled towards pt and qs; the
+    // reverse densities along them take the distance densities stored there.
     if (s > 0) {
         camRev[T - 1] = bdptPdf(bs, qsMinus, *qs, pt);
-        if (ptMinus) camRev[T - 2] = bdptPdf(bs, qs, pt, *ptMinus);
+        if (ptMinus) camRev[T - 2] = bdptPdf(bs, qs, pt, *ptMinus) * pt.distancePdfRev;
         lightRev[S - 1] = bdptPdf(bs, ptMinus, pt, *qs);
-        if (qsMinus) lightRev[S - 2] = bdptPdf(bs, &pt, *qs, *qsMinus);
+        if (qsMinus) lightRev[S - 2] = bdptPdf(bs, &pt, *qs, *qsMinus) * qs->distancePdfRev;
         lightDelta[S - 1] = false;
+        terms.connected = true;
+        terms.cameraConnectionPdf = camRev[T - 1];
+        terms.lightConnectionPdf = lightRev[S - 1];
+        terms.cameraEndInMedium = pt.kind == BdptVertexKind::Medium;
+        terms.lightEndInMedium = qs->kind == BdptVertexKind::Medium;
+        terms.atInfinity = pt.infinite || qs->infinite;
     } else {
         camRev[T - 1] = bdptPdfLightOrigin(bs, pt);
-        if (ptMinus) camRev[T - 2] = bdptPdfLight(bs, pt, *ptMinus);
+        if (ptMinus) camRev[T - 2] = bdptPdfLight(bs, pt, *ptMinus) * pt.distancePdfRev;
     }
     camDelta[T - 1] = false;
 
     const auto term = [heuristic](float ratio) { return heuristic == MisHeuristic::Power ? ratio * ratio : ratio; };
-    float sum = 0.0f;
     float ratio = 1.0f;
     for (std::size_t i = T - 1; i > 0; --i) {
         ratio *= remapZero(camRev[i]) / remapZero(camFwd[i]);
-        if (!camDelta[i] && !camDelta[i - 1]) sum += term(ratio);
+        if (!camDelta[i] && !camDelta[i - 1]) terms.cameraSum += term(ratio);
     }
     ratio = 1.0f;
     for (std::size_t k = S; k > 0; --k) {
@@ -217,10 +235,33 @@ float bdptMisWeight(const BdptScene& bs, std::span<const BdptVertex> light, std:
         const BdptVertex& origin = lightVertex(0);
         const bool deltaBefore =
             i > 0 ? lightDelta[i - 1] : (origin.light >= 0 && bs.scene.lights[static_cast<std::size_t>(origin.light)]->isDelta());
-        if (!lightDelta[i] && !deltaBefore) sum += term(ratio);
+        if (!lightDelta[i] && !deltaBefore) terms.lightSum += term(ratio);
     }
-    const float weight = 1.0f / (1.0f + sum);
+    return terms;
+}
+
+float bdptFinishWeight(const BdptWeightTerms& terms, const FreeFlightSegment& connection) {
+    float cameraSum = terms.cameraSum, lightSum = terms.lightSum;
+    if (terms.connected && !terms.atInfinity && !connection.empty()) {
+        // Every camera-side term holds the connection's camera-end density once,
+        // every light-side term its light-end density: scale them by what the
+        // distance densities change there (as remapZero would have seen the products).
+        const float cameraDistance = connection.towardStart(terms.cameraEndInMedium);
+        const float lightDistance = connection.towardEnd(terms.lightEndInMedium);
+        const float cameraScale = remapZero(terms.cameraConnectionPdf * cameraDistance) / remapZero(terms.cameraConnectionPdf);
+        const float lightScale = remapZero(terms.lightConnectionPdf * lightDistance) / remapZero(terms.lightConnectionPdf);
+        const bool power = terms.heuristic == MisHeuristic::Power;
+        cameraSum *= power ? cameraScale * cameraScale : cameraScale;
+        lightSum *= power ? lightScale * lightScale : lightScale;
+    }
+    const float weight = 1.0f / (1.0f + cameraSum + lightSum);
     return std::isfinite(weight) ? weight : 0.0f;
+}
+
+float bdptMisWeight(const BdptScene& bs, std::span<const BdptVertex> light, std::span<const BdptVertex> camera,
+                    const BdptVertex* sampledLight, int s, int t, MisHeuristic heuristic,
+                    const FreeFlightSegment& connection) {
+    return bdptFinishWeight(bdptMisTerms(bs, light, camera, sampledLight, s, t, heuristic), connection);
 }
 
 bool bdptConnectible(const BdptScene& bs, const BdptVertex& v) {
