@@ -99,4 +99,45 @@ DistanceSample HomogeneousMedium::sampleDistance(float tMax, float uChannel, flo
     return result;
 }
 
+float FreeFlightSegment::pass(const Rgb& sigmaT, float length) {
+    const Rgb p = HomogeneousMedium(Rgb(0.0f), sigmaT, 0.0f).transmittance(length);
+    return (p.x + p.y + p.z) / 3.0f;
+}
+
+float FreeFlightSegment::scatter(const Rgb& sigmaT, float length) {
+    const Rgb p = sigmaT * HomogeneousMedium(Rgb(0.0f), sigmaT, 0.0f).transmittance(length);
+    return (p.x + p.y + p.z) / 3.0f;
+}
+
+void FreeFlightSegment::add(const HomogeneousMedium& medium, float length) {
+    if (pieces_ == 0) {
+        firstSigmaT_ = medium.sigmaT();
+        firstLength_ = length;
+    } else {
+        if (pieces_ >= 2) innerPass_ *= pass(lastSigmaT_, lastLength_);
+        lastSigmaT_ = medium.sigmaT();
+        lastLength_ = length;
+    }
+    ++pieces_;
+}
+
+void FreeFlightSegment::extendEnd(float length) {
+    if (pieces_ == 1) firstLength_ += length;
+    else if (pieces_ > 1) lastLength_ += length;
+}
+
+float FreeFlightSegment::towardEnd(bool endInMedium) const {
+    if (pieces_ == 0) return 1.0f;
+    if (pieces_ == 1) return endInMedium ? scatter(firstSigmaT_, firstLength_) : pass(firstSigmaT_, firstLength_);
+    return pass(firstSigmaT_, firstLength_) * innerPass_ *
+           (endInMedium ? scatter(lastSigmaT_, lastLength_) : pass(lastSigmaT_, lastLength_));
+}
+
+float FreeFlightSegment::towardStart(bool startInMedium) const {
+    if (pieces_ == 0) return 1.0f;
+    if (pieces_ == 1) return startInMedium ? scatter(firstSigmaT_, firstLength_) : pass(firstSigmaT_, firstLength_);
+    return (startInMedium ? scatter(firstSigmaT_, firstLength_) : pass(firstSigmaT_, firstLength_)) * innerPass_ *
+           pass(lastSigmaT_, lastLength_);
+}
+
 }  // namespace fg

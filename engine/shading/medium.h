@@ -55,4 +55,38 @@ private:
     HenyeyGreenstein phase_;
 };
 
+// Densities of free-flight sampling along one straight segment that may cross
+// several homogeneous media (null boundaries between them), seen from either
+// end: what multiple importance sampling needs to compare strategies that
+// sample the segment from opposite ends. Each medium the segment crosses is a
+// piece; a path passes a piece with probability P = mean_c exp(-sigma_t,c l)
+// and scatters at its far end with density mean_c sigma_t,c exp(-sigma_t,c l).
+// The channels are weighted equally, where sampleDistance weights them by the
+// throughput of the path being traced: a weight needs one density per vertex
+// and direction, the same whichever subpath sampled the vertex, and the
+// throughput of the subpath coming from the other end is not known there. For
+// grey media (all sigma_t,c equal) both are the sampler's density exactly.
+class FreeFlightSegment {
+public:
+    // Appends the next piece along the segment (vacuum needs none: it passes with probability 1).
+    void add(const HomogeneousMedium& medium, float length);
+    // Lengthens the last piece, e.g. to the end of a segment whose walk stopped short of it.
+    void extendEnd(float length);
+    // Density of sampling the end from the start: per unit length when the end
+    // is a scattering event in a medium (endInMedium), the probability of
+    // passing every piece otherwise; 1 for a segment that crosses no medium.
+    float towardEnd(bool endInMedium) const;
+    // The same for sampling the start from the end.
+    float towardStart(bool startInMedium) const;
+    bool empty() const { return pieces_ == 0; }
+
+private:
+    static float pass(const Rgb& sigmaT, float length);
+    static float scatter(const Rgb& sigmaT, float length);
+    int pieces_ = 0;
+    Rgb firstSigmaT_{0.0f}, lastSigmaT_{0.0f};
+    float firstLength_ = 0.0f, lastLength_ = 0.0f;
+    float innerPass_ = 1.0f;  // pieces between the first and the last
+};
+
 }  // namespace fg

@@ -42,6 +42,7 @@
 // in three stages (camera subpaths, light subpaths, connections), the
 // connections of each group of samples resolved as one stream of shadow rays.
 #include "passes/bdpt/bdpt_path.h"
+#include "passes/common/light_media.h"
 #include "passes/common/path_vertex.h"
 #include "passes/passes.h"
 
@@ -124,7 +125,8 @@ struct SplatBlock {
 struct PendingConnection {
     Ray ray;
     Rgb value{0.0f};  // unweighted and unoccluded
-    float weight = 0.0f;
+    BdptWeightTerms weight;  // finished once the shadow ray has walked the media between the ends
+    float shortfall = 0.0f;  // how far short of the far vertex the ray stops
     Vec2 raster{0.0f};
     std::uint32_t sample = 0;
     int medium = -1;
@@ -150,9 +152,14 @@ int randomWalk(const BdptScene& bs, Ray ray, Rgb beta, float pdfDirection, int m
     int count = 1;
     float etaScale = 1.0f;
     const float startMax = std::max(maxComponent(beta), 1e-30f);
+    // The media crossed since the last vertex, for the free-flight densities of the next one.
+    FreeFlightSegment segment;
     const auto addVertex = [&](BdptVertex v) -> BdptVertex& {
         BdptVertex& prev = path[count - 1];
         v.pdfFwd = count == 1 ? bdptPdf(bs, nullptr, prev, v) : bdptConvertDensity(pdfDirection, prev, v);
+        v.pdfFwd *= bdptDistancePdf(segment, prev, v, true);
+        v.distancePdfRev = bdptDistancePdf(segment, prev, v, false);
+        segment = FreeFlightSegment();
         path[count++] = v;
         return path[count - 1];
     };
@@ -163,6 +170,7 @@ int randomWalk(const BdptScene& bs, Ray ray, Rgb beta, float pdfDirection, int m
             const float uChannel = rng.uniform();
             const float uDistance = rng.uniform();
             const DistanceSample ds = m.sampleDistance(hit.valid() ? hit.t : kInfinity, uChannel, uDistance, beta);
+            if (ds.scattered || hit.valid()) segment.add(m, ds.t);
             beta *= ds.weight;
             if (isBlack(beta)) break;
             if (ds.scattered) {
@@ -177,7 +185,7 @@ int randomWalk(const BdptScene& bs, Ray ray, Rgb beta, float pdfDirection, int m
                 const PhaseSample ps = m.phase().sample(added.wo, rng.uniform2());
                 if (!(ps.pdf > 0.0f)) break;
                 // Henyey-Greenstein depends on the angle alone: the reverse density is the same.
-                path[count - 2].pdfRev = bdptConvertDensity(ps.pdf, added, path[count - 2]);
+                path[count - 2].pdfRev = bdptConvertDensity(ps.pdf, added, path[count - 2]) * added.distancePdfRev;
                 pdfDirection = ps.pdf;
                 ray = Ray{added.p, ps.wi, kInfinity};
                 if (!survives(count - 1, rrDepth, startMax, etaScale, beta, rng)) break;
@@ -250,7 +258,7 @@ int randomWalk(const BdptScene& bs, Ray ray, Rgb beta, float pdfDirection, int m
             added.delta = true;
             pdfForward = pdfReverse = 0.0f;
         }
-        path[count - 2].pdfRev = bdptConvertDensity(pdfReverse, added, path[count - 2]);
+        path[count - 2].pdfRev = bdptConvertDensity(pdfReverse, added, path[count - 2]) * added.distancePdfRev;
         if (chosen->lobe & BsdfLobe::Transmission) {
             if (mode == TransportMode::Radiance) etaScale *= sqr(chosen->eta);
             medium = mediumAfterCrossing(shape, sp.ng, wi, medium);
@@ -292,6 +300,12 @@ Ray connectionRay(const BdptScene& bs, const BdptVertex& from, const BdptVertex&
     ray.direction = d / distance;
     ray.tMax = distance * (1.0f - kShadowEpsilon);
     return ray;
+}
+
+// Distance between where a connection ray stops and the vertex it aims at.
+float rayShortfall(const Ray& ray, const BdptVertex& to) {
+    if (to.infinite) return 0.0f;
+    return std::max(0.0f, glm::length(to.p - ray.origin) - ray.tMax);
 }
 
 // Integral of each pixel's filter over the image: the normaliser its camera
@@ -343,28 +357,37 @@ void resolveConnections(const BdptScene& bs, const SplatTarget& target, std::spa
     std::array<Ray, kStream> rays;
     std::array<std::uint8_t, kStream> blocked;
     std::array<Rgb, kStream> transmittance;
+    std::array<float, kStream> weights;
     const std::ptrdiff_t width = target.film.width, height = target.film.height;
     const float reach = target.film.filterRadius;
     for (std::size_t first = 0; first < pending.size(); first += kStream) {
         const std::size_t n = std::min(kStream, pending.size() - first);
         if (bs.connectionsNeedTransmittance) {
             for (std::size_t k = 0; k < n; ++k) {
+                const PendingConnection& c = pending[first + k];
                 ShadowRequest request;
-                request.ray = pending[first + k].ray;
-                request.medium = pending[first + k].medium;
+                request.ray = c.ray;
+                request.medium = c.medium;
                 request.pending = true;
-                transmittance[k] = shadowTransmittance(bs.tracer, request);
+                FreeFlightSegment media;
+                transmittance[k] = shadowTransmittance(bs.tracer, request, &media);
+                // The ray stops short of the far vertex; the densities need the whole segment.
+                media.extendEnd(c.shortfall);
+                weights[k] = bdptFinishWeight(c.weight, media);
             }
         } else {
             for (std::size_t k = 0; k < n; ++k) rays[k] = pending[first + k].ray;
             bs.rays.occluded(std::span<const Ray>(rays.data(), n), std::span<std::uint8_t>(blocked.data(), n));
-            for (std::size_t k = 0; k < n; ++k) transmittance[k] = blocked[k] ? Rgb(0.0f) : Rgb(1.0f);
+            for (std::size_t k = 0; k < n; ++k) {
+                transmittance[k] = blocked[k] ? Rgb(0.0f) : Rgb(1.0f);
+                weights[k] = bdptFinishWeight(pending[first + k].weight, FreeFlightSegment());
+            }
         }
         for (std::size_t k = 0; k < n; ++k) {
             const PendingConnection& c = pending[first + k];
             if (isBlack(transmittance[k])) continue;
             const Rgb value = c.value * transmittance[k];
-            const Rgb weighted = value * c.weight;
+            const Rgb weighted = value * weights[k];
             const Rgb strategyValue = target.weightedStrategies ? weighted : value;
             if (!isFinite(value)) continue;
             ++acc.connections;
@@ -595,7 +618,7 @@ private:
         origin.beta = emission->flux;
         origin.pdfFwd = bdptPdfLightOrigin(bs, origin);
         int medium = info.medium;
-        if (medium == -2) {
+        if (medium == kMediumBySide) {
             const Shape& shape = scene.shapes[static_cast<std::size_t>(scene.lightShape[index])];
             medium = mediumAfterCrossing(shape, emission->normal, emission->direction, -1);
         }
@@ -668,10 +691,11 @@ private:
                 const Rgb value = pt.beta * bdptScatter(bs, pt, dir, false) * bdptScatter(bs, qs, -dir, true) * qs.beta /
                                   distance2;
                 if (isBlack(value) || !isFinite(value)) continue;
-                const float w = bdptMisWeight(bs, light.first(static_cast<std::size_t>(s)),
+                const BdptWeightTerms w = bdptMisTerms(bs, light.first(static_cast<std::size_t>(s)),
                                               cam.first(static_cast<std::size_t>(t)), nullptr, s, t, settings.heuristic);
                 PendingConnection c;
                 c.ray = connectionRay(bs, pt, qs);
+                c.shortfall = rayShortfall(c.ray, qs);
                 c.medium = mediumTowards(bs, pt, dir);
                 c.value = value;
                 c.weight = w;
@@ -708,9 +732,10 @@ private:
         sampled.pdfFwd = bdptPdfLightOrigin(bs, sampled);
         const Rgb value = pt.beta * f * ls->value / (ls->pdf * pmf);
         if (!isFinite(value)) return;
-        const float w = bdptMisWeight(bs, light, cam, &sampled, 1, static_cast<int>(cam.size()), settings.heuristic);
+        const BdptWeightTerms w = bdptMisTerms(bs, light, cam, &sampled, 1, static_cast<int>(cam.size()), settings.heuristic);
         PendingConnection c;
         c.ray = connectionRay(bs, pt, sampled);
+        c.shortfall = rayShortfall(c.ray, sampled);
         c.medium = mediumTowards(bs, pt, ls->wi);
         c.value = value;
         c.weight = w;
@@ -775,11 +800,12 @@ private:
         value *= bs.view.rasterPerImagePlane / (distance2 * cosCamera * cosCamera * cosCamera);
         if (!isFinite(value) || isBlack(value)) return;
         std::array<BdptVertex, 1> eyePath{eye};
-        const float w = s == 1 ? bdptMisWeight(bs, light, eyePath, &sampled, 1, 1, settings.heuristic)
-                               : bdptMisWeight(bs, light.first(static_cast<std::size_t>(s)), eyePath, nullptr, s, 1,
+        const BdptWeightTerms w = s == 1 ? bdptMisTerms(bs, light, eyePath, &sampled, 1, 1, settings.heuristic)
+                               : bdptMisTerms(bs, light.first(static_cast<std::size_t>(s)), eyePath, nullptr, s, 1,
                                                settings.heuristic);
         PendingConnection c;
         c.ray = connectionRay(bs, eye, *qs);
+        c.shortfall = rayShortfall(c.ray, *qs);
         c.medium = bs.view.medium;
         c.value = value;
         c.weight = w;
@@ -816,7 +842,7 @@ PassRegistration bdptPass() {
         {"strategy_weighted", ParamType::Bool, true, 0, 0, {},
          "the strategy AOVs hold MIS-weighted contributions (they sum to the image); false: unweighted"},
         {"wave_size", ParamType::Int, std::int64_t{1 << 14}, 1, 1 << 22, {},
-         "camera samples in flight per wave (memory: about 2 max_depth vertices of 112 bytes each)"},
+         "camera samples in flight per wave (memory: about 2 max_depth vertices of 96 bytes each)"},
     };
     const auto preflight = [](const PreflightContext& pf) {
         if (pf.scene.camera.orthographic) {

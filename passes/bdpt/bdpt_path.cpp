@@ -2,6 +2,7 @@
 // See bdpt_path.h for the conventions.
 #include "passes/bdpt/bdpt_path.h"
 
+#include "passes/common/light_media.h"
 #include "passes/common/path_vertex.h"
 
 #include <algorithm>
@@ -12,27 +13,6 @@
 namespace fg {
 
 namespace {
-
-// Null-boundary crossings a medium probe follows; only degenerate geometry needs more.
-constexpr int kMaxProbeCrossings = 64;
-
-// The medium on p's side of the first boundary that declares media along a fixed
-// direction, or nothing if the probe escapes.
-std::optional<int> probeMedium(const Scene& scene, const RayQuery& rays, const Vec3& p) {
-    // Off the axes that scene walls tend to align with.
-    const Vec3 direction = glm::normalize(Vec3(0.267f, 0.803f, 0.535f));
-    Ray ray{p, direction, kInfinity};
-    for (int crossing = 0; crossing < kMaxProbeCrossings; ++crossing) {
-        const Hit hit = rays.intersect(ray);
-        if (!hit.valid()) return std::nullopt;
-        const SurfacePoint sp = rays.surface(ray, hit);
-        const Shape& shape = scene.shapes[sp.shape];
-        if (shape.interiorMedium >= 0 || shape.exteriorMedium >= 0)
-            return glm::dot(direction, sp.ng) > 0.0f ? shape.interiorMedium : shape.exteriorMedium;
-        ray.origin = offsetRayOrigin(sp.p, sp.ng, direction);
-    }
-    return std::nullopt;
-}
 
 float remapZero(float pdf) { return pdf != 0.0f ? pdf : 1.0f; }
 
@@ -57,16 +37,13 @@ BdptScene::BdptScene(const Scene& s, const RayQuery& r, const Camera& c)
 
     connectionsNeedTransmittance = tracer.shadowsNeedTransmittance;
 
-    // Light subpaths start in the medium around their light: the side of the
-    // emitting shape they leave by when it declares media, otherwise the medium
-    // a probe finds (or the camera's, when light and camera both lie outside
-    // every boundary that declares one).
-    const std::optional<int> cameraProbe = s.media.empty() ? std::nullopt : probeMedium(s, r, camera.eye);
-    const int outside = cameraProbe || s.media.empty() ? -1 : camera.medium;
+    // Light subpaths start in the medium around their light, as photons do.
+    const std::vector<int> startMedia = lightStartMedia(s, r);
     lights.resize(s.lights.size());
     for (std::size_t l = 0; l < s.lights.size(); ++l) {
         const Light& light = *s.lights[l];
         BdptLightInfo& info = lights[l];
+        info.medium = startMedia[l];
         const int shapeIndex = l < s.lightShape.size() ? s.lightShape[l] : -1;
         const std::optional<EmissionSample> sample = light.sampleEmission(Vec2(0.5f), Vec2(0.5f));
         if (shapeIndex >= 0) {
@@ -77,22 +54,12 @@ BdptScene::BdptScene(const Scene& s, const RayQuery& r, const Camera& c)
                 const float cosine = std::abs(glm::dot(sample->direction, sample->normal));
                 info.directionScale = sample->pdfDirection < 0.75f * cosineHemispherePdf(cosine) ? 0.5f : 1.0f;
             }
-            const Shape& shape = s.shapes[static_cast<std::size_t>(shapeIndex)];
-            if (shape.interiorMedium >= 0 || shape.exteriorMedium >= 0) {
-                info.medium = -2;
-                continue;
-            }
         } else if (light.isInfinite()) {
             info.kind = light.isDelta() ? BdptLightInfo::Kind::Directional : BdptLightInfo::Kind::Environment;
             if (sample) info.positionPdf = sample->pdfPosition;
-            info.medium = outside;
-            continue;
         } else {
             info.kind = BdptLightInfo::Kind::Point;
         }
-        if (s.media.empty() || !sample) continue;
-        const std::optional<int> found = probeMedium(s, r, sample->origin);
-        info.medium = found ? *found : outside;
     }
 }
 
@@ -198,10 +165,21 @@ float bdptPdf(const BdptScene& bs, const BdptVertex* prev, const BdptVertex& cur
     return 0.0f;
 }
 
-float bdptMisWeight(const BdptScene& bs, std::span<const BdptVertex> light, std::span<const BdptVertex> camera,
-                    const BdptVertex* sampledLight, int s, int t, MisHeuristic heuristic) {
+float bdptDistancePdf(const FreeFlightSegment& segment, const BdptVertex& start, const BdptVertex& end, bool towardsEnd) {
+    if (start.infinite || end.infinite) return 1.0f;
+    return towardsEnd ? segment.towardEnd(end.kind == BdptVertexKind::Medium)
+                      : segment.towardStart(start.kind == BdptVertexKind::Medium);
+}
+
+BdptWeightTerms bdptMisTerms(const BdptScene& bs, std::span<const BdptVertex> light, std::span<const BdptVertex> camera,
+                             const BdptVertex* sampledLight, int s, int t, MisHeuristic heuristic) {
+    BdptWeightTerms terms;
+    terms.heuristic = heuristic;
     const auto S = static_cast<std::size_t>(s), T = static_cast<std::size_t>(t);
-    if (S > kMaxSubpath || T > kMaxSubpath) return 0.0f;
+    if (S > kMaxSubpath || T > kMaxSubpath) {
+        terms.cameraSum = kInfinity;  // weight 0
+        return terms;
+    }
     // Copies of the densities the connection changes: the ratios need the reverse
     // densities at the four vertices beside it as this strategy sees them.
     std::array<float, kMaxSubpath> camFwd, camRev, lightFwd, lightRev;
@@ -224,24 +202,31 @@ float bdptMisWeight(const BdptScene& bs, std::span<const BdptVertex> light, std:
     const BdptVertex* qs = s > 0 ? &lightVertex(S - 1) : nullptr;
     const BdptVertex* qsMinus = s > 1 ? &lightVertex(S - 2) : nullptr;
 
+    // The segments beside the connection were sampled towards pt and qs; the
+    // reverse densities along them take the distance densities stored there.
     if (s > 0) {
         camRev[T - 1] = bdptPdf(bs, qsMinus, *qs, pt);
-        if (ptMinus) camRev[T - 2] = bdptPdf(bs, qs, pt, *ptMinus);
+        if (ptMinus) camRev[T - 2] = bdptPdf(bs, qs, pt, *ptMinus) * pt.distancePdfRev;
         lightRev[S - 1] = bdptPdf(bs, ptMinus, pt, *qs);
-        if (qsMinus) lightRev[S - 2] = bdptPdf(bs, &pt, *qs, *qsMinus);
+        if (qsMinus) lightRev[S - 2] = bdptPdf(bs, &pt, *qs, *qsMinus) * qs->distancePdfRev;
         lightDelta[S - 1] = false;
+        terms.connected = true;
+        terms.cameraConnectionPdf = camRev[T - 1];
+        terms.lightConnectionPdf = lightRev[S - 1];
+        terms.cameraEndInMedium = pt.kind == BdptVertexKind::Medium;
+        terms.lightEndInMedium = qs->kind == BdptVertexKind::Medium;
+        terms.atInfinity = pt.infinite || qs->infinite;
     } else {
         camRev[T - 1] = bdptPdfLightOrigin(bs, pt);
-        if (ptMinus) camRev[T - 2] = bdptPdfLight(bs, pt, *ptMinus);
+        if (ptMinus) camRev[T - 2] = bdptPdfLight(bs, pt, *ptMinus) * pt.distancePdfRev;
     }
     camDelta[T - 1] = false;
 
     const auto term = [heuristic](float ratio) { return heuristic == MisHeuristic::Power ? ratio * ratio : ratio; };
-    float sum = 0.0f;
     float ratio = 1.0f;
     for (std::size_t i = T - 1; i > 0; --i) {
         ratio *= remapZero(camRev[i]) / remapZero(camFwd[i]);
-        if (!camDelta[i] && !camDelta[i - 1]) sum += term(ratio);
+        if (!camDelta[i] && !camDelta[i - 1]) terms.cameraSum += term(ratio);
     }
     ratio = 1.0f;
     for (std::size_t k = S; k > 0; --k) {
@@ -250,10 +235,33 @@ float bdptMisWeight(const BdptScene& bs, std::span<const BdptVertex> light, std:
         const BdptVertex& origin = lightVertex(0);
         const bool deltaBefore =
             i > 0 ? lightDelta[i - 1] : (origin.light >= 0 && bs.scene.lights[static_cast<std::size_t>(origin.light)]->isDelta());
-        if (!lightDelta[i] && !deltaBefore) sum += term(ratio);
+        if (!lightDelta[i] && !deltaBefore) terms.lightSum += term(ratio);
     }
-    const float weight = 1.0f / (1.0f + sum);
+    return terms;
+}
+
+float bdptFinishWeight(const BdptWeightTerms& terms, const FreeFlightSegment& connection) {
+    float cameraSum = terms.cameraSum, lightSum = terms.lightSum;
+    if (terms.connected && !terms.atInfinity && !connection.empty()) {
+        // Every camera-side term holds the connection's camera-end density once,
+        // every light-side term its light-end density: scale them by what the
+        // distance densities change there (as remapZero would have seen the products).
+        const float cameraDistance = connection.towardStart(terms.cameraEndInMedium);
+        const float lightDistance = connection.towardEnd(terms.lightEndInMedium);
+        const float cameraScale = remapZero(terms.cameraConnectionPdf * cameraDistance) / remapZero(terms.cameraConnectionPdf);
+        const float lightScale = remapZero(terms.lightConnectionPdf * lightDistance) / remapZero(terms.lightConnectionPdf);
+        const bool power = terms.heuristic == MisHeuristic::Power;
+        cameraSum *= power ? cameraScale * cameraScale : cameraScale;
+        lightSum *= power ? lightScale * lightScale : lightScale;
+    }
+    const float weight = 1.0f / (1.0f + cameraSum + lightSum);
     return std::isfinite(weight) ? weight : 0.0f;
+}
+
+float bdptMisWeight(const BdptScene& bs, std::span<const BdptVertex> light, std::span<const BdptVertex> camera,
+                    const BdptVertex* sampledLight, int s, int t, MisHeuristic heuristic,
+                    const FreeFlightSegment& connection) {
+    return bdptFinishWeight(bdptMisTerms(bs, light, camera, sampledLight, s, t, heuristic), connection);
 }
 
 bool bdptConnectible(const BdptScene& bs, const BdptVertex& v) {

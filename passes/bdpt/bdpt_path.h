@@ -13,11 +13,19 @@
 // beta = 1, the power heuristic for beta = 2, §9.2) is
 // w = 1 / (1 + sum_i (p_i / p_s)^beta): walking from the connection
 // outwards the ratio of neighbouring strategies is pdfRev / pdfFwd of the
-// vertex that changes sides. Free-flight distances are left out of both
-// densities (their factors are the same for every strategy that samples a
-// segment, except at the connection, where none is sampled): the weights then
-// still sum to one over the strategies of every path, so the estimate stays
-// unbiased, only the combination is not the optimal balance in dense media.
+// vertex that changes sides.
+//
+// Both densities include the free-flight distance of the segment that reaches
+// the vertex (Veach §8.2's volume path space; FreeFlightSegment of medium.h):
+// a medium vertex carries sigma_t T of the media it was reached through, a
+// surface reached through media the probability T of passing them, in either
+// direction. The connecting segment is sampled by neither end, but its
+// densities enter the ratios pdfRev / pdfFwd of the two vertices beside it;
+// they are known only once the connection's shadow ray has walked the media,
+// so the weight is computed in two steps (BdptWeightTerms). Segments to
+// vertices at infinity carry no distance density in either direction: light
+// subpaths of lights at infinity start on a disk outside the scene, not at
+// infinity, and so no density of theirs matches a camera ray escaping.
 #pragma once
 
 #include "engine/accel/ray_query.h"
@@ -42,6 +50,9 @@ struct BdptVertex {
     Vec2 uv{0.0f};
     float pdfFwd = 0.0f;
     float pdfRev = 0.0f;
+    // Free-flight density with which this vertex, sampling backwards along the
+    // segment that reached it, would reach the vertex before it (a factor of that vertex's pdfRev).
+    float distancePdfRev = 1.0f;
     int medium = -1;  // the medium the vertex was reached through (light origins: the one they emit into)
     int light = -1;   // the light it emits as (light origins, surfaces of area lights, escaped camera rays)
     std::uint32_t shape = Hit::kNoShape;
@@ -58,7 +69,7 @@ struct BdptLightInfo {
     Kind kind = Kind::Point;
     float positionPdf = 1.0f;       // area density of emission origins (area lights, bounding disks)
     float directionScale = 1.0f;    // area lights: 1 one-sided, 1/2 two-sided (cosine-weighted directions)
-    int medium = -1;                // medium photons start in; -2: the side of the emitting shape
+    int medium = -1;                // medium subpaths start in, or kMediumBySide (light_media.h)
 };
 
 // The camera as the weights see it: a pinhole whose rays have the solid-angle
@@ -110,14 +121,40 @@ float bdptPdfLightOrigin(const BdptScene& bs, const BdptVertex& v);
 // Density of `next` when a light subpath starts at light vertex `v` and leaves towards it.
 float bdptPdfLight(const BdptScene& bs, const BdptVertex& v, const BdptVertex& next);
 
+// Free-flight density of reaching `end` from `start` (towardsEnd) or `start`
+// from `end` along a segment whose media were walked from `start`.
+float bdptDistancePdf(const FreeFlightSegment& segment, const BdptVertex& start, const BdptVertex& end, bool towardsEnd);
+
 enum class MisHeuristic : std::uint8_t { Balance, Power };
 
-// Weight of connecting the first s light vertices with the first t camera
-// vertices. `sampledLight` replaces light[0] for s = 1 (next-event estimation
-// resamples the light) and, for s = 0, the camera subpath's last vertex (an
-// escaped ray as one of several lights at infinity sees it); null otherwise.
+// A weight before the media along its connecting segment are known: the sums
+// of the ratio terms on the camera and on the light side, each of which holds
+// the density of one end sampling the other once.
+struct BdptWeightTerms {
+    float cameraSum = 0.0f;
+    float lightSum = 0.0f;
+    float cameraConnectionPdf = 0.0f;  // the light end sampling the camera end, without distance
+    float lightConnectionPdf = 0.0f;   // the camera end sampling the light end, without distance
+    bool connected = false;            // s > 0: the strategy has a connecting segment
+    bool cameraEndInMedium = false;
+    bool lightEndInMedium = false;
+    bool atInfinity = false;           // either end is at infinity
+    MisHeuristic heuristic = MisHeuristic::Power;
+};
+
+// Terms of the weight of connecting the first s light vertices with the first
+// t camera vertices. `sampledLight` replaces light[0] for s = 1 (next-event
+// estimation resamples the light) and, for s = 0, the camera subpath's last
+// vertex (an escaped ray as one of several lights at infinity sees it); null otherwise.
+BdptWeightTerms bdptMisTerms(const BdptScene& bs, std::span<const BdptVertex> light, std::span<const BdptVertex> camera,
+                             const BdptVertex* sampledLight, int s, int t, MisHeuristic heuristic);
+// The weight, given the media along the connecting segment walked from the
+// camera end to the light end (empty where it crosses none or s = 0).
+float bdptFinishWeight(const BdptWeightTerms& terms, const FreeFlightSegment& connection);
+// Both steps at once.
 float bdptMisWeight(const BdptScene& bs, std::span<const BdptVertex> light, std::span<const BdptVertex> camera,
-                    const BdptVertex* sampledLight, int s, int t, MisHeuristic heuristic);
+                    const BdptVertex* sampledLight, int s, int t, MisHeuristic heuristic,
+                    const FreeFlightSegment& connection = FreeFlightSegment());
 
 // f * |cos| at a connectible vertex towards `to` (BSDF at surfaces, phase in
 // media); zero where the vertex cannot connect (specular lobes, the wrong side

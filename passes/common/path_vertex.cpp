@@ -299,7 +299,7 @@ void endPathAtEyeVertex(const PathTracerScene& pts, const Hit& hit, PathVertexSt
     }
 }
 
-Rgb shadowTransmittance(const PathTracerScene& pts, const ShadowRequest& shadow) {
+Rgb shadowTransmittance(const PathTracerScene& pts, const ShadowRequest& shadow, FreeFlightSegment* freeFlight) {
     if (!pts.shadowsNeedTransmittance) return pts.rays.occluded(shadow.ray) ? Rgb(0.0f) : Rgb(1.0f);
     const Scene& scene = pts.scene;
     Rgb transmittance(1.0f);
@@ -309,7 +309,11 @@ Rgb shadowTransmittance(const PathTracerScene& pts, const ShadowRequest& shadow)
     for (int crossing = 0; crossing < 1024; ++crossing) {
         const Hit hit = pts.rays.intersect(ray);
         const float segment = hit.valid() ? hit.t : ray.tMax;
-        if (medium >= 0) transmittance *= segmentTransmittance(scene.media[static_cast<std::size_t>(medium)], segment);
+        if (medium >= 0) {
+            const HomogeneousMedium& m = scene.media[static_cast<std::size_t>(medium)];
+            transmittance *= segmentTransmittance(m, segment);
+            if (freeFlight && segment < kInfinity) freeFlight->add(m, segment);
+        }
         if (!hit.valid() || isBlack(transmittance)) return transmittance;
         const Shape& shape = scene.shapes[hit.shape];
         const Bsdf* bsdf = shape.bsdf >= 0 ? scene.bsdfs[static_cast<std::size_t>(shape.bsdf)].get() : nullptr;

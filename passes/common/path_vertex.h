@@ -89,7 +89,8 @@ inline bool passesThroughMask(const Bsdf* bsdf, const Vec2& uv, jobs::Rng& rng) 
 }
 
 // Transmittance along a shadow ray: 0 if blocked by a non-null surface, 1 - opacity through a masked one.
-Rgb shadowTransmittance(const PathTracerScene& pts, const ShadowRequest& shadow);
+// `freeFlight`, if given, receives the media the ray crosses (up to where it stops; a piece of infinite length is left out).
+Rgb shadowTransmittance(const PathTracerScene& pts, const ShadowRequest& shadow, FreeFlightSegment* freeFlight = nullptr);
 
 // Camera paths of the eye passes: their specular chains end by the depth limit,
 // never by Russian roulette, which would only add noise to the vertex weights.

@@ -77,6 +77,7 @@
 // (nor on batch_size). Scenes without media draw exactly the random numbers
 // they drew before media were simulated.
 #include "passes/passes.h"
+#include "passes/common/light_media.h"
 #include "passes/common/path_vertex.h"
 
 #include "engine/shading/differentials.h"
@@ -148,56 +149,6 @@ struct ChunkResult {
     std::int64_t segments = 0;
 };
 
-// Where a probe ray from p first meets a boundary that declares media: the
-// medium on p's side, or nothing if it escapes.
-std::optional<int> probeMedium(const Scene& scene, const RayQuery& rays, const Vec3& p) {
-    // Any fixed direction works; this one is off the axes that scene walls tend to align with.
-    const Vec3 direction = glm::normalize(Vec3(0.267f, 0.803f, 0.535f));
-    Ray ray{p, direction, kInfinity};
-    for (int crossing = 0; crossing < kMaxNullCrossings; ++crossing) {
-        const Hit hit = rays.intersect(ray);
-        if (!hit.valid()) return std::nullopt;
-        const SurfacePoint sp = rays.surface(ray, hit);
-        const Shape& shape = scene.shapes[sp.shape];
-        if (shape.interiorMedium >= 0 || shape.exteriorMedium >= 0)
-            return glm::dot(direction, sp.ng) > 0.0f ? shape.interiorMedium : shape.exteriorMedium;
-        ray.origin = offsetRayOrigin(sp.p, sp.ng, direction);
-    }
-    return std::nullopt;
-}
-
-// Per light: the medium its photons start in, or -2 when it depends on the
-// side of the emitting shape they leave by (shapes that declare media).
-constexpr int kMediumBySide = -2;
-
-std::vector<int> lightMedia(const Scene& scene, const RayQuery& rays) {
-    std::vector<int> media(scene.lights.size(), -1);
-    if (scene.media.empty()) return media;
-    // The medium outside every boundary that declares one: the camera's, if the camera is out there too.
-    const std::optional<int> cameraProbe = probeMedium(scene, rays, scene.camera.eye);
-    const int outside = cameraProbe ? -1 : scene.camera.medium;
-    for (std::size_t l = 0; l < scene.lights.size(); ++l) {
-        const int shapeIndex = l < scene.lightShape.size() ? scene.lightShape[l] : -1;
-        if (shapeIndex >= 0) {
-            const Shape& shape = scene.shapes[static_cast<std::size_t>(shapeIndex)];
-            if (shape.interiorMedium >= 0 || shape.exteriorMedium >= 0) {
-                media[l] = kMediumBySide;
-                continue;
-            }
-        }
-        // Infinite lights have no position inside the scene: their photons start outside everything.
-        if (scene.lights[l]->isInfinite()) {
-            media[l] = outside;
-            continue;
-        }
-        const std::optional<EmissionSample> sample = scene.lights[l]->sampleEmission(Vec2(0.5f), Vec2(0.5f));
-        if (!sample) continue;
-        const std::optional<int> found = probeMedium(scene, rays, sample->origin);
-        media[l] = found ? *found : outside;
-    }
-    return media;
-}
-
 // The photon ray being traced (Herzog et al. 2007, Eq. 7): where it left, and
 // p~ of its origin vertex times the density of the direction it left in, to
 // be divided by D once its length is known.
@@ -226,7 +177,7 @@ public:
     PhotonTracer(const Scene& scene, const RayQuery& rays, const Settings& settings, std::uint64_t seed,
                  std::uint64_t stream)
         : scene_(scene), rays_(rays), settings_(settings), seed_(seed), stream_(stream),
-          lightMedium_(lightMedia(scene, rays)) {}
+          lightMedium_(lightStartMedia(scene, rays)) {}
 
     void trace(std::uint64_t pathIndex, ChunkResult& out) const {
         jobs::Rng rng(seed_, stream_, pathIndex);

@@ -216,5 +216,46 @@ TEST(HomogeneousMedium, GreyMediumGivesAlbedoWeights) {
     EXPECT_GT(scatteredCount, 900);  // P(scatter) = 1 - e^-3 = 0.95
 }
 
+// Free-flight densities of a segment for MIS weights: the densities along a
+// segment of several media, from either end, with the channels averaged.
+TEST(FreeFlightSegment, DensitiesFromEitherEndOverSeveralMedia) {
+    const HomogeneousMedium fog(Rgb(0.1f), Rgb(0.4f), 0.0f);
+    const HomogeneousMedium dense(Rgb(0.5f, 2.0f, 0.1f), Rgb(3.0f, 6.0f, 1.0f), 0.0f);
+    const float passDense = (std::exp(-3.5f * 0.4f) + std::exp(-8.0f * 0.4f) + std::exp(-1.1f * 0.4f)) / 3.0f;
+    FreeFlightSegment segment;
+    EXPECT_EQ(segment.towardEnd(true), 1.0f);  // no medium: nothing to sample
+    segment.add(fog, 1.0f);
+    segment.add(dense, 0.4f);
+    segment.add(fog, 0.7f);
+    EXPECT_NEAR(segment.towardEnd(true), std::exp(-0.5f) * passDense * 0.5f * std::exp(-0.35f), 1e-6f);
+    EXPECT_NEAR(segment.towardStart(true), 0.5f * std::exp(-0.5f) * passDense * std::exp(-0.35f), 1e-6f);
+    EXPECT_NEAR(segment.towardEnd(false), std::exp(-0.85f) * passDense, 1e-6f);
+    EXPECT_NEAR(segment.towardStart(false), segment.towardEnd(false), 1e-7f);
+
+    FreeFlightSegment shortened, whole;
+    shortened.add(fog, 1.0f);
+    shortened.extendEnd(0.5f);
+    whole.add(fog, 1.5f);
+    EXPECT_EQ(shortened.towardEnd(true), whole.towardEnd(true));
+}
+
+TEST(FreeFlightSegment, GreyMediumMatchesTheSamplersDensity) {
+    // In a grey medium the channel choice does not matter: the density the
+    // sampler divides by, sigma_s T / weight, is the segment's sigma_t T.
+    const HomogeneousMedium grey(Rgb(0.2f), Rgb(0.6f), 0.0f);
+    jobs::Rng rng(9, jobs::streamKey("segment"), 0);
+    int checked = 0;
+    for (int i = 0; i < 200; ++i) {
+        const DistanceSample s = grey.sampleDistance(4.0f, rng.uniform(), rng.uniform(), Rgb(1.0f, 0.3f, 0.05f));
+        if (!s.scattered) continue;
+        FreeFlightSegment segment;
+        segment.add(grey, s.t);
+        const float samplerPdf = 0.6f * std::exp(-0.8f * s.t) / s.weight.x;
+        EXPECT_NEAR(segment.towardEnd(true), samplerPdf, 1e-5f * samplerPdf);
+        ++checked;
+    }
+    EXPECT_GT(checked, 150);
+}
+
 }  // namespace
 }  // namespace fg

@@ -1,6 +1,7 @@
 // The MIS weights of bidirectional path tracing: for one path, the weights of
 // every strategy (s, t) that can produce it sum to one (Veach 1997 §10.2),
-// with surfaces, medium vertices, and area, point and environment lights.
+// with surfaces, medium vertices, and area, point and environment lights, the
+// free-flight densities of thin fog and of a dense chromatic medium included.
 #include "passes/bdpt/bdpt_path.h"
 
 #include "engine/accel/ray_query.h"
@@ -12,18 +13,24 @@
 #include <glm/gtc/matrix_transform.hpp>
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <cmath>
 #include <vector>
 
 namespace fg {
 namespace {
 
-// A diffuse room (a sphere seen from inside) filled with fog, lit by a disk
-// emitter, a point light and a constant environment (which reaches the
-// room through nothing: its paths are built by hand along directions).
+// A diffuse room (a sphere seen from inside) filled with fog around a ball of
+// dense chromatic medium behind a null boundary, lit by a disk emitter, a
+// point light and a constant environment (which reaches the room through
+// nothing: its paths are built by hand along directions).
 struct WeightScene {
     Scene scene;
     int wall = -1;
     int disk = -1;
+    static constexpr int kFog = 0, kDense = 1;
+    const Vec3 ballCentre{0.4f, -0.3f, -0.2f};
+    static constexpr float kBallRadius = 0.7f;
     int areaLight = -1, pointLight = -1, environment = -1;
 
     WeightScene() {
@@ -53,6 +60,12 @@ struct WeightScene {
         scene.lightShape.push_back(-1);
         environment = 2;
         scene.media.emplace_back(Rgb(0.1f), Rgb(0.5f), 0.4f);
+        scene.media.emplace_back(Rgb(0.5f, 2.0f, 0.1f), Rgb(3.0f, 6.0f, 1.0f), -0.3f);
+        Shape ball;
+        ball.geometry = Sphere{ballCentre, kBallRadius};
+        ball.interiorMedium = kDense;
+        ball.exteriorMedium = kFog;
+        scene.shapes.push_back(ball);
         scene.camera.eye = Vec3(0.0f, 0.0f, 1.2f);
         scene.camera.target = Vec3(0.0f, 0.0f, 0.0f);
         scene.camera.fovYDegrees = 60.0f;
@@ -61,6 +74,35 @@ struct WeightScene {
         scene.finalize();
     }
 };
+
+int mediumAt(const WeightScene& ws, const Vec3& p) {
+    return glm::length(p - ws.ballCentre) < WeightScene::kBallRadius ? WeightScene::kDense : WeightScene::kFog;
+}
+
+// The media along the segment from a to b, found independently of the
+// renderer's ray walks: the fog, and the ball where the line crosses it.
+FreeFlightSegment segmentMedia(const WeightScene& ws, const BdptVertex& a, const BdptVertex& b) {
+    FreeFlightSegment segment;
+    if (a.infinite || b.infinite) return segment;
+    const Vec3 d = b.p - a.p;
+    const float length = glm::length(d);
+    const Vec3 dir = d / length;
+    const Vec3 oc = a.p - ws.ballCentre;
+    const float half = glm::dot(oc, dir);
+    const float disc = half * half - (glm::dot(oc, oc) - WeightScene::kBallRadius * WeightScene::kBallRadius);
+    const HomogeneousMedium& fog = ws.scene.media[WeightScene::kFog];
+    const HomogeneousMedium& dense = ws.scene.media[WeightScene::kDense];
+    if (!(disc > 0.0f)) {
+        segment.add(fog, length);
+        return segment;
+    }
+    const float enter = std::clamp(-half - std::sqrt(disc), 0.0f, length);
+    const float leave = std::clamp(-half + std::sqrt(disc), 0.0f, length);
+    if (enter > 0.0f) segment.add(fog, enter);
+    if (leave > enter) segment.add(dense, leave - enter);
+    if (length > leave) segment.add(fog, length - leave);
+    return segment;
+}
 
 BdptVertex wallVertex(const Vec3& direction, int shape) {
     BdptVertex v;
@@ -81,7 +123,7 @@ struct FullPath {
 
 // Vertices of the camera subpath (first t of x) or the light subpath (last s
 // of x, reversed), with the densities a random walk would have stored.
-std::vector<BdptVertex> subpath(const BdptScene& bs, const FullPath& path, int count, bool fromLight) {
+std::vector<BdptVertex> subpath(const WeightScene& ws, const BdptScene& bs, const FullPath& path, int count, bool fromLight) {
     const int k = static_cast<int>(path.x.size()) - 1;
     std::vector<BdptVertex> v;
     for (int i = 0; i < count; ++i) v.push_back(path.x[static_cast<std::size_t>(fromLight ? k - i : i)]);
@@ -91,32 +133,43 @@ std::vector<BdptVertex> subpath(const BdptScene& bs, const FullPath& path, int c
         v[0].shape = Hit::kNoShape;
     }
     for (int i = 1; i < count; ++i) v[static_cast<std::size_t>(i)].wo = bdptDirection(v[static_cast<std::size_t>(i)], v[static_cast<std::size_t>(i - 1)]);
+    for (int i = 1; i < count; ++i) {
+        auto& before = v[static_cast<std::size_t>(i - 1)];
+        auto& vi = v[static_cast<std::size_t>(i)];
+        const FreeFlightSegment segment = segmentMedia(ws, before, vi);
+        vi.pdfFwd = bdptPdf(bs, i >= 2 ? &v[static_cast<std::size_t>(i - 2)] : nullptr, before, vi) *
+                    bdptDistancePdf(segment, before, vi, true);
+        vi.distancePdfRev = bdptDistancePdf(segment, before, vi, false);
+    }
     for (int i = 0; i < count; ++i) {
         auto& vi = v[static_cast<std::size_t>(i)];
         if (i == 0) vi.pdfFwd = fromLight ? bdptPdfLightOrigin(bs, vi) : 1.0f;
-        else vi.pdfFwd = bdptPdf(bs, i >= 2 ? &v[static_cast<std::size_t>(i - 2)] : nullptr, v[static_cast<std::size_t>(i - 1)], vi);
         // Set by the walk once vertex i + 2 exists; the weight overwrites the last two.
-        vi.pdfRev = i + 2 < count ? bdptPdf(bs, &v[static_cast<std::size_t>(i + 2)], v[static_cast<std::size_t>(i + 1)], vi) : -1.0f;
+        vi.pdfRev = i + 2 < count ? bdptPdf(bs, &v[static_cast<std::size_t>(i + 2)], v[static_cast<std::size_t>(i + 1)], vi) *
+                                        v[static_cast<std::size_t>(i + 1)].distancePdfRev
+                                  : -1.0f;
     }
     return v;
 }
 
 // Sum of the weights of every strategy the renderer uses for this path.
-float weightSum(const BdptScene& bs, const FullPath& path, MisHeuristic heuristic) {
+float weightSum(const WeightScene& ws, const BdptScene& bs, const FullPath& path, MisHeuristic heuristic) {
     const int vertices = static_cast<int>(path.x.size());
     float sum = 0.0f;
     for (int t = 1; t <= vertices; ++t) {
         const int s = vertices - t;
         if (s == 0 && path.deltaLight) continue;          // a point light is never hit
         if (s == 1 && t == 1 && path.deltaLight) continue;  // nor seen directly
-        auto camera = subpath(bs, path, t, false);
-        auto light = subpath(bs, path, s, true);
+        auto camera = subpath(ws, bs, path, t, false);
+        auto light = subpath(ws, bs, path, s, true);
         if (s == 0) {
             // The camera subpath ends on the emitter.
             camera.back().light = path.light;
         }
         const BdptVertex* sampled = s == 1 ? &light[0] : nullptr;
-        sum += bdptMisWeight(bs, light, camera, sampled, s, t, heuristic);
+        const FreeFlightSegment connection =
+            s > 0 ? segmentMedia(ws, camera.back(), light.back()) : FreeFlightSegment();
+        sum += bdptMisWeight(bs, light, camera, sampled, s, t, heuristic, connection);
     }
     return sum;
 }
@@ -126,7 +179,7 @@ TEST(BdptMis, WeightsOfAllStrategiesSumToOne) {
     const RayQuery rays(ws.scene);
     const BdptScene bs(ws.scene, rays, ws.scene.camera);
     jobs::Rng rng(3, 5, 7);
-    int checked = 0;
+    int checked = 0, inDense = 0;
     for (int trial = 0; trial < 600; ++trial) {
         FullPath path;
         BdptVertex camera;
@@ -143,9 +196,10 @@ TEST(BdptMis, WeightsOfAllStrategiesSumToOne) {
             if (inMedium) {
                 BdptVertex m;
                 m.kind = BdptVertexKind::Medium;
-                m.medium = 0;
                 m.p = (i == 0 ? camera.p + (0.2f + rng.uniform()) * first
                               : Vec3(rng.uniform() - 0.5f, rng.uniform() - 0.5f, rng.uniform() - 0.5f) * 1.5f);
+                m.medium = mediumAt(ws, m.p);
+                inDense += m.medium == WeightScene::kDense ? 1 : 0;
                 path.x.push_back(m);
             } else {
                 Vec3 direction = i == 0 ? glm::normalize(camera.p + 3.0f * first) : glm::normalize(Vec3(rng.uniform() - 0.5f, rng.uniform() - 0.5f, rng.uniform() - 0.5f));
@@ -179,11 +233,12 @@ TEST(BdptMis, WeightsOfAllStrategiesSumToOne) {
         if (path.deltaLight && middle == 0) continue;  // no strategy renders a point light seen directly
         ++checked;
         for (MisHeuristic h : {MisHeuristic::Balance, MisHeuristic::Power}) {
-            EXPECT_NEAR(weightSum(bs, path, h), 1.0f, 2e-4f)
+            EXPECT_NEAR(weightSum(ws, bs, path, h), 1.0f, 2e-4f)
                 << "trial " << trial << ", " << path.x.size() << " vertices, light kind " << lightKind;
         }
     }
     EXPECT_GT(checked, 400);
+    EXPECT_GT(inDense, 50);
 }
 
 }  // namespace
