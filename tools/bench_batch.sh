@@ -27,7 +27,7 @@ job = "pt.toml"
 set = { seed = [$seeds] }
 PLAN
 
-# Process start-up (dynamic linking of OpenImageIO, Embree, TBB ...), for scale.
+# Process start-up (dynamic linking of Embree, TBB, OpenEXR ...), for scale.
 start=$(date +%s.%N)
 "$binary" pipelines >/dev/null
 startup=$(echo "$(date +%s.%N) - $start" | bc)

@@ -3,7 +3,7 @@
 set -euo pipefail
 packages=(
   build-essential cmake pkg-config
-  libembree-dev libtbb-dev libopenimageio-dev libopenexr-dev libglm-dev
+  libembree-dev libtbb-dev libopenimageio-dev libopenexr-dev libpng-dev libglm-dev
   libtomlplusplus-dev libtinyobjloader-dev libpugixml-dev libcli11-dev zlib1g-dev
   openimageio-tools   # oiiotool: tools/render_bdpt_references.sh averages the halves
   libgtest-dev libbenchmark-dev python3 python3-numpy python3-skimage python3-matplotlib

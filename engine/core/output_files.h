@@ -3,9 +3,9 @@
 // Every file is written to a temporary name in its destination directory with
 // write(2), fsync(2) and close(2), each result checked: a full disk or a failed
 // device surfaces here, as an InputError naming the final path, rather than as
-// a truncated file that the next reader mistakes for a result. Libraries that
-// do their own file I/O (OpenImageIO's PNG writer ignores short writes) encode
-// into memory first and their bytes go through the same checked path.
+// a truncated file that the next reader mistakes for a result. The image
+// encoders (OpenEXR, libpng) write into memory, and their bytes go through
+// the same checked path.
 //
 // A run's outputs are committed as a set (OutputCommit): each is written to
 // its temporary, and only when all are written are they renamed onto their

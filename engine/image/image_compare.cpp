@@ -13,9 +13,8 @@
 
 #include "engine/core/error.h"
 #include "engine/image/image_diagnostics.h"
+#include "engine/image/image_file_input.h"
 #include "engine/image/image_guard.h"
-
-#include <OpenImageIO/imageio.h>
 
 #include <algorithm>
 #include <array>
@@ -230,12 +229,10 @@ ImageChannels readImageLinear(const std::string& path) {
     {
         checkImageStructure(path);
         CapturedStderr libraryMessages;
-        std::unique_ptr<OIIO::ImageInput> input = OIIO::ImageInput::open(path);
-        if (!input) throw InputError(path, 0, "cannot read image: " + imageReadFailure(OIIO::geterror(), libraryMessages));
-        const OIIO::TypeDesc format = input->spec().format;
-        srgbEncoded = format.basetype != OIIO::TypeDesc::FLOAT && format.basetype != OIIO::TypeDesc::HALF &&
-                      format.basetype != OIIO::TypeDesc::DOUBLE;
-        input->close();
+        std::string openError;
+        std::unique_ptr<ImageFileInput> input = openImageFile(path, openError);
+        if (!input) throw InputError(path, 0, "cannot read image: " + imageReadFailure(openError, libraryMessages));
+        srgbEncoded = input->spec().sampleType != SampleType::Float;
     }
     ImageChannels image = readExr(path);
     if (srgbEncoded) {

@@ -1,18 +1,29 @@
-// Image files through OpenImageIO: float or half OpenEXR with extra AOV
-// channels and string metadata, and 8-bit sRGB PNG previews (sRGB transfer
-// function of IEC 61966-2-1). Images are encoded in memory and written through
+// Image files: float or half OpenEXR with extra AOV channels and string
+// metadata through OpenEXR, and 8-bit sRGB PNG previews (sRGB transfer
+// function of IEC 61966-2-1) through libpng; reading goes through
+// image_file_input.h. Images are encoded in memory and written through
 // output_files.h: to a checked temporary, renamed onto the final name only
 // once every byte is known to be written.
 #include "engine/image/image_io.h"
 
 #include "engine/core/error.h"
 #include "engine/image/image_diagnostics.h"
+#include "engine/image/image_file_input.h"
 #include "engine/image/image_guard.h"
 
-#include <OpenImageIO/filesystem.h>
-#include <OpenImageIO/imageio.h>
+#include <OpenEXR/ImfChannelList.h>
+#include <OpenEXR/ImfCompressionAttribute.h>
+#include <OpenEXR/ImfFrameBuffer.h>
+#include <OpenEXR/ImfHeader.h>
+#include <OpenEXR/ImfIO.h>
+#include <OpenEXR/ImfOutputFile.h>
+#include <OpenEXR/ImfStringAttribute.h>
+#include <Imath/half.h>
+#include <png.h>
 
 #include <cmath>
+#include <cstring>
+#include <exception>
 #include <filesystem>
 #include <memory>
 #include <stdexcept>
@@ -40,29 +51,25 @@ void validateImage(const ImageChannels& image) {
     }
 }
 
-// OpenImageIO's PNG writer ignores failed writes (a full disk gives a
-// truncated file and a successful close), so the image is encoded into memory
-// and its bytes written by writeFileChecked, which checks every write.
-// `formatPath` picks the format by its extension and names the file in errors.
-std::vector<unsigned char> encodeWithOiio(const std::string& formatPath, const OIIO::ImageSpec& spec,
-                                          OIIO::TypeDesc bufferType, const void* pixels) {
-    auto fail = [&](const std::string& reason) -> void {
-        throw InputError(formatPath, 0, "cannot write image: " + reason);
-    };
-    std::vector<unsigned char> encoded;
-    OIIO::Filesystem::IOVecOutput memory(encoded);
-    std::unique_ptr<OIIO::ImageOutput> output = OIIO::ImageOutput::create(formatPath);
-    if (!output) fail(OIIO::geterror());
-    if (!output->supports("ioproxy")) fail("the " + std::string(output->format_name()) + " writer cannot write to memory");
-    if (!output->set_ioproxy(&memory) || !output->open(formatPath, spec)) fail(output->geterror());
-    if (!output->write_image(bufferType, pixels)) {
-        const std::string reason = output->geterror();
-        output->close();
-        fail(reason);
+// OpenEXR writes through a stream; this one keeps the bytes in memory, so
+// that writeFileChecked can write them and check every write.
+class MemoryExrStream final : public Imf::OStream {
+public:
+    explicit MemoryExrStream(std::vector<unsigned char>& bytes) : Imf::OStream("memory"), bytes_(bytes) {}
+
+    void write(const char data[], int count) override {
+        const std::size_t end = position_ + static_cast<std::size_t>(count);
+        if (end > bytes_.size()) bytes_.resize(end);
+        std::memcpy(bytes_.data() + position_, data, static_cast<std::size_t>(count));
+        position_ = end;
     }
-    if (!output->close()) fail(output->geterror());
-    return encoded;
-}
+    uint64_t tellp() override { return position_; }
+    void seekp(uint64_t position) override { position_ = static_cast<std::size_t>(position); }
+
+private:
+    std::vector<unsigned char>& bytes_;
+    std::size_t position_ = 0;
+};
 
 float srgbEncode(float linear) {
     if (!(linear > 0.0f)) return 0.0f;  // also maps NaN to black
@@ -75,28 +82,48 @@ float srgbEncode(float linear) {
 std::vector<unsigned char> encodeExr(const std::string& path, const ImageChannels& image, const Metadata& metadata,
                                      bool halfFloat) {
     validateImage(image);
-    const int channels = 3 + static_cast<int>(image.extra.size());
-    OIIO::ImageSpec spec(image.width, image.height, channels, halfFloat ? OIIO::TypeDesc::HALF : OIIO::TypeDesc::FLOAT);
-    spec.channelnames = {"R", "G", "B"};
-    for (const auto& [name, values] : image.extra) spec.channelnames.push_back(name);
-    if (halfFloat && !image.extra.empty()) {
-        // Only the colour drops to half: AOVs such as time_ns exceed half's range (65504).
-        spec.channelformats.assign(static_cast<std::size_t>(channels), OIIO::TypeDesc::FLOAT);
-        for (int c = 0; c < 3; ++c) spec.channelformats[static_cast<std::size_t>(c)] = OIIO::TypeDesc::HALF;
-    }
-    spec.attribute("compression", "zip");
-    for (const auto& [key, value] : metadata) spec.attribute(std::string(kMetadataPrefix) + key, value);
+    Imf::Header header(image.width, image.height);
+    header.compression() = Imf::ZIP_COMPRESSION;
+    // Only the colour drops to half: AOVs such as time_ns exceed half's range (65504).
+    const Imf::PixelType colourType = halfFloat ? Imf::HALF : Imf::FLOAT;
+    for (const char* name : {"R", "G", "B"}) header.channels().insert(name, Imf::Channel(colourType));
+    for (const auto& [name, values] : image.extra) header.channels().insert(name, Imf::Channel(Imf::FLOAT));
+    for (const auto& [key, value] : metadata)
+        header.insert(std::string(kMetadataPrefix) + key, Imf::StringAttribute(value));
 
-    const std::size_t pixels = image.rgb.size();
-    std::vector<float> interleaved(pixels * static_cast<std::size_t>(channels));
-    for (std::size_t p = 0; p < pixels; ++p) {
-        float* out = &interleaved[p * static_cast<std::size_t>(channels)];
-        out[0] = image.rgb[p].x;
-        out[1] = image.rgb[p].y;
-        out[2] = image.rgb[p].z;
-        for (std::size_t c = 0; c < image.extra.size(); ++c) out[3 + c] = image.extra[c].second[p];
+    // OpenEXR converts pixel types when it reads, not when it writes: half
+    // colour is rounded here (to nearest even, as Imath does).
+    const std::size_t width = static_cast<std::size_t>(image.width);
+    Imf::FrameBuffer frame;
+    std::vector<half> halfRgb;
+    if (halfFloat) {
+        halfRgb.reserve(image.rgb.size() * 3);
+        for (const Rgb& pixel : image.rgb)
+            for (int c = 0; c < 3; ++c) halfRgb.emplace_back(pixel[c]);
     }
-    return encodeWithOiio(path, spec, OIIO::TypeDesc::FLOAT, interleaved.data());
+    static_assert(sizeof(Rgb) == 3 * sizeof(float));
+    for (int c = 0; c < 3; ++c) {
+        const char* name = c == 0 ? "R" : c == 1 ? "G" : "B";
+        if (halfFloat)
+            frame.insert(name, Imf::Slice(Imf::HALF, reinterpret_cast<char*>(halfRgb.data() + c), 3 * sizeof(half),
+                                          3 * sizeof(half) * width));
+        else
+            frame.insert(name, Imf::Slice(Imf::FLOAT, reinterpret_cast<char*>(const_cast<float*>(&image.rgb[0][c])),
+                                          sizeof(Rgb), sizeof(Rgb) * width));
+    }
+    for (const auto& [name, values] : image.extra)
+        frame.insert(name, Imf::Slice(Imf::FLOAT, reinterpret_cast<char*>(const_cast<float*>(values.data())),
+                                      sizeof(float), sizeof(float) * width));
+    std::vector<unsigned char> encoded;
+    try {
+        MemoryExrStream stream(encoded);
+        Imf::OutputFile output(stream, header);
+        output.setFrameBuffer(frame);
+        output.writePixels(image.height);
+    } catch (const std::exception& failure) {
+        throw InputError(path, 0, std::string("cannot write image: ") + failure.what());
+    }
+    return encoded;
 }
 
 void writeExr(const std::string& path, const ImageChannels& image, const Metadata& metadata, bool halfFloat) {
@@ -116,9 +143,21 @@ std::vector<unsigned char> encodePngPreview(const std::string& path, const Image
             bytes[p * 3 + static_cast<std::size_t>(c)] = static_cast<unsigned char>(std::lround(encoded * 255.0f));
         }
     }
-    OIIO::ImageSpec spec(image.width, image.height, 3, OIIO::TypeDesc::UINT8);
-    spec.attribute("oiio:ColorSpace", "sRGB");
-    return encodeWithOiio(path, spec, OIIO::TypeDesc::UINT8, bytes.data());
+    png_image png{};
+    png.version = PNG_IMAGE_VERSION;
+    png.width = static_cast<png_uint_32>(image.width);
+    png.height = static_cast<png_uint_32>(image.height);
+    // 8-bit values without PNG_FORMAT_FLAG_LINEAR: libpng marks the file sRGB.
+    png.format = PNG_FORMAT_RGB;
+    std::vector<unsigned char> encoded(PNG_IMAGE_PNG_SIZE_MAX(png));
+    png_alloc_size_t size = encoded.size();
+    if (png_image_write_to_memory(&png, encoded.data(), &size, 0, bytes.data(), 0, nullptr)) {
+        encoded.resize(size);
+        return encoded;
+    }
+    const std::string reason = png.message;
+    png_image_free(&png);
+    throw InputError(path, 0, "cannot write image: " + reason);
 }
 
 void writePngPreview(const std::string& path, const ImageChannels& image, float exposureStops) {
@@ -131,24 +170,25 @@ void writePngPreview(const std::string& path, const ImageChannels& image, float 
 ImageChannels readExr(const std::string& path, Metadata* metadata) {
     checkImageStructure(path);
     CapturedStderr libraryMessages;
-    std::unique_ptr<OIIO::ImageInput> input = OIIO::ImageInput::open(path);
-    if (!input) throw InputError(path, 0, "cannot read image: " + imageReadFailure(OIIO::geterror(), libraryMessages));
-    const OIIO::ImageSpec& spec = input->spec();
-    checkImageHeader(path, input->format_name(), spec.width, spec.height, spec.depth, spec.nchannels);
-    const int channels = spec.nchannels;
+    std::string openError;
+    std::unique_ptr<ImageFileInput> input = openImageFile(path, openError);
+    if (!input) throw InputError(path, 0, "cannot read image: " + imageReadFailure(openError, libraryMessages));
+    const ImageFileSpec& spec = input->spec();
+    checkImageHeader(path, spec.formatName, spec.width, spec.height, spec.depth, spec.channels());
+    const int channels = spec.channels();
     ImageChannels image;
     image.width = spec.width;
     image.height = spec.height;
     const std::size_t pixels = static_cast<std::size_t>(spec.width) * static_cast<std::size_t>(spec.height);
 
     std::vector<float> interleaved(pixels * static_cast<std::size_t>(channels));
-    if (!input->read_image(0, 0, 0, channels, OIIO::TypeDesc::FLOAT, interleaved.data()))
-        throw InputError(path, 0, "cannot read image: " + imageReadFailure(input->geterror(), libraryMessages));
+    if (!input->readPixels(channels, interleaved.data()))
+        throw InputError(path, 0, "cannot read image: " + imageReadFailure(input->error(), libraryMessages));
 
     int rgbChannel[3] = {-1, -1, -1};
     const char* rgbNames[3] = {"R", "G", "B"};
     for (int c = 0; c < channels; ++c) {
-        const std::string& name = spec.channelnames[static_cast<std::size_t>(c)];
+        const std::string& name = spec.channelNames[static_cast<std::size_t>(c)];
         bool isRgb = false;
         for (int k = 0; k < 3; ++k) {
             if (name == rgbNames[k]) {
@@ -174,13 +214,9 @@ ImageChannels readExr(const std::string& path, Metadata* metadata) {
 
     if (metadata) {
         metadata->clear();
-        for (const OIIO::ParamValue& attribute : spec.extra_attribs) {
-            const std::string name = attribute.name().string();
-            if (attribute.type() != OIIO::TypeDesc::STRING || name.rfind(kMetadataPrefix, 0) != 0) continue;
-            metadata->emplace_back(name.substr(kMetadataPrefix.size()), attribute.get_string());
-        }
+        for (auto& [name, value] : input->stringAttributes(std::string(kMetadataPrefix)))
+            metadata->emplace_back(name.substr(kMetadataPrefix.size()), std::move(value));
     }
-    input->close();
     return image;
 }
 

@@ -2,9 +2,8 @@
 
 #include "engine/core/error.h"
 #include "engine/image/image_diagnostics.h"
+#include "engine/image/image_file_input.h"
 #include "engine/image/image_guard.h"
-
-#include <OpenImageIO/imageio.h>
 
 #include <algorithm>
 #include <cmath>
@@ -169,24 +168,24 @@ std::shared_ptr<Texture> makeBitmapTexture(RgbImage image, const BitmapLookup& l
 RgbImage readRgbImage(const std::string& path, bool raw) {
     checkImageStructure(path);
     CapturedStderr libraryMessages;
-    auto input = OIIO::ImageInput::open(path);
-    if (!input) throw InputError(path, 0, "cannot read image: " + imageReadFailure(OIIO::geterror(), libraryMessages));
-    const OIIO::ImageSpec& spec = input->spec();
+    std::string openError;
+    std::unique_ptr<ImageFileInput> input = openImageFile(path, openError);
+    if (!input) throw InputError(path, 0, "cannot read image: " + imageReadFailure(openError, libraryMessages));
+    const ImageFileSpec& spec = input->spec();
     // The header's size is only a claim: it is checked before the pixels are
     // allocated. The buffer is also left uninitialised, so that a header that
     // lies within the bound costs address space, not memory.
-    checkImageHeader(path, input->format_name(), spec.width, spec.height, spec.depth, spec.nchannels);
+    checkImageHeader(path, spec.formatName, spec.width, spec.height, spec.depth, spec.channels());
     const std::int64_t pixelCount = std::int64_t{spec.width} * spec.height;
     // Only red, green and blue (or grey) are used; alpha and further channels are not read.
-    const int channels = spec.nchannels >= 3 ? 3 : 1;
+    const int channels = spec.channels() >= 3 ? 3 : 1;
     const std::unique_ptr<float[]> data(new float[static_cast<std::size_t>(pixelCount) * channels]);
-    if (!input->read_image(0, 0, 0, channels, OIIO::TypeDesc::FLOAT, data.get())) {
-        throw InputError(path, 0, "cannot decode image: " + imageReadFailure(input->geterror(), libraryMessages));
+    if (!input->readPixels(channels, data.get())) {
+        throw InputError(path, 0, "cannot decode image: " + imageReadFailure(input->error(), libraryMessages));
     }
     // 8/16-bit images are display-encoded unless they say otherwise; float formats are linear.
-    const std::string colorSpace = spec.get_string_attribute("oiio:ColorSpace");
-    const bool encoded = spec.format.basetype == OIIO::TypeDesc::UINT8 || spec.format.basetype == OIIO::TypeDesc::UINT16;
-    const bool linearise = !raw && encoded && colorSpace != "Linear" && colorSpace != "linear";
+    const bool encoded = spec.sampleType == SampleType::UInt8 || spec.sampleType == SampleType::UInt16;
+    const bool linearise = !raw && encoded && spec.colorSpace != "Linear" && spec.colorSpace != "linear";
     RgbImage image;
     image.width = spec.width;
     image.height = spec.height;
