@@ -33,6 +33,8 @@ PassRegistration splatIndexPass();
 PassRegistration raySplatPass();
 PassRegistration cacheUpdatePass();
 PassRegistration radianceIntegratePass();
+PassRegistration finalGatherSplatPass();
+PassRegistration finalGatherPass();
 
 // The passes and the pipelines of passes/pipelines/*.toml.
 const Registry& builtinRegistry();
