@@ -141,6 +141,26 @@ TEST(FinalGathering, IndirectBlockErrorFallsAsPhotonsGrow) {
     }
 }
 
+// Secondary gathering replaces a hit's photon estimate by its own final
+// gather, emission included: the indirect light must stay the same in the
+// mean (a lost emission term or weight would take most of it away), while
+// with a distance of 1000 gather radii every hit is gathered again.
+TEST(FinalGathering, SecondaryGatheringKeepsTheIndirectLight) {
+    const Scene scene = loadScene((cornellBoxDir() / "cornell-box.xml").string());
+    std::map<std::string, ParamValue> params = finalGatherParams("pm-fg", 20000, 8);
+    params["eye.direct_light"] = false;
+    const test::RenderedImage once = test::renderPipeline(scene, "pm-fg", params, test::smallFilm(24, 24));
+    params["final_gather.secondary_gather"] = true;
+    params["final_gather.secondary_distance"] = 1000.0;  // every hit
+    const test::RenderedImage twice = test::renderPipeline(scene, "pm-fg", params, test::smallFilm(24, 24));
+    const double a = (once.mean().x + once.mean().y + once.mean().z) / 3.0;
+    const double b = (twice.mean().x + twice.mean().y + twice.mean().z) / 3.0;
+    std::printf("indirect mean %.5f without, %.5f with secondary gathering\n", a, b);
+    EXPECT_GT(a, 0.0);
+    EXPECT_NEAR(b, a, 0.05 * a);
+    EXPECT_NE(once.pixels, twice.pixels);
+}
+
 std::string planError(const std::string& pipeline, const std::map<std::string, ParamValue>& params) {
     const Scene scene = loadScene((cornellBoxDir() / "cornell-box.xml").string());
     try {
