@@ -1,5 +1,5 @@
 // Final gathering with a photon map (`final_gather`), the baseline of Herzog
-// et al. 2007, §8.4 and Fig. 7(a) (Jensen 2001, §7.3): the hits of N
+// et al. 2007, §8.4 and Fig. 7(a) (Jensen 2001): the hits of N
 // BSDF-sampled final-gather rays per primary vertex (passes/common/final_gather.h)
 // take their reflected radiance from the k nearest photons of the global map,
 // direct photons included (photon pass store_direct = true, global_index

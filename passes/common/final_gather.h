@@ -1,5 +1,5 @@
 // Final gathering (Jensen 2001, "Realistic Image Synthesis Using Photon
-// Mapping", §7.3; Herzog et al. 2007, §8.4), shared by the photon-map
+// Mapping"; Herzog et al. 2007, §8.4), shared by the photon-map
 // baseline (`final_gather`) and photon ray splatting (`fg_splat`): from every
 // primary eye vertex, N rays sample its BSDF; the surfaces they reach become
 // secondary vertices whose reflected radiance the density estimate gives,
@@ -12,11 +12,14 @@
 // would not fit in memory), one tile's hits at a time.
 //
 // A hit counts only on a surface with a diffuse or glossy lobe. Emission at
-// the hit is direct light, which the eye pass estimates; a hit on a purely
-// specular surface would carry caustic light (L S+ D at the primary), which
-// both passes add from their caustic estimate at the primary vertices; null
-// boundaries and masks are not crossed (none of the photon scenes has one in
-// the way of indirect light).
+// the hit is direct light, which the eye pass estimates. A hit on a purely
+// specular surface is dropped: the light it would bring comes from the
+// caustic estimate at the primary vertices where it left the light through
+// specular surfaces only (L S+ D), and is lost where it did not (L .. D S+ D
+// at the primary, a lit wall seen through a mirror); Jensen follows such
+// rays through the specular chain, which is not done here. A gather ray
+// stops at the first surface: null boundaries and the clear parts of masks
+// are not crossed.
 //
 // Random streams are keyed by (seed, pass instance, primary vertex index) and
 // hits are stored in (primary, ray) order, so the hits do not depend on the
