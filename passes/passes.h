@@ -34,6 +34,8 @@ PassRegistration raySplatPass();
 PassRegistration cacheUpdatePass();
 PassRegistration radianceIntegratePass();
 PassRegistration radianceCachePass();
+PassRegistration finalGatherSplatPass();
+PassRegistration finalGatherPass();
 
 // The passes and the pipelines of passes/pipelines/*.toml.
 const Registry& builtinRegistry();

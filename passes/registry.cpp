@@ -20,6 +20,7 @@ const Registry& builtinRegistry() {
             filmNoisePass(),   compositePass(),
             rayBandwidthPass(), splatIndexPass(), raySplatPass(), radianceIntegratePass(), radianceCachePass(),
             cacheUpdatePass(),
+            finalGatherSplatPass(), finalGatherPass(),
             bdptPass(),
         };
         for (const auto& [file, text] : embeddedPipelineFiles()) r.pipelines.push_back(parsePipelineFile(text, file));

@@ -29,7 +29,6 @@
 
 #include "engine/image/film.h"
 #include "engine/buffers/photon_buffers.h"
-#include "engine/accel/point_index.h"
 #include "engine/scene/scene.h"
 #include "jobs/parallel.h"
 
@@ -40,38 +39,6 @@
 namespace fg {
 
 namespace {
-
-struct GatherSource {
-    const PhotonMap& map;
-    const PointIndex& index;
-    std::size_t k;
-    std::string layer;  // output slot of this map's radiance
-};
-
-// Radiance towards the eye at vertex v from one photon map; `ids`/`dist2` hold at least k entries.
-Rgb gatherRadiance(const EyeVertexBuffer::View& eye, std::size_t v, const VertexBrdf& brdf, const GatherSource& source,
-                   float maxRadius, std::span<std::uint32_t> ids, std::span<float> dist2, std::int64_t& used) {
-    const std::size_t found = source.index.nearest(eye.column<EyePosition>()[v], source.k, maxRadius, ids, dist2);
-    if (found == 0) return Rgb(0.0f);
-    // Fewer than k inside a finite radius: the search disk is the support. With
-    // no radius limit that only happens when the map is smaller than k.
-    const float h2 = found == source.k || !std::isfinite(maxRadius) ? dist2[found - 1] : maxRadius * maxRadius;
-    if (!(h2 > 0.0f) || !std::isfinite(h2)) return Rgb(0.0f);
-    const float inverseH2 = 1.0f / h2;
-    const auto incident = source.map.photons.column<PhotonIncident>();
-    const auto power = source.map.photons.column<PhotonPower>();
-    Rgb sum(0.0f);
-    for (std::size_t j = 0; j < found; ++j) {
-        const float weight = silvermanKernel(dist2[j] * inverseH2);
-        if (weight == 0.0f) continue;
-        const std::uint32_t p = ids[j];
-        const Rgb f = brdf(incident[p]);
-        if (isBlack(f)) continue;
-        sum += f * power[p] * weight;
-        ++used;
-    }
-    return sum * inverseH2;
-}
 
 class PhotonGatherPass final : public Pass {
 public:
@@ -109,7 +76,7 @@ public:
             for (std::size_t v = range.begin; v != range.end; ++v) {
                 const VertexBrdf brdf(scene, eye, v);
                 for (std::size_t s = 0; s < sourceCount; ++s) {
-                    const Rgb L = gatherRadiance(eye, v, brdf, sources[s], maxRadius, ids, dist2, used);
+                    const Rgb L = gatherRadiance(eye.column<EyePosition>()[v], brdf, sources[s], maxRadius, ids, dist2, used);
                     const Rgb value = L * throughput[v];
                     contribution[v * sourceCount + s] = isFinite(value) ? value : Rgb(0.0f);
                 }
