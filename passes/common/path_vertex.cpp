@@ -82,7 +82,7 @@ VertexGuide findGuide(const PathTracerScene& pts, const Bsdf& bsdf, const Surfac
     constexpr std::uint32_t kUnguided = BsdfLobe::Specular | BsdfLobe::Transmission | BsdfLobe::Null;
     if ((bsdf.lobes() & kUnguided) != 0 || !bsdf.hasSmoothLobe()) return guide;
     const Vec3 facing = glm::dot(sp.ns, toViewer) >= 0.0f ? sp.ns : -sp.ns;
-    const std::optional<std::uint32_t> record = pts.guiding->lookup(sp.p, facing);
+    const std::optional<std::uint32_t> record = pts.guiding->lookup(sp.p, facing, GuidingCacheQuery{pts.guidingCandidates});
     if (!record) return guide;
     const DirectionalGmm& gmm = pts.guiding->records.column<GuideMixture>()[*record];
     if (!gmm.usable()) return guide;

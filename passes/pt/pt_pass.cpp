@@ -257,6 +257,7 @@ public:
                 throw InputError("pass '" + ctx.instanceName() + "': guiding = \"gmm\" needs a radiance_cache input");
             pts.guiding = &ctx.input<GuidingCache>("radiance_cache");
             pts.guidingBsdfProbability = static_cast<float>(params.getFloat("guiding_bsdf_probability"));
+            pts.guidingCandidates = static_cast<std::uint32_t>(params.getInt("guiding_candidates"));
         }
 
         // Progressive rendering: the samples add to an earlier film's sums, so the
@@ -376,6 +377,8 @@ PassRegistration pathTracerPass() {
          "that input is bound"},
         {"guiding_bsdf_probability", ParamType::Float, 0.5, 0.01, 1.0, {},
          "alpha: probability of BSDF sampling at a guided vertex (the GMM otherwise)"},
+        {"guiding_candidates", ParamType::Int, std::int64_t{2}, 1, 64, {},
+         "M of Eq. 11: nearest cache records compared per guided vertex (fewer: a cheaper query)"},
     };
     return {spec, [] { return std::make_unique<PathTracerPass>(); }, {}, pathTracerMemory};
 }

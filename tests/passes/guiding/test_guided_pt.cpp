@@ -203,6 +203,28 @@ std::string cacheBytes(const BufferHandle& cache, const std::filesystem::path& p
     return test::readText(path);
 }
 
+// A new record keeps particles within new_record_spacing x its training
+// radius from becoming records of their own: doubling the spacing must cut the
+// records of a training pass to well under half (a disk holds a quarter of
+// the particles of one twice as wide), and fewer off-line sweeps cannot make
+// more records.
+TEST(GuidedPt, NewRecordSpacingSetsRecordCount) {
+    const Scene scene = loadScene(test::sourcePath("data/cornell-box/cornell-box.toml"));
+    const auto recordsWith = [&](double spacing, std::int64_t maxSweeps) {
+        auto params = trainingParams(4000, 1);
+        params["radiance_update.new_record_spacing"] = spacing;
+        params["radiance_update.max_sweeps"] = maxSweeps;
+        const auto cache = test::runPipeline(scene, guidedPipeline(1, "radiance_cache"), builtinRegistry().passes,
+                                             params, film(8, 8), "radiance_cache", 5);
+        return test::bufferAs<GuidingCache>(cache).records.size();
+    };
+    const std::size_t dense = recordsWith(0.5, 12), sparse = recordsWith(1.0, 12);
+    EXPECT_GT(sparse, 10u);
+    EXPECT_LT(2 * sparse, dense);
+    // Record creation does not depend on the EM: the same records for any sweep limit.
+    EXPECT_EQ(recordsWith(1.0, 1), sparse);
+}
+
 TEST(GuidedPt, CacheAndImageIdenticalAtOneAndTwoThreads) {
     const Scene scene = loadScene(test::sourcePath("data/cornell-box/cornell-box.toml"));
     const std::filesystem::path dir = test::scratchDirectory("guided-pt");
