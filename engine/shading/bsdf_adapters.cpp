@@ -23,17 +23,17 @@ public:
     explicit ForwardingBsdf(std::shared_ptr<Bsdf> inner) : inner_(std::move(inner)) {}
 
     std::uint32_t lobes() const override { return inner_->lobes(); }
-    Rgb eval(const Vec3& wo, const Vec3& wi, const Vec2& uv, TransportMode mode) const override {
-        return inner_->eval(wo, wi, uv, mode);
+    Rgb eval(const Vec3& wo, const Vec3& wi, const TexturePoint& at, TransportMode mode) const override {
+        return inner_->eval(wo, wi, at, mode);
     }
-    float pdf(const Vec3& wo, const Vec3& wi, const Vec2& uv) const override { return inner_->pdf(wo, wi, uv); }
-    std::optional<BsdfSample> sample(const Vec3& wo, const Vec2& uv, float uLobe, const Vec2& u,
+    float pdf(const Vec3& wo, const Vec3& wi, const TexturePoint& at) const override { return inner_->pdf(wo, wi, at); }
+    std::optional<BsdfSample> sample(const Vec3& wo, const TexturePoint& at, float uLobe, const Vec2& u,
                                      TransportMode mode) const override {
-        return inner_->sample(wo, uv, uLobe, u, mode);
+        return inner_->sample(wo, at, uLobe, u, mode);
     }
-    std::optional<Rgb> constantReflectance(const Vec2& uv) const override { return inner_->constantReflectance(uv); }
+    std::optional<Rgb> constantReflectance(const TexturePoint& at) const override { return inner_->constantReflectance(at); }
     bool hasOpacity() const override { return inner_->hasOpacity(); }
-    float opacity(const Vec2& uv) const override { return inner_->opacity(uv); }
+    float opacity(const TexturePoint& at) const override { return inner_->opacity(at); }
     bool perturbsNormal() const override { return inner_->perturbsNormal(); }
     Vec3 perturbedNormal(const ShadingGeometry& geometry) const override { return inner_->perturbedNormal(geometry); }
 
@@ -47,9 +47,9 @@ public:
         : ForwardingBsdf(std::move(inner)), opacity_(std::move(opacity)) {}
 
     bool hasOpacity() const override { return true; }
-    float opacity(const Vec2& uv) const override {
+    float opacity(const TexturePoint& at) const override {
         // A mask around a masked material: both must let the ray pass.
-        return clamp01(opacity_->evalScalar(uv)) * inner_->opacity(uv);
+        return clamp01(opacity_->evalScalar(at)) * inner_->opacity(at);
     }
 
 private:

@@ -143,8 +143,8 @@ public:
                     if (bsdf && !bsdf->hasNullLobe() && !bsdf->hasOpacity()) break;
                     if (bsdf) {
                         transmittance *= bsdf->hasOpacity()
-                                             ? Rgb(1.0f - bsdf->opacity(blocker.uv))
-                                             : bsdf->nullTransmission(Frame(blocker.ns).toLocal(ray.direction), blocker.uv);
+                                             ? Rgb(1.0f - bsdf->opacity(blocker.texturePoint()))
+                                             : bsdf->nullTransmission(Frame(blocker.ns).toLocal(ray.direction), blocker.texturePoint());
                     }
                     const Vec3 origin = offsetRayOrigin(blocker.p, blocker.ng, ray.direction);
                     const float advanced = glm::dot(origin - ray.origin, ray.direction);
