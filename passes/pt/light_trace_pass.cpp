@@ -171,7 +171,7 @@ public:
                     continue;
                 // Bsdf::eval holds |cos theta_i|; the photon's flux already does.
                 const Rgb brdf = scene.bsdfs[static_cast<std::size_t>(bsdfIndex)]->eval(
-                                     woLocal, wiLocal, surface.uv, TransportMode::Radiance) /
+                                     woLocal, wiLocal, surface.texturePoint(), TransportMode::Radiance) /
                                  std::abs(wiLocal.z);
                 const float rasterPerArea =
                     rasterPerImagePlane_ * std::abs(glm::dot(surface.ng, wo)) / (sqr(distance) * cosCamera * sqr(cosCamera));
