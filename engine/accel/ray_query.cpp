@@ -438,6 +438,10 @@ SurfacePoint interpolatedSurface(const Scene& scene, const Ray& ray, const Hit& 
     }
 
     const TriangleCorners c = cornersOf(shape, hit.primitive);
+    const auto* instance = std::get_if<MeshInstance>(&shape.geometry);
+    sp.mesh = instance ? instance->mesh.get() : &std::get<TriangleMesh>(shape.geometry);
+    sp.triangle = hit.primitive;
+    sp.barycentric = hit.barycentric;
     const float b1 = hit.barycentric.x, b2 = hit.barycentric.y, b0 = 1.0f - b1 - b2;
     const Vec3& p0 = c.p[0];
     const Vec3& p1 = c.p[1];

@@ -7,6 +7,7 @@
 
 #include "engine/core/math.h"
 #include "engine/scene/scene.h"
+#include "engine/shading/texture.h"
 
 #include <cstdint>
 #include <memory>
@@ -31,6 +32,12 @@ struct SurfacePoint {
     Vec3 ns{0.0f};      // unit shading normal (the material's bump / normal map applied), same hemisphere as ng
     Vec2 uv{0.0f};
     std::uint32_t shape = Hit::kNoShape;
+    // Meshes: the triangle hit and Embree's barycentrics, for textures that read mesh attributes.
+    const TriangleMesh* mesh = nullptr;
+    std::uint32_t triangle = 0;
+    Vec2 barycentric{0.0f};
+
+    TexturePoint texturePoint() const { return {uv, mesh, triangle, barycentric}; }
 };
 
 class RayQuery {

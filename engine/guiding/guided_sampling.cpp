@@ -4,14 +4,14 @@
 namespace fg {
 
 float GuidedBsdfSampler::pdf(const Vec3& wiLocal) const {
-    const float bsdfPdf = bsdf->pdf(wo, wiLocal, uv);
+    const float bsdfPdf = bsdf->pdf(wo, wiLocal, at);
     const float gmmPdf = gmm->pdfLocal(gmmFrame.toLocal(shading.toWorld(wiLocal)));
     return bsdfProbability * bsdfPdf + (1.0f - bsdfProbability) * gmmPdf;
 }
 
 std::optional<Vec3> GuidedBsdfSampler::sample(float uStrategy, float uLobe, const Vec2& uDir) const {
     if (uStrategy < bsdfProbability) {
-        const std::optional<BsdfSample> bs = bsdf->sample(wo, uv, uLobe, uDir, TransportMode::Radiance);
+        const std::optional<BsdfSample> bs = bsdf->sample(wo, at, uLobe, uDir, TransportMode::Radiance);
         if (!bs || bs->pdf <= 0.0f || isBlack(bs->weight)) return std::nullopt;
         return bs->wi;
     }

@@ -23,7 +23,7 @@ struct GuidedBsdfSampler {
     const Bsdf* bsdf = nullptr;
     Frame shading;    // the vertex's shading frame: wo and sampled directions are local to it
     Vec3 wo{0.0f, 0.0f, 1.0f};
-    Vec2 uv{0.0f};
+    TexturePoint at{Vec2(0.0f)};
     const DirectionalGmm* gmm = nullptr;
     Frame gmmFrame;   // the record's frame: its normal is the GMM hemisphere's pole
     float bsdfProbability = 0.5f;  // α

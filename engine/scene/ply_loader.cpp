@@ -12,8 +12,15 @@
 // items are read one by one (never reserved by their count), so a file can
 // cost no more memory than its own size in vertices and indices. Polygons are
 // fan-triangulated (as convex, like Mitsuba's loader does with quads); faces
-// with fewer than three corners are errors. Normals, texture coordinates and
-// colours are kept when the vertex element has them.
+// with fewer than three corners are errors. Normals and texture coordinates
+// are kept when the vertex element has them; other scalar properties of the
+// vertex and face elements become mesh attributes, grouped as Mitsuba 3's PLY
+// loader groups them: red/green/blue (or r/g/b) are "color"; consecutive
+// properties prefix_x/y/z, prefix_r/g/b (named prefix_color), prefix_0/1/2 or
+// prefix_1/2/3 are one three-channel attribute and a lone prefix_x (r, 0, 1) a
+// one-channel one; other groupings (two or four channels, alpha) and names
+// without such a suffix are left out. Attribute names start with "vertex_" or
+// "face_", as Mitsuba's mesh_attribute texture asks for them.
 #include "engine/core/error.h"
 #include "engine/scene/shape.h"
 
@@ -308,7 +315,7 @@ struct VertexLayout {
     std::array<std::size_t, 3> position{};
     std::optional<std::array<std::size_t, 3>> normal;
     std::optional<std::array<std::size_t, 2>> uv;
-    std::optional<std::array<std::size_t, 3>> color;
+    std::vector<std::string_view> names;  // of the properties above
 };
 
 template <std::size_t N>
@@ -332,11 +339,92 @@ VertexLayout vertexLayout(const PlyElement& vertices, const std::string& path) {
     for (const auto& names : {std::array<std::string_view, 2>{"u", "v"}, std::array<std::string_view, 2>{"s", "t"},
                               std::array<std::string_view, 2>{"texture_u", "texture_v"},
                               std::array<std::string_view, 2>{"texture_s", "texture_t"}}) {
-        if ((layout.uv = findAll<2>(vertices, names))) break;
+        if ((layout.uv = findAll<2>(vertices, names))) {
+            layout.names.insert(layout.names.end(), names.begin(), names.end());
+            break;
+        }
     }
-    layout.color = findAll<3>(vertices, {"red", "green", "blue"});
-    if (!layout.color) layout.color = findAll<3>(vertices, {"r", "g", "b"});
+    layout.names.insert(layout.names.end(), {"x", "y", "z"});
+    if (layout.normal) layout.names.insert(layout.names.end(), {"nx", "ny", "nz"});
     return layout;
+}
+
+// The properties one mesh attribute is read from (integers are fractions of their type's range).
+struct AttributeLayout {
+    std::string name;
+    std::vector<std::size_t> properties;
+};
+
+// The attributes of an element (see the top of the file), skipping `reserved` properties.
+std::vector<AttributeLayout> attributeLayouts(const PlyElement& element, const std::string& domain,
+                                              const std::vector<std::string_view>& reserved) {
+    std::vector<AttributeLayout> layouts;
+    std::vector<bool> used(element.properties.size(), false);
+    for (std::size_t i = 0; i < element.properties.size(); ++i) {
+        const std::string& name = element.properties[i].name;
+        used[i] = element.properties[i].isList || std::find(reserved.begin(), reserved.end(), name) != reserved.end();
+    }
+    for (const auto& names : {std::array<std::string_view, 3>{"red", "green", "blue"}, std::array<std::string_view, 3>{"r", "g", "b"}}) {
+        const auto color = findAll<3>(element, names);
+        if (!color) continue;
+        if (layouts.empty()) layouts.push_back({domain + "color", {color->begin(), color->end()}});
+        for (std::size_t index : *color) used[index] = true;
+    }
+    for (std::string_view alpha : {"alpha", "a"})
+        if (const auto index = element.find(alpha)) used[*index] = true;
+
+    // The channel suffixes of one attribute, in order.
+    constexpr std::array<std::string_view, 4> kSuffixSchemes = {"xyzw", "rgba", "0123", "1234"};
+    const auto split = [&](std::size_t index) -> std::optional<std::pair<std::string, char>> {
+        const std::string& name = element.properties[index].name;
+        const std::size_t underscore = name.rfind('_');
+        if (underscore == std::string::npos || underscore == 0 || underscore + 2 != name.size()) return std::nullopt;
+        return std::pair<std::string, char>(name.substr(0, underscore), name.back());
+    };
+    std::vector<std::string> prefixesSeen;
+    for (std::size_t i = 0; i < element.properties.size();) {
+        const auto first = used[i] ? std::nullopt : split(i);
+        if (!first) {
+            ++i;
+            continue;
+        }
+        std::size_t scheme = 0;
+        while (scheme < kSuffixSchemes.size() && kSuffixSchemes[scheme][0] != first->second) ++scheme;
+        std::vector<std::size_t> group = {i};
+        std::size_t next = i + 1;
+        while (scheme < kSuffixSchemes.size() && next < element.properties.size() && group.size() < 4 && !used[next]) {
+            const auto part = split(next);
+            if (!part || part->first != first->first || part->second != kSuffixSchemes[scheme][group.size()]) break;
+            group.push_back(next++);
+        }
+        i = next;
+        const bool known = std::find(prefixesSeen.begin(), prefixesSeen.end(), first->first) != prefixesSeen.end();
+        if (scheme == kSuffixSchemes.size() || known || (group.size() != 1 && group.size() != 3)) continue;
+        prefixesSeen.push_back(first->first);
+        layouts.push_back({domain + first->first + (scheme == 1 ? "_color" : ""), group});
+    }
+    return layouts;
+}
+
+// Starts one mesh attribute per layout; values follow as records are read.
+std::vector<MeshAttribute> startAttributes(const std::vector<AttributeLayout>& layouts) {
+    std::vector<MeshAttribute> attributes;
+    for (const AttributeLayout& layout : layouts)
+        attributes.push_back(MeshAttribute{layout.name, static_cast<int>(layout.properties.size()), {}});
+    return attributes;
+}
+
+// Appends one record's values to each attribute, `copies` times (a polygon's triangles).
+void appendAttributes(const PlyElement& element, const std::vector<AttributeLayout>& layouts,
+                      const std::vector<double>& values, std::size_t copies, std::vector<MeshAttribute>& attributes) {
+    for (std::size_t a = 0; a < layouts.size(); ++a) {
+        for (std::size_t copy = 0; copy < copies; ++copy) {
+            for (std::size_t property : layouts[a].properties) {
+                const double scale = 1.0 / integerRange(element.properties[property].type);
+                attributes[a].values.push_back(static_cast<float>(values[property] * scale));
+            }
+        }
+    }
 }
 
 }  // namespace
@@ -360,6 +448,14 @@ TriangleMesh loadPlyMesh(const std::string& path) {
     const VertexLayout layout = vertexLayout(*vertexElement, path);
 
     TriangleMesh mesh;
+    const std::vector<AttributeLayout> vertexAttributes = attributeLayouts(*vertexElement, "vertex_", layout.names);
+    std::vector<MeshAttribute> perVertex = startAttributes(vertexAttributes);
+    const PlyElement* faceElement = nullptr;
+    for (const PlyElement& element : header.elements)
+        if (element.name == "face" && !faceElement) faceElement = &element;
+    const std::vector<AttributeLayout> faceAttributes =
+        faceElement ? attributeLayouts(*faceElement, "face_", {}) : std::vector<AttributeLayout>{};
+    std::vector<MeshAttribute> perTriangle = startAttributes(faceAttributes);
     std::vector<double> values;
     std::vector<std::uint32_t> corners;
     PlyBodyReader reader(std::string_view(data).substr(header.bodyOffset), header, path);
@@ -377,6 +473,7 @@ TriangleMesh loadPlyMesh(const std::string& path) {
         values.resize(element.properties.size());
         for (std::uint64_t record = 0; record < element.count; ++record) {
             reader.startRecord(element, record);
+            const std::size_t indicesBefore = mesh.indices.size();
             for (std::size_t p = 0; p < element.properties.size(); ++p) {
                 const PlyProperty& property = element.properties[p];
                 if (!property.isList) {
@@ -406,7 +503,11 @@ TriangleMesh loadPlyMesh(const std::string& path) {
                 }
                 ++faceCount;
             }
+            if (&element == faceElement) {
+                appendAttributes(element, faceAttributes, values, (mesh.indices.size() - indicesBefore) / 3, perTriangle);
+            }
             if (!isVertex) continue;
+            appendAttributes(element, vertexAttributes, values, 1, perVertex);
             const auto vec3 = [&](const std::array<std::size_t, 3>& at) {
                 return Vec3(static_cast<float>(values[at[0]]), static_cast<float>(values[at[1]]),
                             static_cast<float>(values[at[2]]));
@@ -422,13 +523,18 @@ TriangleMesh loadPlyMesh(const std::string& path) {
             }
             if (layout.uv)
                 mesh.uvs.emplace_back(static_cast<float>(values[(*layout.uv)[0]]), static_cast<float>(values[(*layout.uv)[1]]));
-            if (layout.color) {
-                const double scale = 1.0 / integerRange(element.properties[(*layout.color)[0]].type);
-                mesh.colors.push_back(vec3(*layout.color) * static_cast<float>(scale));
-            }
         }
     }
     if (faceCount == 0 || mesh.indices.empty()) throw InputError(path, 0, "PLY file contains no faces");
+    // A second face element would add triangles without values; such attributes are left out.
+    const std::size_t counts[2] = {mesh.positions.size(), mesh.triangleCount()};
+    std::vector<MeshAttribute>* domains[2] = {&perVertex, &perTriangle};
+    for (int d = 0; d < 2; ++d) {
+        for (MeshAttribute& attribute : *domains[d]) {
+            if (attribute.values.size() == counts[d] * static_cast<std::size_t>(attribute.channels))
+                mesh.attributes.push_back(std::move(attribute));
+        }
+    }
     return mesh;
 }
 

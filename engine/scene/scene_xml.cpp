@@ -20,6 +20,7 @@
 #include "engine/scene/scene_xml.h"
 
 #include "engine/shading/bsdf_adapters.h"
+#include "engine/shading/mesh_attribute_texture.h"
 
 #include "engine/core/error.h"
 #include "engine/core/text_input.h"
@@ -1275,15 +1276,77 @@ private:
     }
 
     int bsdfIndex(const Node& node) {
-        if (const auto it = bsdfIndex_.find(&node); it != bsdfIndex_.end()) return it->second;
+        if (const auto it = bsdfIndex_.find(&node); it != bsdfIndex_.end()) {
+            noteAttributeReads(attributeReads_[it->second]);
+            return it->second;
+        }
         const Building guard(building_, node);
         Props p(*this, node, "bsdf");
-        std::shared_ptr<Bsdf> bsdf = makeBsdf(p);
-        p.finish();
+        std::vector<const Node*> reads;
+        std::shared_ptr<Bsdf> bsdf;
+        {
+            const CollectingAttributeReads collecting(attributeReadsBeingCollected_, reads);
+            bsdf = makeBsdf(p);
+            p.finish();
+        }
         const int index = static_cast<int>(scene_.bsdfs.size());
         scene_.bsdfs.push_back(std::move(bsdf));
         bsdfIndex_[&node] = index;
+        attributeReads_[index] = reads;
+        noteAttributeReads(reads);
         return index;
+    }
+
+    // ---- mesh attributes ----------------------------------------------------------
+
+    // While a bsdf is built, the mesh_attribute textures it reads (its nested
+    // bsdfs' included) are collected, so that each shape using it can be
+    // checked against its own mesh.
+    struct CollectingAttributeReads {
+        CollectingAttributeReads(std::vector<const Node*>*& slot, std::vector<const Node*>& reads)
+            : slot_(slot), outer_(slot) {
+            slot_ = &reads;
+        }
+        ~CollectingAttributeReads() { slot_ = outer_; }
+        CollectingAttributeReads(const CollectingAttributeReads&) = delete;
+        CollectingAttributeReads& operator=(const CollectingAttributeReads&) = delete;
+        std::vector<const Node*>*& slot_;
+        std::vector<const Node*>* outer_;
+    };
+
+    void noteAttributeReads(const std::vector<const Node*>& textures) {
+        if (!attributeReadsBeingCollected_) return;
+        for (const Node* t : textures) {
+            std::vector<const Node*>& reads = *attributeReadsBeingCollected_;
+            if (std::find(reads.begin(), reads.end(), t) == reads.end()) reads.push_back(t);
+        }
+    }
+
+    static bool isMeshAttribute(const Node& textureNode) {
+        const std::string* type = textureNode.attribute("type");
+        return type && *type == "mesh_attribute";
+    }
+
+    // Textures outside materials (emitters, bump and normal maps) are looked up by uv alone.
+    void refuseMeshAttribute(Props& p, const Node& textureNode, const Node& at, std::string_view use) {
+        if (isMeshAttribute(textureNode)) p.fail(at, "a mesh_attribute texture cannot serve as " + std::string(use) + " (only as a material's parameter)");
+    }
+
+    // Every attribute the shape's material reads must be one of its mesh's.
+    void checkMeshAttributes(Props& p, const Shape& shape) {
+        for (const Node* textureNode : attributeReads_[shape.bsdf]) {
+            const std::string& name = meshAttributeNames_.at(textureNode);
+            const std::string site = "the mesh_attribute texture at " + textureNode->file->path + ":" + std::to_string(textureNode->line);
+            const TriangleMesh* mesh = nullptr;
+            if (const auto* instance = std::get_if<MeshInstance>(&shape.geometry)) mesh = instance->mesh.get();
+            else mesh = std::get_if<TriangleMesh>(&shape.geometry);
+            if (!mesh) p.fail("its bsdf reads the mesh attribute " + inQuotes(name) + " (" + site + "), but a sphere is not a mesh");
+            if (mesh->attribute(name)) continue;
+            std::vector<std::string> names;
+            for (const MeshAttribute& a : mesh->attributes) names.push_back(a.name);
+            p.fail("the mesh has no attribute " + inQuotes(name) + " (read by " + site + "); it has " +
+                   (names.empty() ? std::string("none") : joinNames(names)));
+        }
     }
 
     float readIor(Props& p, std::string_view key, float fallback) {
@@ -1421,6 +1484,7 @@ private:
         }
         if (type == "null") return makeNull();
         if (type == "mask" || type == "bumpmap" || type == "normalmap") return makeAdapterBsdf(p);
+        if (type == "blendbsdf") return makeBlendBsdf(p);
         if (type == "principled" || type == "principledthin") p.fail("the principled BSDF is not supported");
         if (type == "twosided") {
             const std::vector<Entry*> inner = p.objects("bsdf");
@@ -1431,7 +1495,20 @@ private:
             return makeTwoSided(scene_.bsdfs[static_cast<std::size_t>(bsdfIndex(*inner[0]->node))]);
         }
         p.fail("unknown bsdf type (supported: diffuse, dielectric, thindielectric, roughdielectric, conductor, roughconductor, "
-               "plastic, roughplastic, null, twosided, mask, bumpmap, normalmap)");
+               "plastic, roughplastic, null, twosided, mask, bumpmap, normalmap, blendbsdf)");
+    }
+
+    std::shared_ptr<Bsdf> makeBlendBsdf(Props& p) {
+        if (!p.has("weight")) p.fail("missing parameter 'weight' (a float in [0, 1] or a texture)");
+        const std::shared_ptr<Texture> weight = textureParam(p, "weight", Rgb(0.5f));
+        const std::vector<Entry*> inner = p.objects("bsdf");
+        if (inner.size() != 2) p.fail(inner.size() > 2 ? inner[2]->site() : p.node(), "takes exactly two nested bsdfs");
+        std::shared_ptr<Bsdf> materials[2];
+        for (int i = 0; i < 2; ++i) {
+            materials[i] = scene_.bsdfs[static_cast<std::size_t>(bsdfIndex(*inner[i]->node))];
+            if (materials[i]->perturbsNormal()) p.fail(inner[i]->site(), "blending bump- or normal-mapped materials is not supported");
+        }
+        return makeBlend(std::move(materials[0]), std::move(materials[1]), weight);
     }
 
     // The one material a mask, bump map or normal map wraps.
@@ -1445,6 +1522,7 @@ private:
     std::shared_ptr<Texture> nestedTexture(Props& p) {
         const std::vector<Entry*> found = p.objects("texture");
         if (found.size() != 1) p.fail(found.empty() ? p.node() : found[1]->site(), "takes exactly one nested texture");
+        refuseMeshAttribute(p, *found[0]->node, found[0]->site(), "a bump or normal map");
         return texture(*found[0]->node);
     }
 
@@ -1467,7 +1545,9 @@ private:
         // normalmap: the texture is named "normalmap" in Mitsuba 3; an unnamed one is taken too.
         std::shared_ptr<Texture> normals;
         if (Entry* e = p.namedObject("normalmap")) {
-            normals = texture(expectObject(*e, "texture", p.what() + " parameter \"normalmap\""));
+            const Node& textureNode = expectObject(*e, "texture", p.what() + " parameter \"normalmap\"");
+            refuseMeshAttribute(p, textureNode, e->site(), "a bump or normal map");
+            normals = texture(textureNode);
         } else {
             normals = nestedTexture(p);
         }
@@ -1528,7 +1608,10 @@ private:
     }
 
     std::shared_ptr<Texture> texture(const Node& node) {
-        if (const auto it = textures_.find(&node); it != textures_.end()) return it->second;
+        if (const auto it = textures_.find(&node); it != textures_.end()) {
+            if (isMeshAttribute(node)) noteAttributeReads({&node});
+            return it->second;
+        }
         const Building guard(building_, node);
         Props p(*this, node, "texture");
         std::shared_ptr<Texture> result;
@@ -1556,13 +1639,27 @@ private:
             const Rgb color1 = p.colour("color1", ColourUse::Reflectance).value_or(Rgb(0.2f));
             // Mitsuba's checkerboard has one checker per half unit of uv.
             result = makeCheckerboardTexture(color0, color1, UvTransform::scale(Vec2(2.0f)).after(uvTransform(p)));
+        } else if (p.type() == "mesh_attribute") {
+            result = readMeshAttribute(p);
         } else {
-            if (p.type() == "mesh_attribute") p.fail("mesh_attribute textures are not supported");
-            p.fail("unknown texture type (supported: bitmap, checkerboard)");
+            p.fail("unknown texture type (supported: bitmap, checkerboard, mesh_attribute)");
         }
         p.finish();
         textures_[&node] = result;
+        if (isMeshAttribute(node)) noteAttributeReads({&node});
         return result;
+    }
+
+    // Which mesh it reads is only known per shape: checkMeshAttributes.
+    std::shared_ptr<Texture> readMeshAttribute(Props& p) {
+        const std::optional<std::string> name = p.string("name");
+        if (!name) p.fail("missing parameter 'name' (the mesh attribute to read, e.g. \"vertex_color\")");
+        if (!name->starts_with("vertex_") && !name->starts_with("face_"))
+            p.fail(*p.valueNode("name"), "name " + inQuotes(*name) + " must start with \"vertex_\" or \"face_\"");
+        const float scale = p.number("scale", 1.0f);
+        if (!std::isfinite(scale)) p.fail(*p.valueNode("scale"), "scale must be finite");
+        meshAttributeNames_[&p.node()] = *name;
+        return makeMeshAttributeTexture(*name, scale);
     }
 
     // ---- media ------------------------------------------------------------------
@@ -1778,6 +1875,7 @@ private:
 
         const Entry* bsdf = p.singleObject("bsdf");
         shape.bsdf = bsdf ? bsdfIndex(expectObject(*bsdf, "bsdf", p.what())) : defaultBsdf();
+        checkMeshAttributes(p, shape);
         for (Entry* medium : p.objects("medium")) {
             const Node& m = expectObject(*medium, "medium", p.what());
             int& slot = medium->name == "interior" ? shape.interiorMedium : shape.exteriorMedium;
@@ -1839,7 +1937,10 @@ private:
     // A nested or referenced <texture> given for an emitter parameter, or null.
     std::shared_ptr<Texture> emissionTexture(Props& p, std::string_view key) {
         Entry* e = p.namedObject(key);
-        return e ? texture(expectObject(*e, "texture", p.what() + " parameter " + inQuotes(key))) : nullptr;
+        if (!e) return nullptr;
+        const Node& textureNode = expectObject(*e, "texture", p.what() + " parameter " + inQuotes(key));
+        refuseMeshAttribute(p, textureNode, e->site(), "an emitter's " + inQuotes(key));
+        return texture(textureNode);
     }
 
     // Mitsuba's projector: a pinhole's field of view (as the perspective sensor's,
@@ -1966,6 +2067,9 @@ private:
     std::unordered_map<const Node*, int> bsdfIndex_;
     std::unordered_map<const Node*, int> mediumIndex_;
     std::unordered_map<const Node*, std::shared_ptr<Texture>> textures_;
+    std::unordered_map<const Node*, std::string> meshAttributeNames_;  // mesh_attribute textures: the name they read
+    std::unordered_map<int, std::vector<const Node*>> attributeReads_;  // per bsdf index: its mesh_attribute textures
+    std::vector<const Node*>* attributeReadsBeingCollected_ = nullptr;
     std::unordered_map<const Node*, AreaEmission> areaRadiance_;
     std::unordered_map<const Node*, std::pair<int, int>> textureResolution_;  // bitmaps: width, height
     std::set<const Node*> building_;

@@ -75,7 +75,8 @@
 // Shapes
 //   obj, ply      filename; face_normals (false: vertex normals from the file, else
 //                 angle-weighted smooth normals as Mitsuba computes them; true: flat);
-//                 obj: flip_tex_coords (true)
+//                 obj: flip_tex_coords (true); ply: vertex and face properties become mesh
+//                 attributes as Mitsuba groups them (engine/scene/ply_loader.cpp)
 //   rectangle, disk, cube   Mitsuba's unit shapes
 //   cylinder      radius (1), p0 (0, 0, 0), p1 (0, 0, 1): an open tube, tessellated
 //                 into 256 facets with smooth normals; uv = (phi / 2 pi, height)
@@ -115,6 +116,8 @@
 //   bumpmap          one nested texture (the height; its luminance), scale or strength (1),
 //                    epsilon accepted (the gradient is exact), one nested bsdf
 //   normalmap        normalmap (texture; tangent-space normals, usually raw), one nested bsdf
+//   blendbsdf        weight (texture or float in [0, 1]; its luminance), two nested bsdfs:
+//                    (1 - weight) first + weight second; neither may be a bump or normal map
 //   principled is an error ("not supported")
 //   distribution: beckmann (Mitsuba's default) or ggx. Beckmann's Smith masking is the
 //   exact one, where Mitsuba uses Walter's rational fit (within 0.35 %).
@@ -125,7 +128,10 @@
 //                 or clamp, raw (false); to_uv (its 2x2 linear part and x, y translation;
 //                 0.x: uscale, vscale, uoffset, voffset)
 //   checkerboard  color0 (0.4), color1 (0.2), to_uv as bitmap
-//   mesh_attribute is an error ("not supported")
+//   mesh_attribute name ("vertex_*": interpolated over the triangle, "face_*": constant
+//                 on it), scale (1). Only as a material's parameter (not an emitter's, a
+//                 bump or normal map's); every shape whose material reads it must be a
+//                 mesh with that attribute, or the shape is an error naming it
 //
 // Emitters
 //   area          radiance (colour or texture over the shape's uv); inside a shape, or

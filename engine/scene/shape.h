@@ -10,19 +10,36 @@
 #include <cstdint>
 #include <memory>
 #include <string>
+#include <string_view>
 #include <variant>
 #include <vector>
 
 namespace fg {
 
+// A named value per vertex or per triangle (Mitsuba's mesh attributes, read by
+// its mesh_attribute texture): "vertex_*" names are per vertex, "face_*" names
+// per triangle (a polygon's value is repeated on each of its triangles).
+struct MeshAttribute {
+    std::string name;
+    int channels = 1;           // 1 or 3
+    std::vector<float> values;  // channels per vertex or per triangle, interleaved
+
+    bool perVertex() const { return name.starts_with("vertex_"); }
+};
+
 struct TriangleMesh {
     std::vector<Vec3> positions;
     std::vector<Vec3> normals;  // per vertex, optional (empty: flat shading)
     std::vector<Vec2> uvs;      // per vertex, optional
-    std::vector<Rgb> colors;    // per vertex, optional (PLY red/green/blue)
     std::vector<std::uint32_t> indices;  // three per triangle
+    std::vector<MeshAttribute> attributes;  // vertex colours are "vertex_color"
 
     std::size_t triangleCount() const { return indices.size() / 3; }
+    const MeshAttribute* attribute(std::string_view name) const {
+        for (const MeshAttribute& a : attributes)
+            if (a.name == name) return &a;
+        return nullptr;
+    }
     void transform(const Mat4& toWorld);
     void flipNormals();  // reverses winding and per-vertex normals
     float area() const;

@@ -60,26 +60,26 @@ public:
 
     std::uint32_t lobes() const override { return BsdfLobe::Reflection | BsdfLobe::Diffuse; }
 
-    Rgb eval(const Vec3& wo, const Vec3& wi, const Vec2& uv, TransportMode) const override {
+    Rgb eval(const Vec3& wo, const Vec3& wi, const TexturePoint& at, TransportMode) const override {
         if (wo.z <= 0.0f || wi.z <= 0.0f) return Rgb(0.0f);
-        return reflectance_->eval(uv) * (kInvPi * wi.z);
+        return reflectance_->evalAt(at) * (kInvPi * wi.z);
     }
 
-    std::optional<Rgb> constantReflectance(const Vec2& uv) const override { return reflectance_->eval(uv) * kInvPi; }
+    std::optional<Rgb> constantReflectance(const TexturePoint& at) const override { return reflectance_->evalAt(at) * kInvPi; }
 
-    float pdf(const Vec3& wo, const Vec3& wi, const Vec2&) const override {
+    float pdf(const Vec3& wo, const Vec3& wi, const TexturePoint&) const override {
         if (wo.z <= 0.0f || wi.z <= 0.0f) return 0.0f;
         return cosineHemispherePdf(wi.z);
     }
 
-    std::optional<BsdfSample> sample(const Vec3& wo, const Vec2& uv, float, const Vec2& u,
+    std::optional<BsdfSample> sample(const Vec3& wo, const TexturePoint& at, float, const Vec2& u,
                                      TransportMode) const override {
         if (wo.z <= 0.0f) return std::nullopt;
         BsdfSample s;
         s.wi = sampleCosineHemisphere(u);
         if (s.wi.z <= 0.0f) return std::nullopt;
         s.pdf = cosineHemispherePdf(s.wi.z);
-        s.weight = reflectance_->eval(uv);
+        s.weight = reflectance_->evalAt(at);
         s.lobe = BsdfLobe::Reflection | BsdfLobe::Diffuse;
         return s;
     }
@@ -100,10 +100,10 @@ public:
     std::uint32_t lobes() const override {
         return BsdfLobe::Reflection | BsdfLobe::Transmission | BsdfLobe::Specular;
     }
-    Rgb eval(const Vec3&, const Vec3&, const Vec2&, TransportMode) const override { return Rgb(0.0f); }
-    float pdf(const Vec3&, const Vec3&, const Vec2&) const override { return 0.0f; }
+    Rgb eval(const Vec3&, const Vec3&, const TexturePoint&, TransportMode) const override { return Rgb(0.0f); }
+    float pdf(const Vec3&, const Vec3&, const TexturePoint&) const override { return 0.0f; }
 
-    std::optional<BsdfSample> sample(const Vec3& wo, const Vec2& uv, float uLobe, const Vec2&,
+    std::optional<BsdfSample> sample(const Vec3& wo, const TexturePoint& at, float uLobe, const Vec2&,
                                      TransportMode mode) const override {
         if (wo.z == 0.0f) return std::nullopt;
         float cosThetaT = 0.0f;
@@ -112,7 +112,7 @@ public:
         if (uLobe < reflectance) {
             s.wi = mirrorReflect(wo);
             s.pdf = reflectance;
-            s.weight = specularReflectance_->eval(uv);
+            s.weight = specularReflectance_->evalAt(at);
             s.lobe = BsdfLobe::Reflection | BsdfLobe::Specular;
             return s;
         }
@@ -123,7 +123,7 @@ public:
         // Radiance is compressed into a narrower cone when entering a denser
         // medium; importance (photon flux) is not.
         const float scale = mode == TransportMode::Radiance ? 1.0f / (etaCrossed * etaCrossed) : 1.0f;
-        s.weight = specularTransmittance_->eval(uv) * scale;
+        s.weight = specularTransmittance_->evalAt(at) * scale;
         s.eta = etaCrossed;
         s.lobe = BsdfLobe::Transmission | BsdfLobe::Specular;
         return s;
@@ -147,14 +147,14 @@ public:
     std::uint32_t lobes() const override {
         return BsdfLobe::Reflection | BsdfLobe::Transmission | BsdfLobe::Specular | BsdfLobe::Null;
     }
-    Rgb nullTransmission(const Vec3& w, const Vec2&) const override {
+    Rgb nullTransmission(const Vec3& w, const TexturePoint&) const override {
         if (w.z == 0.0f) return Rgb(0.0f);
         return Rgb(1.0f - slabReflectance(absCosTheta(w)));
     }
-    Rgb eval(const Vec3&, const Vec3&, const Vec2&, TransportMode) const override { return Rgb(0.0f); }
-    float pdf(const Vec3&, const Vec3&, const Vec2&) const override { return 0.0f; }
+    Rgb eval(const Vec3&, const Vec3&, const TexturePoint&, TransportMode) const override { return Rgb(0.0f); }
+    float pdf(const Vec3&, const Vec3&, const TexturePoint&) const override { return 0.0f; }
 
-    std::optional<BsdfSample> sample(const Vec3& wo, const Vec2&, float uLobe, const Vec2&,
+    std::optional<BsdfSample> sample(const Vec3& wo, const TexturePoint&, float uLobe, const Vec2&,
                                      TransportMode) const override {
         if (wo.z == 0.0f) return std::nullopt;
         const float reflectance = slabReflectance(absCosTheta(wo));
@@ -190,15 +190,15 @@ public:
         : ior_(ior), specularReflectance_(std::move(specularReflectance)) {}
 
     std::uint32_t lobes() const override { return BsdfLobe::Reflection | BsdfLobe::Specular; }
-    Rgb eval(const Vec3&, const Vec3&, const Vec2&, TransportMode) const override { return Rgb(0.0f); }
-    float pdf(const Vec3&, const Vec3&, const Vec2&) const override { return 0.0f; }
+    Rgb eval(const Vec3&, const Vec3&, const TexturePoint&, TransportMode) const override { return Rgb(0.0f); }
+    float pdf(const Vec3&, const Vec3&, const TexturePoint&) const override { return 0.0f; }
 
-    std::optional<BsdfSample> sample(const Vec3& wo, const Vec2& uv, float, const Vec2&, TransportMode) const override {
+    std::optional<BsdfSample> sample(const Vec3& wo, const TexturePoint& at, float, const Vec2&, TransportMode) const override {
         if (wo.z <= 0.0f) return std::nullopt;
         BsdfSample s;
         s.wi = mirrorReflect(wo);
         s.pdf = 1.0f;
-        s.weight = specularReflectance_->eval(uv) * fresnelConductor(wo.z, ior_.eta, ior_.k);
+        s.weight = specularReflectance_->evalAt(at) * fresnelConductor(wo.z, ior_.eta, ior_.k);
         s.lobe = BsdfLobe::Reflection | BsdfLobe::Specular;
         return s;
     }
@@ -218,17 +218,17 @@ public:
 
     std::uint32_t lobes() const override { return BsdfLobe::Reflection | BsdfLobe::Glossy; }
 
-    Rgb eval(const Vec3& wo, const Vec3& wi, const Vec2& uv, TransportMode) const override {
+    Rgb eval(const Vec3& wo, const Vec3& wi, const TexturePoint& at, TransportMode) const override {
         if (wo.z <= 0.0f || wi.z <= 0.0f) return Rgb(0.0f);
         const Vec3 sum = wo + wi;
         if (glm::dot(sum, sum) == 0.0f) return Rgb(0.0f);
         const Vec3 m = glm::normalize(sum);
         const Rgb fresnel = fresnelConductor(glm::dot(wo, m), ior_.eta, ior_.k);
         // D G F / (4 cos_o cos_i), times cos_i.
-        return specularReflectance_->eval(uv) * fresnel * (distribution_.D(m) * distribution_.G(wo, wi) / (4.0f * wo.z));
+        return specularReflectance_->evalAt(at) * fresnel * (distribution_.D(m) * distribution_.G(wo, wi) / (4.0f * wo.z));
     }
 
-    float pdf(const Vec3& wo, const Vec3& wi, const Vec2&) const override {
+    float pdf(const Vec3& wo, const Vec3& wi, const TexturePoint&) const override {
         if (wo.z <= 0.0f || wi.z <= 0.0f) return 0.0f;
         const Vec3 sum = wo + wi;
         if (glm::dot(sum, sum) == 0.0f) return 0.0f;
@@ -239,7 +239,7 @@ public:
         return distribution_.visibleNormalPdf(wo, m) / (4.0f * cosOM);
     }
 
-    std::optional<BsdfSample> sample(const Vec3& wo, const Vec2& uv, float, const Vec2& u,
+    std::optional<BsdfSample> sample(const Vec3& wo, const TexturePoint& at, float, const Vec2& u,
                                      TransportMode) const override {
         if (wo.z <= 0.0f) return std::nullopt;
         const Vec3 m = distribution_.sampleVisibleNormal(wo, u);
@@ -251,7 +251,7 @@ public:
         s.pdf = distribution_.visibleNormalPdf(wo, m) / (4.0f * cosOM);
         if (!(s.pdf > 0.0f)) return std::nullopt;
         // eval / pdf: D and G1(wo) cancel against the visible-normal density.
-        s.weight = specularReflectance_->eval(uv) * fresnelConductor(cosOM, ior_.eta, ior_.k) * distribution_.G1(s.wi);
+        s.weight = specularReflectance_->evalAt(at) * fresnelConductor(cosOM, ior_.eta, ior_.k) * distribution_.G1(s.wi);
         s.lobe = BsdfLobe::Reflection | BsdfLobe::Glossy;
         return s;
     }
@@ -275,7 +275,7 @@ public:
         return BsdfLobe::Reflection | BsdfLobe::Transmission | BsdfLobe::Glossy;
     }
 
-    Rgb eval(const Vec3& woIn, const Vec3& wiIn, const Vec2&, TransportMode mode) const override {
+    Rgb eval(const Vec3& woIn, const Vec3& wiIn, const TexturePoint&, TransportMode mode) const override {
         const Upper q = toUpper(woIn, wiIn);
         if (!q.valid) return Rgb(0.0f);
         const Half h = halfVector(q);
@@ -291,7 +291,7 @@ public:
         return Rgb(value);
     }
 
-    float pdf(const Vec3& woIn, const Vec3& wiIn, const Vec2&) const override {
+    float pdf(const Vec3& woIn, const Vec3& wiIn, const TexturePoint&) const override {
         const Upper q = toUpper(woIn, wiIn);
         if (!q.valid) return 0.0f;
         const Half h = halfVector(q);
@@ -303,7 +303,7 @@ public:
         return (1.0f - fresnel) * visible * q.eta * q.eta * std::abs(h.cosIM) / (denom * denom);
     }
 
-    std::optional<BsdfSample> sample(const Vec3& woIn, const Vec2&, float uLobe, const Vec2& u,
+    std::optional<BsdfSample> sample(const Vec3& woIn, const TexturePoint&, float uLobe, const Vec2& u,
                                      TransportMode mode) const override {
         if (woIn.z == 0.0f) return std::nullopt;
         const bool flipped = woIn.z < 0.0f;
@@ -406,18 +406,18 @@ public:
         return BsdfLobe::Reflection | BsdfLobe::Specular | BsdfLobe::Diffuse;
     }
 
-    Rgb eval(const Vec3& wo, const Vec3& wi, const Vec2& uv, TransportMode) const override {
+    Rgb eval(const Vec3& wo, const Vec3& wi, const TexturePoint& at, TransportMode) const override {
         if (wo.z <= 0.0f || wi.z <= 0.0f) return Rgb(0.0f);
-        return diffuseValue(wo, wi, uv) * (kInvPi * wi.z);
+        return diffuseValue(wo, wi, at) * (kInvPi * wi.z);
     }
 
-    float pdf(const Vec3& wo, const Vec3& wi, const Vec2&) const override {
+    float pdf(const Vec3& wo, const Vec3& wi, const TexturePoint&) const override {
         if (wo.z <= 0.0f || wi.z <= 0.0f) return 0.0f;
         const float pSpecular = specularProbability(fresnelDielectric(wo.z, eta_));
         return (1.0f - pSpecular) * cosineHemispherePdf(wi.z);
     }
 
-    std::optional<BsdfSample> sample(const Vec3& wo, const Vec2& uv, float uLobe, const Vec2& u,
+    std::optional<BsdfSample> sample(const Vec3& wo, const TexturePoint& at, float uLobe, const Vec2& u,
                                      TransportMode) const override {
         if (wo.z <= 0.0f) return std::nullopt;
         const float fresnelIn = fresnelDielectric(wo.z, eta_);
@@ -434,7 +434,7 @@ public:
         if (s.wi.z <= 0.0f) return std::nullopt;
         const float pDiffuse = 1.0f - pSpecular;
         s.pdf = pDiffuse * cosineHemispherePdf(s.wi.z);
-        s.weight = diffuseValue(wo, s.wi, uv) / pDiffuse;
+        s.weight = diffuseValue(wo, s.wi, at) / pDiffuse;
         s.lobe = BsdfLobe::Reflection | BsdfLobe::Diffuse;
         return s;
     }
@@ -453,8 +453,8 @@ private:
     // rho / (1 - rho Fdr) ("nonlinear", colours saturate) or, with Mitsuba's
     // default linearisation, rho / (1 - Fdr). Leaving through the coating
     // costs (1 - F_o) and compresses the solid angle by 1/eta^2.
-    Rgb diffuseValue(const Vec3& wo, const Vec3& wi, const Vec2& uv) const {
-        const Rgb albedo = diffuse_->eval(uv);
+    Rgb diffuseValue(const Vec3& wo, const Vec3& wi, const TexturePoint& at) const {
+        const Rgb albedo = diffuse_->evalAt(at);
         const Rgb base = nonlinear_ ? albedo / (Rgb(1.0f) - albedo * fdrInternal_) : albedo / (1.0f - fdrInternal_);
         const float transmission =
             (1.0f - fresnelDielectric(wo.z, eta_)) * (1.0f - fresnelDielectric(wi.z, eta_));
@@ -591,9 +591,9 @@ public:
         return BsdfLobe::Reflection | BsdfLobe::Glossy | BsdfLobe::Diffuse;
     }
 
-    Rgb eval(const Vec3& wo, const Vec3& wi, const Vec2& uv, TransportMode) const override {
+    Rgb eval(const Vec3& wo, const Vec3& wi, const TexturePoint& at, TransportMode) const override {
         if (wo.z <= 0.0f || wi.z <= 0.0f) return Rgb(0.0f);
-        Rgb value = diffuseValue(wo, wi, uv) * (kInvPi * wi.z);
+        Rgb value = diffuseValue(wo, wi, at) * (kInvPi * wi.z);
         const Vec3 m = glm::normalize(wo + wi);
         const float fresnel = fresnelDielectric(glm::dot(wo, m), eta_);
         // D G F / (4 cos_o cos_i), times cos_i.
@@ -602,13 +602,13 @@ public:
         return value;
     }
 
-    float pdf(const Vec3& wo, const Vec3& wi, const Vec2&) const override {
+    float pdf(const Vec3& wo, const Vec3& wi, const TexturePoint&) const override {
         if (wo.z <= 0.0f || wi.z <= 0.0f) return 0.0f;
         const float pSpecular = specularProbability(wo.z);
         return pSpecular * specularPdf(wo, wi) + (1.0f - pSpecular) * cosineHemispherePdf(wi.z);
     }
 
-    std::optional<BsdfSample> sample(const Vec3& wo, const Vec2& uv, float uLobe, const Vec2& u,
+    std::optional<BsdfSample> sample(const Vec3& wo, const TexturePoint& at, float uLobe, const Vec2& u,
                                      TransportMode mode) const override {
         if (wo.z <= 0.0f) return std::nullopt;
         const float pSpecular = specularProbability(wo.z);
@@ -625,7 +625,7 @@ public:
         // Both lobes are smooth, so the direction's density is the mixture's.
         s.pdf = pSpecular * specularPdf(wo, s.wi) + (1.0f - pSpecular) * cosineHemispherePdf(s.wi.z);
         if (!(s.pdf > 0.0f)) return std::nullopt;
-        s.weight = eval(wo, s.wi, uv, mode) / s.pdf;
+        s.weight = eval(wo, s.wi, at, mode) / s.pdf;
         return s;
     }
 
@@ -656,8 +656,8 @@ private:
         return total > 0.0f ? specular / total : 1.0f;
     }
 
-    Rgb diffuseValue(const Vec3& wo, const Vec3& wi, const Vec2& uv) const {
-        const Rgb albedo = diffuse_->eval(uv);
+    Rgb diffuseValue(const Vec3& wo, const Vec3& wi, const TexturePoint& at) const {
+        const Rgb albedo = diffuse_->evalAt(at);
         const float internal = tables_->internalReflectance;
         const Rgb base = nonlinear_ ? albedo / (Rgb(1.0f) - albedo * internal) : albedo / (1.0f - internal);
         return base * (invEta2_ * externalTransmittance(wo.z) * externalTransmittance(wi.z));
@@ -678,10 +678,10 @@ private:
 class NullBsdf final : public Bsdf {
 public:
     std::uint32_t lobes() const override { return BsdfLobe::Null; }
-    Rgb nullTransmission(const Vec3&, const Vec2&) const override { return Rgb(1.0f); }
-    Rgb eval(const Vec3&, const Vec3&, const Vec2&, TransportMode) const override { return Rgb(0.0f); }
-    float pdf(const Vec3&, const Vec3&, const Vec2&) const override { return 0.0f; }
-    std::optional<BsdfSample> sample(const Vec3& wo, const Vec2&, float, const Vec2&, TransportMode) const override {
+    Rgb nullTransmission(const Vec3&, const TexturePoint&) const override { return Rgb(1.0f); }
+    Rgb eval(const Vec3&, const Vec3&, const TexturePoint&, TransportMode) const override { return Rgb(0.0f); }
+    float pdf(const Vec3&, const Vec3&, const TexturePoint&) const override { return 0.0f; }
+    std::optional<BsdfSample> sample(const Vec3& wo, const TexturePoint&, float, const Vec2&, TransportMode) const override {
         BsdfSample s;
         s.wi = -wo;
         s.weight = Rgb(1.0f);
@@ -698,28 +698,28 @@ public:
     explicit TwoSidedBsdf(std::shared_ptr<Bsdf> inner) : inner_(std::move(inner)) {}
 
     std::uint32_t lobes() const override { return inner_->lobes(); }
-    Rgb nullTransmission(const Vec3& w, const Vec2& uv) const override {
-        return inner_->nullTransmission(w.z < 0.0f ? flipZ(w) : w, uv);
+    Rgb nullTransmission(const Vec3& w, const TexturePoint& at) const override {
+        return inner_->nullTransmission(w.z < 0.0f ? flipZ(w) : w, at);
     }
     bool hasOpacity() const override { return inner_->hasOpacity(); }
-    float opacity(const Vec2& uv) const override { return inner_->opacity(uv); }
+    float opacity(const TexturePoint& at) const override { return inner_->opacity(at); }
     bool perturbsNormal() const override { return inner_->perturbsNormal(); }
     Vec3 perturbedNormal(const ShadingGeometry& geometry) const override { return inner_->perturbedNormal(geometry); }
 
-    Rgb eval(const Vec3& wo, const Vec3& wi, const Vec2& uv, TransportMode mode) const override {
-        if (wo.z < 0.0f) return inner_->eval(flipZ(wo), flipZ(wi), uv, mode);
-        return inner_->eval(wo, wi, uv, mode);
+    Rgb eval(const Vec3& wo, const Vec3& wi, const TexturePoint& at, TransportMode mode) const override {
+        if (wo.z < 0.0f) return inner_->eval(flipZ(wo), flipZ(wi), at, mode);
+        return inner_->eval(wo, wi, at, mode);
     }
 
-    float pdf(const Vec3& wo, const Vec3& wi, const Vec2& uv) const override {
-        if (wo.z < 0.0f) return inner_->pdf(flipZ(wo), flipZ(wi), uv);
-        return inner_->pdf(wo, wi, uv);
+    float pdf(const Vec3& wo, const Vec3& wi, const TexturePoint& at) const override {
+        if (wo.z < 0.0f) return inner_->pdf(flipZ(wo), flipZ(wi), at);
+        return inner_->pdf(wo, wi, at);
     }
 
-    std::optional<BsdfSample> sample(const Vec3& wo, const Vec2& uv, float uLobe, const Vec2& u,
+    std::optional<BsdfSample> sample(const Vec3& wo, const TexturePoint& at, float uLobe, const Vec2& u,
                                      TransportMode mode) const override {
-        if (wo.z >= 0.0f) return inner_->sample(wo, uv, uLobe, u, mode);
-        std::optional<BsdfSample> s = inner_->sample(flipZ(wo), uv, uLobe, u, mode);
+        if (wo.z >= 0.0f) return inner_->sample(wo, at, uLobe, u, mode);
+        std::optional<BsdfSample> s = inner_->sample(flipZ(wo), at, uLobe, u, mode);
         if (s) s->wi = flipZ(s->wi);
         return s;
     }

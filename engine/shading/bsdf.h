@@ -60,17 +60,17 @@ public:
     virtual ~Bsdf() = default;
     // Union of the lobes this material can produce.
     virtual std::uint32_t lobes() const = 0;
-    virtual Rgb eval(const Vec3& wo, const Vec3& wi, const Vec2& uv, TransportMode mode) const = 0;
-    virtual float pdf(const Vec3& wo, const Vec3& wi, const Vec2& uv) const = 0;
+    virtual Rgb eval(const Vec3& wo, const Vec3& wi, const TexturePoint& at, TransportMode mode) const = 0;
+    virtual float pdf(const Vec3& wo, const Vec3& wi, const TexturePoint& at) const = 0;
     // uLobe picks among lobes, u drives the direction within a lobe.
-    virtual std::optional<BsdfSample> sample(const Vec3& wo, const Vec2& uv, float uLobe, const Vec2& u,
+    virtual std::optional<BsdfSample> sample(const Vec3& wo, const TexturePoint& at, float uLobe, const Vec2& u,
                                              TransportMode mode) const = 0;
 
     // f_r itself when it is one constant for every pair of directions on the
     // reflecting side (wo.z > 0, wi.z > 0: a Lambertian BRDF), so that callers
     // evaluating one shading point many times can cache it; nullopt otherwise.
-    virtual std::optional<Rgb> constantReflectance(const Vec2& uv) const {
-        (void)uv;
+    virtual std::optional<Rgb> constantReflectance(const TexturePoint& at) const {
+        (void)at;
         return std::nullopt;
     }
 
@@ -79,17 +79,17 @@ public:
     // samples such an event (BsdfLobe::Null in the sample) continues without a
     // scattering vertex -- it counts no depth and keeps the previous vertex for
     // MIS -- and shadow rays pass with this factor. Zero for opaque materials.
-    virtual Rgb nullTransmission(const Vec3& w, const Vec2& uv) const {
+    virtual Rgb nullTransmission(const Vec3& w, const TexturePoint& at) const {
         (void)w;
-        (void)uv;
+        (void)at;
         return Rgb(0.0f);
     }
     // Mitsuba's mask: a ray passes through the surface with probability
-    // 1 - opacity(uv), as through a null boundary (not counted as a bounce), and
+    // 1 - opacity(at), as through a null boundary (not counted as a bounce), and
     // scatters by this material otherwise; shadow rays are attenuated by 1 - opacity.
     virtual bool hasOpacity() const { return false; }
-    virtual float opacity(const Vec2& uv) const {
-        (void)uv;
+    virtual float opacity(const TexturePoint& at) const {
+        (void)at;
         return 1.0f;
     }
     // Bump and normal maps: the unit world-space shading normal to use instead

@@ -23,17 +23,17 @@ public:
     explicit ForwardingBsdf(std::shared_ptr<Bsdf> inner) : inner_(std::move(inner)) {}
 
     std::uint32_t lobes() const override { return inner_->lobes(); }
-    Rgb eval(const Vec3& wo, const Vec3& wi, const Vec2& uv, TransportMode mode) const override {
-        return inner_->eval(wo, wi, uv, mode);
+    Rgb eval(const Vec3& wo, const Vec3& wi, const TexturePoint& at, TransportMode mode) const override {
+        return inner_->eval(wo, wi, at, mode);
     }
-    float pdf(const Vec3& wo, const Vec3& wi, const Vec2& uv) const override { return inner_->pdf(wo, wi, uv); }
-    std::optional<BsdfSample> sample(const Vec3& wo, const Vec2& uv, float uLobe, const Vec2& u,
+    float pdf(const Vec3& wo, const Vec3& wi, const TexturePoint& at) const override { return inner_->pdf(wo, wi, at); }
+    std::optional<BsdfSample> sample(const Vec3& wo, const TexturePoint& at, float uLobe, const Vec2& u,
                                      TransportMode mode) const override {
-        return inner_->sample(wo, uv, uLobe, u, mode);
+        return inner_->sample(wo, at, uLobe, u, mode);
     }
-    std::optional<Rgb> constantReflectance(const Vec2& uv) const override { return inner_->constantReflectance(uv); }
+    std::optional<Rgb> constantReflectance(const TexturePoint& at) const override { return inner_->constantReflectance(at); }
     bool hasOpacity() const override { return inner_->hasOpacity(); }
-    float opacity(const Vec2& uv) const override { return inner_->opacity(uv); }
+    float opacity(const TexturePoint& at) const override { return inner_->opacity(at); }
     bool perturbsNormal() const override { return inner_->perturbsNormal(); }
     Vec3 perturbedNormal(const ShadingGeometry& geometry) const override { return inner_->perturbedNormal(geometry); }
 
@@ -47,9 +47,9 @@ public:
         : ForwardingBsdf(std::move(inner)), opacity_(std::move(opacity)) {}
 
     bool hasOpacity() const override { return true; }
-    float opacity(const Vec2& uv) const override {
+    float opacity(const TexturePoint& at) const override {
         // A mask around a masked material: both must let the ray pass.
-        return clamp01(opacity_->evalScalar(uv)) * inner_->opacity(uv);
+        return clamp01(opacity_->evalScalar(at)) * inner_->opacity(at);
     }
 
 private:
@@ -116,7 +116,70 @@ private:
     std::shared_ptr<Texture> normals_;
 };
 
+// A direction is sampled from one of the two materials, chosen with
+// probability 1 - w and w; a smooth sample then carries the blend's own value
+// and pdf (both materials' densities, mixed), so that MIS sees one material.
+// A specular sample has no density the other material shares: its pdf is the
+// discrete probability of the choice times the lobe's.
+class BlendBsdf final : public Bsdf {
+public:
+    BlendBsdf(std::shared_ptr<Bsdf> first, std::shared_ptr<Bsdf> second, std::shared_ptr<Texture> weight)
+        : first_(std::move(first)), second_(std::move(second)), weight_(std::move(weight)) {}
+
+    std::uint32_t lobes() const override { return first_->lobes() | second_->lobes(); }
+    Rgb eval(const Vec3& wo, const Vec3& wi, const TexturePoint& at, TransportMode mode) const override {
+        const float w = weight(at);
+        return (1.0f - w) * first_->eval(wo, wi, at, mode) + w * second_->eval(wo, wi, at, mode);
+    }
+    float pdf(const Vec3& wo, const Vec3& wi, const TexturePoint& at) const override {
+        const float w = weight(at);
+        return (1.0f - w) * first_->pdf(wo, wi, at) + w * second_->pdf(wo, wi, at);
+    }
+    std::optional<BsdfSample> sample(const Vec3& wo, const TexturePoint& at, float uLobe, const Vec2& u,
+                                     TransportMode mode) const override {
+        const float w = weight(at);
+        const bool useSecond = uLobe < w;
+        const float choice = useSecond ? w : 1.0f - w;
+        const float uInner = std::min(useSecond ? uLobe / w : (uLobe - w) / (1.0f - w), 0x1.fffffep-1f);
+        std::optional<BsdfSample> s = (useSecond ? second_ : first_)->sample(wo, at, uInner, u, mode);
+        if (!s) return std::nullopt;
+        if (s->isSpecular() || (s->lobe & BsdfLobe::Null) != 0) {
+            s->pdf *= choice;
+            return s;
+        }
+        s->pdf = pdf(wo, s->wi, at);
+        if (!(s->pdf > 0.0f)) return std::nullopt;
+        s->weight = eval(wo, s->wi, at, mode) / s->pdf;
+        return s;
+    }
+    std::optional<Rgb> constantReflectance(const TexturePoint& at) const override {
+        const std::optional<Rgb> a = first_->constantReflectance(at), b = second_->constantReflectance(at);
+        if (!a || !b) return std::nullopt;
+        const float w = weight(at);
+        return (1.0f - w) * *a + w * *b;
+    }
+    Rgb nullTransmission(const Vec3& w, const TexturePoint& at) const override {
+        const float mix = weight(at);
+        return (1.0f - mix) * first_->nullTransmission(w, at) + mix * second_->nullTransmission(w, at);
+    }
+    bool hasOpacity() const override { return first_->hasOpacity() || second_->hasOpacity(); }
+    float opacity(const TexturePoint& at) const override {
+        const float w = weight(at);
+        return (1.0f - w) * first_->opacity(at) + w * second_->opacity(at);
+    }
+
+private:
+    float weight(const TexturePoint& at) const { return clamp01(weight_->evalScalar(at)); }
+
+    std::shared_ptr<Bsdf> first_, second_;
+    std::shared_ptr<Texture> weight_;
+};
+
 }  // namespace
+
+std::shared_ptr<Bsdf> makeBlend(std::shared_ptr<Bsdf> first, std::shared_ptr<Bsdf> second, std::shared_ptr<Texture> weight) {
+    return std::make_shared<BlendBsdf>(std::move(first), std::move(second), std::move(weight));
+}
 
 std::shared_ptr<Bsdf> makeMask(std::shared_ptr<Bsdf> inner, std::shared_ptr<Texture> opacity) {
     return std::make_shared<MaskBsdf>(std::move(inner), std::move(opacity));

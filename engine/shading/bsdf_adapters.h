@@ -1,4 +1,5 @@
-// Materials that wrap another material (Mitsuba's mask, bumpmap and normalmap).
+// Materials that wrap another material (Mitsuba's mask, bumpmap and normalmap)
+// or two (blendbsdf).
 // They scatter exactly as the material they wrap; what they change is where
 // and around which normal it scatters, which the tracers ask through
 // Bsdf::opacity and Bsdf::perturbedNormal (see bsdf.h).
@@ -19,5 +20,8 @@ std::shared_ptr<Bsdf> makeBumpMap(std::shared_ptr<Bsdf> inner, std::shared_ptr<T
 // Tangent-space normals: the texture's RGB in [0, 1] encodes 2 * rgb - 1 in the
 // frame (dp/du, n x dp/du, n) of the interpolated shading normal n.
 std::shared_ptr<Bsdf> makeNormalMap(std::shared_ptr<Bsdf> inner, std::shared_ptr<Texture> normals);
+// (1 - w) first + w second with w = the weight texture's luminance clamped to
+// [0, 1] (Mitsuba's blendbsdf). Neither material may perturb the normal.
+std::shared_ptr<Bsdf> makeBlend(std::shared_ptr<Bsdf> first, std::shared_ptr<Bsdf> second, std::shared_ptr<Texture> weight);
 
 }  // namespace fg

@@ -11,15 +11,33 @@
 
 namespace fg {
 
+struct TriangleMesh;
+
+// Where on a surface a texture is looked up: (u, v) and, on a mesh, which
+// triangle and where in it (for textures that read the mesh's attributes).
+// Built implicitly from uv where no mesh is at hand (lights, tests).
+struct TexturePoint {
+    TexturePoint(const Vec2& uvIn) : uv(uvIn) {}
+    TexturePoint(const Vec2& uvIn, const TriangleMesh* meshIn, std::uint32_t triangleIn, const Vec2& barycentricIn)
+        : uv(uvIn), mesh(meshIn), triangle(triangleIn), barycentric(barycentricIn) {}
+    Vec2 uv;
+    const TriangleMesh* mesh = nullptr;
+    std::uint32_t triangle = 0;
+    Vec2 barycentric{0.0f};  // weights of the triangle's second and third vertex
+};
+
 class Texture {
 public:
     virtual ~Texture() = default;
     virtual Rgb eval(const Vec2& uv) const = 0;
+    // The value at a surface point; materials look textures up through this.
+    // It is eval(uv) except for textures that read the mesh (mesh_attribute).
+    virtual Rgb evalAt(const TexturePoint& at) const { return eval(at.uv); }
     // Mean value over the texture's domain (used for albedo estimates and power).
     virtual Rgb mean() const = 0;
     // The scalar a texture stands for where a parameter is one number (opacity,
     // bump height): the luminance of eval(uv).
-    float evalScalar(const Vec2& uv) const { return luminance(eval(uv)); }
+    float evalScalar(const TexturePoint& at) const { return luminance(evalAt(at)); }
     // d evalScalar / d(u, v). The default differentiates numerically; textures
     // with a closed form override it.
     virtual Vec2 scalarGradient(const Vec2& uv) const;

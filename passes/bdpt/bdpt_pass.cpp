@@ -208,7 +208,7 @@ int randomWalk(const BdptScene& bs, Ray ray, Rgb beta, float pdfDirection, int m
         const SurfacePoint sp = bs.rays.surface(ray, hit);
         const Shape& shape = scene.shapes[sp.shape];
         const Bsdf* bsdf = shape.bsdf >= 0 ? scene.bsdfs[static_cast<std::size_t>(shape.bsdf)].get() : nullptr;
-        if (!bsdf || bsdf->isNull() || passesThroughMask(bsdf, sp.uv, rng)) {
+        if (!bsdf || bsdf->isNull() || passesThroughMask(bsdf, sp.texturePoint(), rng)) {
             // No vertex: the direction is unchanged, so densities still convert
             // over the straight line between the real vertices on either side.
             medium = mediumAfterCrossing(shape, sp.ng, ray.direction, medium);
@@ -221,7 +221,7 @@ int randomWalk(const BdptScene& bs, Ray ray, Rgb beta, float pdfDirection, int m
         if (bsdf->hasNullLobe()) {
             const float uLobe = rng.uniform();
             const Vec2 uDir = rng.uniform2();
-            chosen = bsdf->sample(woLocal, sp.uv, uLobe, uDir, mode);
+            chosen = bsdf->sample(woLocal, sp.texturePoint(), uLobe, uDir, mode);
             if (!chosen || chosen->pdf <= 0.0f || isBlack(chosen->weight)) break;
             if (chosen->lobe & BsdfLobe::Null) {
                 beta *= chosen->weight;
@@ -235,7 +235,7 @@ int randomWalk(const BdptScene& bs, Ray ray, Rgb beta, float pdfDirection, int m
         v.p = sp.p;
         v.ng = sp.ng;
         v.ns = sp.ns;
-        v.uv = sp.uv;
+        v.at = sp.texturePoint();
         v.shape = sp.shape;
         v.wo = -ray.direction;
         v.beta = beta;
@@ -246,14 +246,14 @@ int randomWalk(const BdptScene& bs, Ray ray, Rgb beta, float pdfDirection, int m
         if (!chosen) {
             const float uLobe = rng.uniform();
             const Vec2 uDir = rng.uniform2();
-            chosen = bsdf->sample(woLocal, sp.uv, uLobe, uDir, mode);
+            chosen = bsdf->sample(woLocal, sp.texturePoint(), uLobe, uDir, mode);
         }
         if (!chosen || chosen->pdf <= 0.0f || isBlack(chosen->weight)) break;
         const Vec3 wi = frame.toWorld(chosen->wi);
         if (glm::dot(wi, sp.ng) * chosen->wi.z <= 0.0f) break;
         beta *= chosen->weight;
         float pdfForward = chosen->pdf;
-        float pdfReverse = bsdf->pdf(chosen->wi, woLocal, sp.uv);
+        float pdfReverse = bsdf->pdf(chosen->wi, woLocal, sp.texturePoint());
         if (chosen->isSpecular()) {
             added.delta = true;
             pdfForward = pdfReverse = 0.0f;
@@ -663,7 +663,7 @@ private:
                             record(0, t, value * w, value);
                         }
                     } else if (pt.kind == BdptVertexKind::Surface && pt.light >= 0) {
-                        const Rgb Le = scene.lights[static_cast<std::size_t>(pt.light)]->emittedAt(pt.ng, pt.wo, pt.uv);
+                        const Rgb Le = scene.lights[static_cast<std::size_t>(pt.light)]->emittedAt(pt.ng, pt.wo, pt.at.uv);
                         if (isBlack(Le)) continue;
                         const Rgb value = pt.beta * Le;
                         const float w = bdptMisWeight(bs, {}, cam.first(static_cast<std::size_t>(t)), nullptr, 0, t,

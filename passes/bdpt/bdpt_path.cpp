@@ -159,7 +159,7 @@ float bdptPdf(const BdptScene& bs, const BdptVertex* prev, const BdptVertex& cur
         const Frame frame(cur.ns);
         const Vec3 wo = frame.toLocal(bdptDirection(cur, *prev));
         const Vec3 wi = frame.toLocal(bdptDirection(cur, next));
-        return bdptConvertDensity(bsdf->pdf(wo, wi, cur.uv), cur, next);
+        return bdptConvertDensity(bsdf->pdf(wo, wi, cur.at), cur, next);
     }
     }
     return 0.0f;
@@ -290,7 +290,7 @@ Rgb bdptScatter(const BdptScene& bs, const BdptVertex& v, const Vec3& to, bool l
     const Vec3 wo = frame.toLocal(v.wo), wi = frame.toLocal(to);
     // Shading normals must not let light through the geometric surface, on either side.
     if (glm::dot(to, v.ng) * wi.z <= 0.0f || glm::dot(v.wo, v.ng) * wo.z <= 0.0f) return Rgb(0.0f);
-    return bsdf->eval(wo, wi, v.uv, lightSubpath ? TransportMode::Importance : TransportMode::Radiance);
+    return bsdf->eval(wo, wi, v.at, lightSubpath ? TransportMode::Importance : TransportMode::Radiance);
 }
 
 }  // namespace fg

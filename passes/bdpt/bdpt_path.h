@@ -47,7 +47,7 @@ struct BdptVertex {
     Vec3 ns{0.0f};   // unit shading normal (surfaces)
     Vec3 wo{0.0f};   // unit direction towards the vertex before it on its own subpath
     Rgb beta{0.0f};  // throughput of the subpath up to this vertex (not its own scattering)
-    Vec2 uv{0.0f};
+    TexturePoint at{Vec2(0.0f)};  // where its material and an emitter's texture are looked up
     float pdfFwd = 0.0f;
     float pdfRev = 0.0f;
     // Free-flight density with which this vertex, sampling backwards along the

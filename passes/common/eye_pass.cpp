@@ -67,7 +67,7 @@ Rgb traceEyeSample(const PathTracerScene& pts, const Camera& camera, Ray ray, jo
             if (bsdf && bsdf->hasSmoothLobe()) {
                 const SurfacePoint sp = pts.rays.surface(state.ray, hit);
                 // The transparent part of a mask is crossed as a null boundary.
-                if (passesThroughMask(bsdf, sp.uv, rng)) {
+                if (passesThroughMask(bsdf, sp.texturePoint(), rng)) {
                     crossSurface(shape, sp, state);
                     continue;
                 }

@@ -197,7 +197,7 @@ bool advancePathAtSurface(const PathTracerScene& pts, const PathLimits& limits, 
     const Bsdf* bsdf = shape.bsdf >= 0 ? scene.bsdfs[static_cast<std::size_t>(shape.bsdf)].get() : nullptr;
     const bool maskDecided = h.maskResolved;
     h.maskResolved = false;
-    if (!bsdf || bsdf->isNull() || (!maskDecided && passesThroughMask(bsdf, sp.uv, s.rng))) {
+    if (!bsdf || bsdf->isNull() || (!maskDecided && passesThroughMask(bsdf, sp.texturePoint(), s.rng))) {
         // Index-matched boundary or the transparent part of a mask: the ray goes
         // straight on into the next medium; the previous vertex stays the
         // reference for MIS. Passing a mask with probability 1 - opacity and
@@ -217,7 +217,7 @@ bool advancePathAtSurface(const PathTracerScene& pts, const PathLimits& limits, 
     if (bsdf->hasNullLobe()) {
         const float uLobe = s.rng.uniform();  // drawn in a fixed order, not as call arguments
         const Vec2 uDir = s.rng.uniform2();
-        chosen = bsdf->sample(wo, sp.uv, uLobe, uDir, TransportMode::Radiance);
+        chosen = bsdf->sample(wo, sp.texturePoint(), uLobe, uDir, TransportMode::Radiance);
         if (!chosen || chosen->pdf <= 0.0f || isBlack(chosen->weight)) return false;
         if (chosen->lobe & BsdfLobe::Null) {
             beta *= chosen->weight;
@@ -230,7 +230,7 @@ bool advancePathAtSurface(const PathTracerScene& pts, const PathLimits& limits, 
     if (++h.depth > limits.maxDepth) return false;
 
     const VertexGuide guide = chosen ? VertexGuide{} : findGuide(pts, *bsdf, sp, -s.ray.direction);
-    const GuidedBsdfSampler guided{bsdf, frame, wo, sp.uv, guide.gmm, guide.frame, guide.bsdfProbability};
+    const GuidedBsdfSampler guided{bsdf, frame, wo, sp.texturePoint(), guide.gmm, guide.frame, guide.bsdfProbability};
 
     if (bsdf->hasSmoothLobe()) {
         queueLightSample(pts, sp.p, sp.ng, &shape, h.medium, beta, s.rng,
@@ -238,8 +238,8 @@ bool advancePathAtSurface(const PathTracerScene& pts, const PathLimits& limits, 
                              const Vec3 wiLocal = frame.toLocal(wi);
                              // Shading normals must not let light through the geometric surface.
                              if (glm::dot(wi, sp.ng) * wiLocal.z <= 0.0f) return std::pair<Rgb, float>(Rgb(0.0f), 0.0f);
-                             const float pdf = guide.gmm ? guided.pdf(wiLocal) : bsdf->pdf(wo, wiLocal, sp.uv);
-                             return std::pair<Rgb, float>(bsdf->eval(wo, wiLocal, sp.uv, TransportMode::Radiance), pdf);
+                             const float pdf = guide.gmm ? guided.pdf(wiLocal) : bsdf->pdf(wo, wiLocal, sp.texturePoint());
+                             return std::pair<Rgb, float>(bsdf->eval(wo, wiLocal, sp.texturePoint(), TransportMode::Radiance), pdf);
                          },
                          shadow);
     }
@@ -254,7 +254,7 @@ bool advancePathAtSurface(const PathTracerScene& pts, const PathLimits& limits, 
         const Vec3 wi = frame.toWorld(wiLocal);
         if (glm::dot(wi, sp.ng) * wiLocal.z <= 0.0f) return false;
         const float pdf = guided.pdf(wiLocal);
-        const Rgb f = bsdf->eval(wo, wiLocal, sp.uv, TransportMode::Radiance);
+        const Rgb f = bsdf->eval(wo, wiLocal, sp.texturePoint(), TransportMode::Radiance);
         if (!(pdf > 0.0f) || isBlack(f)) return false;
         beta *= f / pdf;
         h.specular = false;
@@ -267,7 +267,7 @@ bool advancePathAtSurface(const PathTracerScene& pts, const PathLimits& limits, 
     if (!chosen) {
         const float uLobe = s.rng.uniform();
         const Vec2 uDir = s.rng.uniform2();
-        chosen = bsdf->sample(wo, sp.uv, uLobe, uDir, TransportMode::Radiance);
+        chosen = bsdf->sample(wo, sp.texturePoint(), uLobe, uDir, TransportMode::Radiance);
     }
     const std::optional<BsdfSample>& bs = chosen;
     if (!bs || bs->pdf <= 0.0f || isBlack(bs->weight)) return false;
@@ -322,8 +322,8 @@ Rgb shadowTransmittance(const PathTracerScene& pts, const ShadowRequest& shadow,
         // A mask lets 1 - opacity through; a surface with null events (null,
         // thindielectric) the light its null event lets through.
         if (bsdf) {
-            transmittance *= bsdf->hasOpacity() ? Rgb(1.0f - bsdf->opacity(sp.uv))
-                                                : bsdf->nullTransmission(Frame(sp.ns).toLocal(ray.direction), sp.uv);
+            transmittance *= bsdf->hasOpacity() ? Rgb(1.0f - bsdf->opacity(sp.texturePoint()))
+                                                : bsdf->nullTransmission(Frame(sp.ns).toLocal(ray.direction), sp.texturePoint());
             if (isBlack(transmittance)) return transmittance;
         }
         medium = mediumAfterCrossing(shape, sp.ng, ray.direction, medium);

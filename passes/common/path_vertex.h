@@ -87,9 +87,9 @@ bool advancePathAtSurface(const PathTracerScene& pts, const PathLimits& limits, 
                           PathVertexState& state, ShadowRequest& shadow);
 
 // Masked materials (Bsdf::hasOpacity): whether a ray passes through the surface
-// at uv, with probability 1 - opacity. Draws a random number only for masked materials.
-inline bool passesThroughMask(const Bsdf* bsdf, const Vec2& uv, jobs::Rng& rng) {
-    return bsdf && bsdf->hasOpacity() && rng.uniform() >= bsdf->opacity(uv);
+// at `at`, with probability 1 - opacity. Draws a random number only for masked materials.
+inline bool passesThroughMask(const Bsdf* bsdf, const TexturePoint& at, jobs::Rng& rng) {
+    return bsdf && bsdf->hasOpacity() && rng.uniform() >= bsdf->opacity(at);
 }
 
 // Transmittance along a shadow ray: 0 if blocked by a non-null surface, 1 - opacity through a masked one.

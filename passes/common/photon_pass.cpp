@@ -272,7 +272,7 @@ public:
             const Shape& shape = scene_.shapes[sp.shape];
             const Bsdf* bsdf = shape.bsdf >= 0 ? scene_.bsdfs[static_cast<std::size_t>(shape.bsdf)].get() : nullptr;
             // The transparent part of a mask is crossed as a null boundary (probability 1 - opacity).
-            if (!bsdf || bsdf->isNull() || passesThroughMask(bsdf, sp.uv, rng)) {
+            if (!bsdf || bsdf->isNull() || passesThroughMask(bsdf, sp.texturePoint(), rng)) {
                 if (++nullCrossings > kMaxNullCrossings) return;
                 medium = mediumAfterCrossing(shape, sp.ng, direction, medium);
                 ray = Ray{offsetRayOrigin(sp.p, sp.ng, direction), direction, kInfinity};
@@ -288,7 +288,7 @@ public:
             if (bsdf->hasNullLobe()) {
                 const float uLobe = rng.uniform();
                 const Vec2 uBsdf = rng.uniform2();
-                chosen = bsdf->sample(wo, sp.uv, uLobe, uBsdf, TransportMode::Importance);
+                chosen = bsdf->sample(wo, sp.texturePoint(), uLobe, uBsdf, TransportMode::Importance);
                 if (!chosen || chosen->pdf <= 0.0f || isBlack(chosen->weight)) return;
                 if (chosen->lobe & BsdfLobe::Null) {
                     if (++nullCrossings > kMaxNullCrossings) return;
@@ -318,7 +318,7 @@ public:
             if (!chosen) {
                 const float uLobe = rng.uniform();
                 const Vec2 uBsdf = rng.uniform2();
-                chosen = bsdf->sample(wo, sp.uv, uLobe, uBsdf, TransportMode::Importance);
+                chosen = bsdf->sample(wo, sp.texturePoint(), uLobe, uBsdf, TransportMode::Importance);
             }
             const std::optional<BsdfSample>& bs = chosen;
             if (!bs || bs->pdf <= 0.0f || isBlack(bs->weight)) return;

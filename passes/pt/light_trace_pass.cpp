@@ -143,8 +143,8 @@ public:
                     if (bsdf && !bsdf->hasNullLobe() && !bsdf->hasOpacity()) break;
                     if (bsdf) {
                         transmittance *= bsdf->hasOpacity()
-                                             ? Rgb(1.0f - bsdf->opacity(blocker.uv))
-                                             : bsdf->nullTransmission(Frame(blocker.ns).toLocal(ray.direction), blocker.uv);
+                                             ? Rgb(1.0f - bsdf->opacity(blocker.texturePoint()))
+                                             : bsdf->nullTransmission(Frame(blocker.ns).toLocal(ray.direction), blocker.texturePoint());
                     }
                     const Vec3 origin = offsetRayOrigin(blocker.p, blocker.ng, ray.direction);
                     const float advanced = glm::dot(origin - ray.origin, ray.direction);
@@ -171,7 +171,7 @@ public:
                     continue;
                 // Bsdf::eval holds |cos theta_i|; the photon's flux already does.
                 const Rgb brdf = scene.bsdfs[static_cast<std::size_t>(bsdfIndex)]->eval(
-                                     woLocal, wiLocal, surface.uv, TransportMode::Radiance) /
+                                     woLocal, wiLocal, surface.texturePoint(), TransportMode::Radiance) /
                                  std::abs(wiLocal.z);
                 const float rasterPerArea =
                     rasterPerImagePlane_ * std::abs(glm::dot(surface.ng, wo)) / (sqr(distance) * cosCamera * sqr(cosCamera));

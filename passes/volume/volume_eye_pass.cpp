@@ -93,7 +93,7 @@ public:
                 const Bsdf* bsdf = shape.bsdf >= 0 ? scene.bsdfs[static_cast<std::size_t>(shape.bsdf)].get() : nullptr;
                 const SurfacePoint sp = bsdf && bsdf->hasSmoothLobe() ? pts_.rays.surface(state.ray, hit) : SurfacePoint{};
                 // The transparent part of a mask is crossed as a null boundary.
-                if (bsdf && bsdf->hasSmoothLobe() && passesThroughMask(bsdf, sp.uv, rng)) {
+                if (bsdf && bsdf->hasSmoothLobe() && passesThroughMask(bsdf, sp.texturePoint(), rng)) {
                     if (++nullCrossings > kMaxNullCrossings) return radiance;
                     crossSurface(shape, sp, state);
                     continue;

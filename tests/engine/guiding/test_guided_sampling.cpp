@@ -38,7 +38,7 @@ void expectMixtureMatchesSampling(const Bsdf& bsdf, const Vec3& woLocal, float a
     sampler.bsdf = &bsdf;
     sampler.shading = Frame(Vec3(0.0f, 0.0f, 1.0f));
     sampler.wo = glm::normalize(woLocal);
-    sampler.uv = Vec2(0.3f, 0.6f);
+    sampler.at = Vec2(0.3f, 0.6f);
     sampler.gmm = &gmm;
     // The record's normal is tilted by about 50° from the shading normal: a
     // good part of the GMM's directions lies below the surface.

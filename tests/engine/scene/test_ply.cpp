@@ -149,9 +149,16 @@ TEST(PlyLoader, ReadsColoursOtherUvNamesAndSkipsUnusedData) {
     EXPECT_NEAR(mesh.area(), 2.0f, 1e-6f);
     ASSERT_EQ(mesh.uvs.size(), 3u);
     EXPECT_NEAR(glm::length(mesh.uvs[1] - Vec2(0.3f, 0.4f)), 0.0f, 1e-6f);
-    ASSERT_EQ(mesh.colors.size(), 3u);
-    EXPECT_NEAR(glm::length(mesh.colors[0] - Rgb(1.0f, 0.0f, 0.2f)), 0.0f, 1e-6f);
-    EXPECT_NEAR(glm::length(mesh.colors[2] - Rgb(1.0f / 15.0f, 2.0f / 15.0f, 0.0f)), 0.0f, 1e-6f);
+    const MeshAttribute* colors = mesh.attribute("vertex_color");
+    ASSERT_NE(colors, nullptr);
+    ASSERT_EQ(colors->channels, 3);
+    ASSERT_EQ(colors->values.size(), 9u);
+    EXPECT_NEAR(glm::length(Rgb(colors->values[0], colors->values[1], colors->values[2]) - Rgb(1.0f, 0.0f, 0.2f)), 0.0f, 1e-6f);
+    EXPECT_NEAR(glm::length(Rgb(colors->values[6], colors->values[7], colors->values[8]) -
+                            Rgb(1.0f / 15.0f, 2.0f / 15.0f, 0.0f)),
+                0.0f, 1e-6f);
+    // "weight" and "flags" have no channel suffix: Mitsuba leaves them out too.
+    EXPECT_EQ(mesh.attributes.size(), 1u);
 
     // The same mesh in big-endian binary with 16-bit colours, double positions and ushort list counts.
     std::string binary =
@@ -166,8 +173,12 @@ TEST(PlyLoader, ReadsColoursOtherUvNamesAndSkipsUnusedData) {
     append(binary, std::uint16_t{3}, true);
     for (std::int32_t i : {0, 1, 2}) append(binary, i, true);
     const TriangleMesh fromBinary = loadPlyMesh(write(dir / "colours_be.ply", binary).string());
-    ASSERT_EQ(fromBinary.colors.size(), 3u);
-    EXPECT_NEAR(glm::length(fromBinary.colors[1] - Rgb(1.0f, 0.0f, 0.2f)), 0.0f, 1e-6f);
+    const MeshAttribute* binaryColors = fromBinary.attribute("vertex_color");
+    ASSERT_NE(binaryColors, nullptr);
+    ASSERT_EQ(binaryColors->values.size(), 9u);
+    EXPECT_NEAR(glm::length(Rgb(binaryColors->values[3], binaryColors->values[4], binaryColors->values[5]) -
+                            Rgb(1.0f, 0.0f, 0.2f)),
+                0.0f, 1e-6f);
     EXPECT_NEAR(fromBinary.area(), 2.0f, 1e-6f);
     EXPECT_TRUE(fromBinary.uvs.empty());
 }
@@ -181,6 +192,51 @@ void expectError(const fs::path& path, const std::string& fragment) {
         EXPECT_NE(message.find(path.string()), std::string::npos) << message;
         EXPECT_NE(message.find(fragment), std::string::npos) << message;
     }
+}
+
+// As Mitsuba's mesh_attributes test mesh stores them: vertex color_0..2, face
+// color_0..2 and a one-channel face weight_0; a quad's values repeat on both triangles.
+TEST(PlyLoader, GroupsVertexAndFacePropertiesIntoNamedAttributes) {
+    const fs::path dir = scratchDir();
+    const std::string text =
+        "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\n"
+        "property float color_0\nproperty float color_1\nproperty float color_2\nproperty float normal_x\n"
+        "property float pair_0\nproperty float pair_1\n"
+        "element face 2\nproperty list uchar int vertex_indices\nproperty float color_0\nproperty float color_1\n"
+        "property float color_2\nproperty float weight_0\nproperty uchar tint_r\nproperty uchar tint_g\n"
+        "property uchar tint_b\nend_header\n"
+        "0 0 0 0.1 0.2 0.3 5 0 0\n1 0 0 0.4 0.5 0.6 6 0 0\n1 1 0 0.7 0.8 0.9 7 0 0\n0 1 0 1 1 1 8 0 0\n"
+        "4 0 1 2 3 0.25 0.5 0.75 0.125 255 0 51\n3 0 2 3 1 0 0 0.5 0 0 0\n";
+    const TriangleMesh mesh = loadPlyMesh(write(dir / "attributes.ply", text).string());
+    ASSERT_EQ(mesh.triangleCount(), 3u);
+    const MeshAttribute* vertexColor = mesh.attribute("vertex_color");
+    ASSERT_NE(vertexColor, nullptr);
+    EXPECT_TRUE(vertexColor->perVertex());
+    ASSERT_EQ(vertexColor->values.size(), 12u);
+    EXPECT_FLOAT_EQ(vertexColor->values[4], 0.5f);
+    const MeshAttribute* normal = mesh.attribute("vertex_normal");
+    ASSERT_NE(normal, nullptr);
+    EXPECT_EQ(normal->channels, 1);
+    EXPECT_FLOAT_EQ(normal->values[3], 8.0f);
+    // Two channels are not an attribute in Mitsuba's scheme.
+    EXPECT_EQ(mesh.attribute("vertex_pair"), nullptr);
+
+    const MeshAttribute* faceColor = mesh.attribute("face_color");
+    ASSERT_NE(faceColor, nullptr);
+    EXPECT_FALSE(faceColor->perVertex());
+    ASSERT_EQ(faceColor->values.size(), 9u);
+    for (int triangle : {0, 1}) EXPECT_FLOAT_EQ(faceColor->values[3 * triangle + 2], 0.75f);
+    EXPECT_FLOAT_EQ(faceColor->values[6], 1.0f);
+    const MeshAttribute* weight = mesh.attribute("face_weight");
+    ASSERT_NE(weight, nullptr);
+    ASSERT_EQ(weight->values.size(), 3u);
+    EXPECT_FLOAT_EQ(weight->values[1], 0.125f);
+    EXPECT_FLOAT_EQ(weight->values[2], 0.5f);
+    // prefix_r/g/b is a colour; integers are fractions of their range.
+    const MeshAttribute* tint = mesh.attribute("face_tint_color");
+    ASSERT_NE(tint, nullptr);
+    EXPECT_FLOAT_EQ(tint->values[0], 1.0f);
+    EXPECT_FLOAT_EQ(tint->values[2], 0.2f);
 }
 
 TEST(PlyLoader, BadFilesAreErrorsNamingTheFile) {
