@@ -280,6 +280,24 @@ TEST(PemFit, TakesNoPhotonsForComponentsThatCannotReachTheThresholdWithinTheBudg
     EXPECT_GE(run.fit.at("outer_iterations"), 2);  // the cut was still refined
 }
 
+// Alg. 2 line 11: the outer loop ends when an expansion raises F/n by less
+// than epsilon, F on the expanded cut against F on the cut before, with the
+// same parameters and photons. Here the first expansions gain 0.07 and 0.04
+// nats per photon, so epsilon = 1 ends the fit after the first one; a test
+// against the F/n of the previous expansion would need two. With the default
+// epsilon the cut is refined further. Later inner loops are warm starts and
+// take at most max_refit_iterations.
+TEST(PemFit, OuterLoopStopsWhenAnExpansionGainsLessThanEpsilonAndRefitsAreCapped) {
+    const Scene& scene = spotFog();
+    const PemRun coarse = runPem(scene, 2, 4096, {{"epsilon", 1.0}});
+    EXPECT_EQ(coarse.fit.at("outer_iterations"), 1);
+    const PemRun fine =
+        runPem(scene, 2, 4096, {{"max_iterations", std::int64_t{3}}, {"max_refit_iterations", std::int64_t{1}}});
+    EXPECT_GE(fine.fit.at("outer_iterations"), 3);
+    EXPECT_GT(fine.fit.at("cells"), coarse.fit.at("cells"));
+    EXPECT_LE(fine.fit.at("inner_iterations"), 3 + (fine.fit.at("outer_iterations") - 1));
+}
+
 // Single scattering only (max_depth 1): the mixture's image approaches the
 // airlight integral as k grows (k = 256, 1K, 4K at 32 k photons each, so the
 // photons per component stay fixed and the fit resolves the 1 / r^2 peak
