@@ -13,6 +13,12 @@
 // go into the map as well, so that the radiance cache (§8.3) serves every
 // vertex. Each map entry also sums the kernel weights over the distance to
 // the rays' origins: the harmonic mean distance that sizes cache records.
+// When no mapped vertex is glossy, the map keeps only c_00 (`map_bands =
+// "used"`): §8.1 represents a Lambertian BRDF by that one coefficient,
+// radiance_integrate reads nothing else of a Lambertian vertex, and
+// radiance_cache interpolates each coefficient on its own, so the other 15
+// would be summed for no reader (16 multiply-adds of three channels per
+// deposit instead of one; the image is bit for bit the same).
 // Rays are splatted in fixed blocks into per-block films merged in block
 // order, so the image is the same for any thread count.
 #include "passes/passes.h"
@@ -42,11 +48,20 @@ namespace {
 // Memory for the per-block films; at least one block, at most 64.
 constexpr std::size_t kAccumulatorBudget = std::size_t{256} << 20;
 
+// What every mapped vertex sums, whichever bands the map keeps: 20 bytes
+// side by side, so that a deposit touches one cache line where the
+// coefficients of all bands span four.
+struct MapSums {
+    Rgb c00{0.0f};
+    float weight = 0.0f;
+    float inverseDistance = 0.0f;
+};
+using HigherBands = std::array<Rgb, sh::kCoefficients - 1>;  // c_1-1 ... c_33
+
 struct BlockFilm {
     std::vector<Rgb> pixels;
-    std::vector<sh::Coefficients<Rgb>> map;  // per glossy vertex (glossy = "sh_map")
-    std::vector<float> mapWeights;
-    std::vector<float> mapInverseDistances;
+    std::vector<MapSums> map;               // per mapped vertex
+    std::vector<HigherBands> mapHigherBands;  // per mapped vertex, when the map keeps them
     std::int64_t deposits = 0;
     std::int64_t candidates = 0;
     std::int64_t splatted = 0;
@@ -74,6 +89,7 @@ public:
             if (pixel >= pixelCount) throw std::logic_error("ray_splat: eye vertex outside the film");
         prepareTargets(scene, eye, index.tree, shMap, lambertianToMap);
         const std::size_t glossyCount = glossyVertices_.size();
+        const bool higherBands = glossyCount > 0 && (ctx.params().getString("map_bands") == "all" || mapHasGlossy_);
 
         const PhotonRayBuffer& rays = photonRays.rays;
         const auto origin = rays.column<RayOrigin>();
@@ -86,18 +102,19 @@ public:
         const auto originNormal = rays.column<RayOriginNormal>();
         const auto endNormal = rays.column<RayEndNormal>();
 
-        const std::size_t blockBytes = std::max<std::size_t>(
-            1, pixelCount * sizeof(Rgb) + glossyCount * (sizeof(sh::Coefficients<Rgb>) + 2 * sizeof(float)));
+        // Blocks sized as if every band were kept: the block count fixes the
+        // order of the sums, so map_bands changes no bit of the image.
+        const std::size_t blockBytes =
+            std::max<std::size_t>(1, pixelCount * sizeof(Rgb) + glossyCount * (sizeof(MapSums) + sizeof(HigherBands)));
         std::vector<BlockFilm> blocks(std::clamp<std::size_t>(kAccumulatorBudget / blockBytes, 1, 64));
         jobs::parallelForBlocks(rays.size(), blocks.size(), [&](std::size_t b, jobs::IndexRange range) {
             BlockFilm& acc = blocks[b];
             acc.pixels.assign(pixelCount, Rgb(0.0f));
-            if (glossyCount > 0) {
-                sh::Coefficients<Rgb> zero;
+            acc.map.assign(glossyCount, MapSums{});
+            if (higherBands) {
+                HigherBands zero;
                 zero.fill(Rgb(0.0f));
-                acc.map.assign(glossyCount, zero);
-                acc.mapWeights.assign(glossyCount, 0.0f);
-                acc.mapInverseDistances.assign(glossyCount, 0.0f);
+                acc.mapHigherBands.assign(glossyCount, zero);
             }
             for (std::size_t r = range.begin; r != range.end; ++r) {
                 if (rayClass[r] == PhotonRayClass::Direct && !withDirect) continue;
@@ -132,16 +149,22 @@ public:
                             if (!(glm::dot(incident, target.geometricNormal) > 0.0f)) return;
                             const Rgb value = power[r] * weight;
                             if (!isFinite(value)) return;
-                            sh::Coefficients<Rgb>& c = acc.map[target.glossy];
-                            for (std::size_t k = 0; k < sh::kCoefficients; ++k) {
-                                c[k].x += weight * poweredBasis[3 * k];
-                                c[k].y += weight * poweredBasis[3 * k + 1];
-                                c[k].z += weight * poweredBasis[3 * k + 2];
+                            MapSums& sums = acc.map[target.glossy];
+                            sums.c00.x += weight * poweredBasis[0];
+                            sums.c00.y += weight * poweredBasis[1];
+                            sums.c00.z += weight * poweredBasis[2];
+                            if (higherBands) {
+                                HigherBands& c = acc.mapHigherBands[target.glossy];
+                                for (std::size_t k = 1; k < sh::kCoefficients; ++k) {
+                                    c[k - 1].x += weight * poweredBasis[3 * k];
+                                    c[k - 1].y += weight * poweredBasis[3 * k + 1];
+                                    c[k - 1].z += weight * poweredBasis[3 * k + 2];
+                                }
                             }
-                            acc.mapWeights[target.glossy] += weight;
+                            sums.weight += weight;
                             // Feasible vertices lie in front of the origin's surface, so the distance is positive.
                             const float distance = glm::length(position - ray.origin);
-                            if (distance > 0.0f) acc.mapInverseDistances[target.glossy] += weight / distance;
+                            if (distance > 0.0f) sums.inverseDistance += weight / distance;
                             ++acc.deposits;
                             return;
                         }
@@ -163,29 +186,31 @@ public:
         std::vector<Rgb> total(pixelCount, Rgb(0.0f));
         RadianceMap& map = ctx.createOutput<RadianceMap>("radiance_map");
         map.vertices.resize(glossyCount);
-        std::vector<sh::Coefficients<Rgb>> mapTotal(glossyCount);
-        for (sh::Coefficients<Rgb>& c : mapTotal) c.fill(Rgb(0.0f));
-        std::vector<float> weightTotal(glossyCount, 0.0f);
-        std::vector<float> inverseDistanceTotal(glossyCount, 0.0f);
+        std::vector<MapSums> mapTotal(glossyCount);
+        HigherBands zeroBands;
+        zeroBands.fill(Rgb(0.0f));
+        std::vector<HigherBands> higherBandsTotal(higherBands ? glossyCount : 0, zeroBands);
         std::int64_t deposits = 0, candidates = 0, splatted = 0;
         for (const BlockFilm& block : blocks) {
             for (std::size_t i = 0; i < block.pixels.size(); ++i) total[i] += block.pixels[i];
             for (std::size_t g = 0; g < block.map.size(); ++g) {
-                for (int k = 0; k < sh::kCoefficients; ++k)
-                    mapTotal[g][static_cast<std::size_t>(k)] += block.map[g][static_cast<std::size_t>(k)];
-                weightTotal[g] += block.mapWeights[g];
-                inverseDistanceTotal[g] += block.mapInverseDistances[g];
+                mapTotal[g].c00 += block.map[g].c00;
+                mapTotal[g].weight += block.map[g].weight;
+                mapTotal[g].inverseDistance += block.map[g].inverseDistance;
             }
+            for (std::size_t g = 0; g < block.mapHigherBands.size(); ++g)
+                for (std::size_t k = 0; k < zeroBands.size(); ++k) higherBandsTotal[g][k] += block.mapHigherBands[g][k];
             deposits += block.deposits;
             candidates += block.candidates;
             splatted += block.splatted;
         }
         image.addToPixels(total, 1.0f);
-        storeMap(map.vertices, mapTotal, weightTotal, inverseDistanceTotal);
+        storeMap(map.vertices, mapTotal, higherBandsTotal);
         ctx.addItems(static_cast<std::int64_t>(rays.size()));
         ctx.addCounter("splatted_rays", splatted);
         ctx.addCounter("vertex_candidates", candidates);
         ctx.addCounter("vertex_deposits", deposits);
+        ctx.addCounter("map_coefficients", glossyCount == 0 ? 0 : higherBands ? sh::kCoefficients : 1);
     }
 
 private:
@@ -202,17 +227,20 @@ private:
         bool lambertian = false;
     };
 
-    void storeMap(RadianceMapBuffer& out, const std::vector<sh::Coefficients<Rgb>>& coefficients,
-                  const std::vector<float>& weights, const std::vector<float>& inverseDistances) const {
+    // Bands the map did not keep are stored as zeros.
+    void storeMap(RadianceMapBuffer& out, const std::vector<MapSums>& sums,
+                  const std::vector<HigherBands>& higherBands) const {
         const auto columns = radianceMapShColumns(out);
         const auto vertex = out.column<MapVertex>();
         const auto weightSum = out.column<MapWeightSum>();
         const auto inverseDistanceSum = out.column<MapInverseDistanceSum>();
         for (std::size_t g = 0; g < glossyVertices_.size(); ++g) {
             vertex[g] = glossyVertices_[g];
-            weightSum[g] = weights[g];
-            inverseDistanceSum[g] = inverseDistances[g];
-            for (std::size_t k = 0; k < sh::kCoefficients; ++k) columns[k][g] = coefficients[g][k];
+            weightSum[g] = sums[g].weight;
+            inverseDistanceSum[g] = sums[g].inverseDistance;
+            columns[0][g] = sums[g].c00;
+            for (std::size_t k = 1; k < sh::kCoefficients; ++k)
+                columns[k][g] = higherBands.empty() ? Rgb(0.0f) : higherBands[g][k - 1];
         }
     }
 
@@ -236,9 +264,11 @@ private:
         });
         // Map entries in tree order, numbered serially: the same for any thread count.
         glossyVertices_.clear();
+        mapHasGlossy_ = false;
         if (!shMap && !lambertianToMap) return;
         for (Target& t : targets_) {
             if (t.lambertian ? !lambertianToMap : !shMap) continue;
+            mapHasGlossy_ = mapHasGlossy_ || !t.lambertian;
             t.glossy = static_cast<std::uint32_t>(glossyVertices_.size());
             glossyVertices_.push_back(t.vertex);
         }
@@ -246,6 +276,7 @@ private:
 
     std::vector<Target> targets_;
     std::vector<std::uint32_t> glossyVertices_;
+    bool mapHasGlossy_ = false;
 };
 
 }  // namespace
@@ -279,6 +310,9 @@ PassRegistration raySplatPass() {
          "radiance_integrate (§8.1)"},
         {"lambertian", ParamType::String, std::string("film"), 0, 0, {"film", "sh_map"},
          "Lambertian vertices: straight into the film, or into the SH radiance map too, for the radiance cache (§8.3)"},
+        {"map_bands", ParamType::String, std::string("used"), 0, 0, {"used", "all"},
+         "SH bands the map keeps: used (c_00 alone when every mapped vertex is Lambertian, as nothing downstream "
+         "reads the others; all 16 otherwise) or all (always 16, to inspect the map)"},
     };
     const auto preflight = [](const PreflightContext& pf) {
         if (!pf.scene.media.empty())

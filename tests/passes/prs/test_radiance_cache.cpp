@@ -4,8 +4,9 @@
 // count over all records, so no window cuts off a pixel a record is valid
 // at; pixels short of min_records are exactly the reported ones; the record
 // count grows as ε shrinks), and the prs-rc pipeline: the same image on 1 and
-// 2 threads, close to the uncached image in the furnace sphere, parameters
-// checked (ranges when the job is read, the rest in preflight).
+// 2 threads, close to the uncached image in the furnace sphere, the same
+// image from a map of c_00 alone as from all bands, parameters checked
+// (ranges when the job is read, the rest in preflight).
 #include "passes/prs/radiance_cache.h"
 
 #include "engine/core/error.h"
@@ -167,6 +168,26 @@ TEST(PrsRadianceCache, CloseToTheUncachedImageInTheFurnace) {
                 spreadUncached, meanCached, spreadCached);
     EXPECT_NEAR(meanCached, meanUncached, 0.01 * meanUncached);
     EXPECT_LT(spreadCached, spreadUncached);
+}
+
+TEST(PrsRadianceCache, MapWithC00AloneGivesTheSameImage) {
+    // Every vertex of the furnace sphere is Lambertian, so ray_splat keeps
+    // c_00 alone (map_bands = used): nothing downstream reads the other
+    // bands of a Lambertian vertex, and the image must match the all-band
+    // map's bit for bit.
+    const Scene scene = test::furnaceSphereScene();
+    const FilmSettings film = test::smallFilm(32, 32);
+    std::map<std::string, ParamValue> allBands = prsParams(10000);
+    allBands["ray_splat.map_bands"] = std::string("all");
+    const test::RenderedImage used = test::renderPipeline(scene, "prs-rc", prsParams(10000), film);
+    const test::RenderedImage all = test::renderPipeline(scene, "prs-rc", allBands, film);
+    ASSERT_EQ(used.pixels.size(), all.pixels.size());
+    double sum = 0.0;
+    for (std::size_t i = 0; i < used.pixels.size(); ++i) {
+        ASSERT_EQ(used.pixels[i], all.pixels[i]) << "pixel " << i;
+        sum += used.pixels[i].y;
+    }
+    EXPECT_GT(sum, 0.0);
 }
 
 TEST(PrsRadianceCache, ParametersAreChecked) {
