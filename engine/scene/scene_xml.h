@@ -115,7 +115,12 @@
 //   bumpmap          one nested texture (the height; its luminance), scale or strength (1),
 //                    epsilon accepted (the gradient is exact), one nested bsdf
 //   normalmap        normalmap (texture; tangent-space normals, usually raw), one nested bsdf
-//   principled is an error ("not supported")
+//   principled       base_color (texture, 0.5), roughness (texture, 0.5), metallic,
+//                    spec_tint, anisotropic, sheen, sheen_tint, clearcoat, clearcoat_gloss,
+//                    spec_trans, flatness (textures, 0; their luminance); specular (0.5)
+//                    or eta; main_specular_sampling_rate, clearcoat_sampling_rate,
+//                    diffuse_reflectance_sampling_rate (1)
+//   principledthin is an error ("not supported")
 //   distribution: beckmann (Mitsuba's default) or ggx. Beckmann's Smith masking is the
 //   exact one, where Mitsuba uses Walter's rational fit (within 0.35 %).
 //   sample_visible is accepted, no effect (sampling strategy only).
