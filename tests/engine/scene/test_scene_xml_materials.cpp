@@ -475,5 +475,37 @@ TEST(SceneXmlMaterials, MaskIsSeenThroughByPathAndLightTracing) {
     EXPECT_NEAR(ltHalf.x / ltOpen.x, 0.25f, 0.0125f);  // about four standard errors
 }
 
+// A principled floor under an area light: path tracing (eval and sample with
+// MIS) and light tracing (photons scattered by sample in importance mode,
+// camera connections by eval) must agree.
+TEST(SceneXmlMaterials, PrincipledRendersAlikeByPathAndLightTracing) {
+    const fs::path dir = scratchDir();
+    const Scene scene = loadXmlScene(writeFile(dir / "principled.xml", seenThroughScene(R"(
+        <bsdf type="null"/>
+    </shape>
+    <shape type="rectangle">
+        <transform name="to_world"><scale value="0.999"/><translate z="0.001"/></transform>
+        <bsdf type="principled">
+            <rgb name="base_color" value="0.7, 0.5, 0.3"/>
+            <float name="roughness" value="0.4"/><float name="metallic" value="0.3"/>
+            <float name="clearcoat" value="0.5"/><float name="sheen" value="0.5"/>
+            <float name="anisotropic" value="0.5"/>
+        </bsdf>
+)")).string());
+    FilmSettings film;
+    film.width = 8;
+    film.height = 8;
+    const std::map<std::string, ParamValue> pt = {{"pt.spp", std::int64_t{512}}, {"pt.max_depth", std::int64_t{1}}};
+    const std::map<std::string, ParamValue> lt = {{"photon.photons", std::int64_t{3000000}},
+                                                  {"photon.store", std::string("global")},
+                                                  {"photon.store_direct", true},
+                                                  {"photon.max_depth", std::int64_t{1}},
+                                                  {"photon.differentials", false}};
+    const Rgb ptMean = test::renderPipeline(scene, "pt", pt, film, 1).mean();
+    const Rgb ltMean = test::renderPipeline(scene, "lt", lt, film, 2).mean();
+    ASSERT_GT(ptMean.x, 0.05f);
+    for (int c = 0; c < 3; ++c) EXPECT_NEAR(ltMean[c] / ptMean[c], 1.0f, 0.03f) << c;
+}
+
 }  // namespace
 }  // namespace fg
