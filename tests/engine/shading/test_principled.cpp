@@ -100,10 +100,10 @@ std::vector<PrincipledCase> chi2Cases() {
         {"Anisotropic_80deg", anisotropicMetal, directionFromAngles(80.0f, 10.0f)},
         {"Clearcoat_15deg", clearcoated, directionFromAngles(15.0f, 200.0f), 40},
         {"Clearcoat_60deg", clearcoated, directionFromAngles(60.0f, 200.0f), 40},
-        {"SpecTrans_30deg", transmissive, directionFromAngles(30.0f, -60.0f), 40},
-        {"SpecTrans_70deg", transmissive, directionFromAngles(70.0f, -60.0f), 40},
-        {"SpecTrans_inside_25deg", transmissive, below(directionFromAngles(25.0f, 80.0f)), 40},
-        {"SpecTrans_inside_60deg", transmissive, below(directionFromAngles(60.0f, 80.0f)), 40},
+        {"SpecTrans_30deg", transmissive, directionFromAngles(30.0f, -60.0f)},
+        {"SpecTrans_70deg", transmissive, directionFromAngles(70.0f, -60.0f)},
+        {"SpecTrans_inside_25deg", transmissive, below(directionFromAngles(25.0f, 80.0f))},
+        {"SpecTrans_inside_60deg", transmissive, below(directionFromAngles(60.0f, 80.0f))},
     };
 }
 
