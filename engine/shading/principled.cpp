@@ -245,15 +245,20 @@ public:
             s.wi = sampleCosineHemisphere(u);
             s.lobe = BsdfLobe::Reflection | BsdfLobe::Diffuse;
         } else if (uLobe < prob.diffuse + prob.clearcoat) {
-            s.wi = reflect(wo, Gtr1(l.clearcoatAlpha()).sample(u));
+            // GTR1 normals are drawn without regard to wo; one facing away
+            // cannot reflect (and pdf() would not count the direction).
+            const Vec3 coatNormal = Gtr1(l.clearcoatAlpha()).sample(u);
+            if (glm::dot(wo, coatNormal) <= 0.0f) return std::nullopt;
+            s.wi = reflect(wo, coatNormal);
             s.lobe = BsdfLobe::Reflection | BsdfLobe::Glossy;
         } else if (uLobe < prob.diffuse + prob.clearcoat + prob.specularTransmission) {
-            if (fresnel >= 1.0f) return std::nullopt;
+            if (fresnel >= 1.0f || !compatibleSample(m, wo)) return std::nullopt;
             const float etaTi = frontSide ? 1.0f / p_.eta : p_.eta;
             s.wi = glm::normalize(m * (cosOM * etaTi + cosThetaT) - wo * etaTi);
             s.eta = frontSide ? p_.eta : 1.0f / p_.eta;
             s.lobe = BsdfLobe::Transmission | BsdfLobe::Glossy;
         } else {
+            if (!compatibleSample(m, wo)) return std::nullopt;
             s.wi = reflect(wo, m);
             s.lobe = BsdfLobe::Reflection | BsdfLobe::Glossy;
         }
@@ -353,6 +358,9 @@ private:
         return m.z < 0.0f ? -m : m;
     }
 
+    // A sampled microfacet must face wo from wo's side.
+    static bool compatibleSample(const Vec3& m, const Vec3& wo) { return glm::dot(wo, wo.z > 0.0f ? m : -m) > 0.0f; }
+
     // Both directions must see the microfacet from the side they are on
     // (Mitsuba's mac_mic_compatibility).
     static bool compatible(const Vec3& m, const Vec3& wo, const Vec3& wi, bool reflection) {
@@ -404,7 +412,227 @@ private:
     PrincipledParameters p_;
 };
 
+// Mitsuba 3's principledthin: the same directions on either side (the sheet
+// is symmetric, so a back-side wo is mirrored to the front). Lobes, as
+// Mitsuba weights them: the principled diffuse and sheen scaled by
+// (1 - spec_trans)(1 - diff_trans / 2); Lambertian transmission by
+// (1 - spec_trans) diff_trans / 2; and, only where spec_trans > 0, GGX
+// reflection with the dielectric Fresnel term blended towards the tinted
+// Schlick term by spec_tint, and transmission straight through the sheet
+// (the reflection about a microfacet mirrored to the far side), scaled by
+// base_color and 1 - F, with roughness scaled by 0.65 eta - 0.35 (Burley
+// 2015, Fig. 15). Both specular lobes are weighted by spec_trans.
+class PrincipledThinBsdf final : public Bsdf {
+public:
+    explicit PrincipledThinBsdf(PrincipledThinParameters parameters) : p_(std::move(parameters)) {
+        if (!p_.baseColor) p_.baseColor = makeConstantTexture(Rgb(0.5f));
+        if (!p_.roughness) p_.roughness = makeConstantTexture(Rgb(0.5f));
+        if (!p_.eta) p_.eta = makeConstantTexture(Rgb(1.5f));
+    }
+
+    std::uint32_t lobes() const override {
+        std::uint32_t lobes = BsdfLobe::Reflection | BsdfLobe::Diffuse;
+        if (p_.diffTrans || p_.specTrans) lobes |= BsdfLobe::Transmission;
+        if (p_.specTrans) lobes |= BsdfLobe::Glossy;
+        return lobes;
+    }
+
+    Rgb eval(const Vec3& woAnySide, const Vec3& wiAnySide, const Vec2& uv, TransportMode) const override {
+        if (woAnySide.z == 0.0f) return Rgb(0.0f);
+        const Vec3 wo = woAnySide.z > 0.0f ? woAnySide : -woAnySide;
+        const Vec3 wi = woAnySide.z > 0.0f ? wiAnySide : -wiAnySide;
+        if (wi.z == 0.0f) return Rgb(0.0f);
+        const Local l = local(uv);
+        const bool reflection = wi.z > 0.0f;
+        const Vec3 m = glm::normalize(wo + Vec3(wi.x, wi.y, std::abs(wi.z)));
+
+        Rgb value(0.0f);
+        if (l.specTrans > 0.0f) {
+            const float fresnel = fresnelDielectric(glm::dot(wo, m), l.eta);
+            if (reflection && compatible(m, wo, wi, true)) {
+                const AnisotropicGgx distribution = l.reflectionDistribution();
+                value += thinFresnel(l, fresnel, glm::dot(wo, m)) *
+                         (l.specTrans * distribution.D(m) * distribution.G1(wo, m) * distribution.G1(wi, m) /
+                          (4.0f * wo.z));
+            }
+            if (!reflection && compatible(m, wo, wi, false)) {
+                const AnisotropicGgx distribution = l.transmissionDistribution();
+                value += l.baseColor * (l.specTrans * (1.0f - fresnel) * distribution.D(m) * distribution.G1(wo, m) *
+                                        distribution.G1(wi, m) / (4.0f * wo.z));
+            }
+        }
+        if (reflection && l.specTrans < 1.0f && l.diffTrans < 1.0f) {
+            const float cosO = wo.z, cosI = wi.z;
+            const float fresnelO = schlickWeight(cosO), fresnelI = schlickWeight(cosI);
+            const float lambert = (1.0f - 0.5f * fresnelO) * (1.0f - 0.5f * fresnelI);
+            const float cosD = glm::dot(m, wi);
+            const float retroReflection = 2.0f * l.roughness * cosD * cosD;
+            float shape =
+                lambert + retroReflection * (fresnelO + fresnelI + fresnelO * fresnelI * (retroReflection - 1.0f));
+            if (p_.flatness) {
+                const float fss90 = 0.5f * retroReflection;
+                const float fss = (1.0f + (fss90 - 1.0f) * fresnelO) * (1.0f + (fss90 - 1.0f) * fresnelI);
+                const float subsurface = 1.25f * (fss * (1.0f / (cosO + cosI) - 0.5f) + 0.5f);
+                shape += (subsurface - shape) * l.flatness;
+            }
+            const float weight = (1.0f - l.specTrans) * (1.0f - l.diffTrans);
+            value += l.baseColor * (weight * kInvPi * shape * cosI);
+            if (l.sheen > 0.0f) {
+                const float lum = luminance(l.baseColor);
+                const Rgb tint = lum > 0.0f ? l.baseColor / lum : Rgb(1.0f);
+                const Rgb sheenColour = Rgb(1.0f) + (tint - Rgb(1.0f)) * l.sheenTint;
+                value += sheenColour * (l.sheen * weight * schlickWeight(std::abs(cosD)) * cosI);
+            }
+        }
+        if (!reflection && l.specTrans < 1.0f && l.diffTrans > 0.0f)
+            value += l.baseColor * ((1.0f - l.specTrans) * l.diffTrans * kInvPi * std::abs(wi.z));
+        return value;
+    }
+
+    float pdf(const Vec3& woAnySide, const Vec3& wiAnySide, const Vec2& uv) const override {
+        if (woAnySide.z == 0.0f) return 0.0f;
+        const Vec3 wo = woAnySide.z > 0.0f ? woAnySide : -woAnySide;
+        const Vec3 wi = woAnySide.z > 0.0f ? wiAnySide : -wiAnySide;
+        if (wi.z == 0.0f) return 0.0f;
+        const Local l = local(uv);
+        const Probabilities prob = probabilities(l);
+        const bool reflection = wi.z > 0.0f;
+        const Vec3 mirrored(wi.x, wi.y, std::abs(wi.z));
+        const Vec3 m = glm::normalize(wo + mirrored);
+        // Both specular lobes are reflections about m (the transmitted one then
+        // mirrored through the sheet), so both have the reflection Jacobian.
+        const float jacobian = 1.0f / std::abs(4.0f * glm::dot(mirrored, m));
+        float density = 0.0f;
+        if (reflection) {
+            if (prob.specularReflection > 0.0f && compatible(m, wo, wi, true))
+                density += prob.specularReflection * l.reflectionDistribution().visibleNormalPdf(wo, m) * jacobian;
+            density += prob.diffuseReflection * cosineHemispherePdf(wi.z);
+        } else {
+            if (prob.specularTransmission > 0.0f && compatible(m, wo, wi, false))
+                density += prob.specularTransmission * l.transmissionDistribution().visibleNormalPdf(wo, m) * jacobian;
+            density += prob.diffuseTransmission * cosineHemispherePdf(-wi.z);
+        }
+        return density;
+    }
+
+    std::optional<BsdfSample> sample(const Vec3& woAnySide, const Vec2& uv, float uLobe, const Vec2& u,
+                                     TransportMode mode) const override {
+        if (woAnySide.z == 0.0f) return std::nullopt;
+        const bool back = woAnySide.z < 0.0f;
+        const Vec3 wo = back ? -woAnySide : woAnySide;
+        const Local l = local(uv);
+        const Probabilities prob = probabilities(l);
+        BsdfSample s;
+        // Microfacet samples whose configuration pdf() would not count for
+        // their lobe are lost (the other lobes could cover the direction).
+        if (uLobe < prob.specularReflection) {
+            const Vec3 m = l.reflectionDistribution().sampleVisibleNormal(wo, u);
+            s.wi = reflect(wo, m);
+            if (!compatible(m, wo, s.wi, true)) return std::nullopt;
+            s.lobe = BsdfLobe::Reflection | BsdfLobe::Glossy;
+        } else if (uLobe < prob.specularReflection + prob.specularTransmission) {
+            const Vec3 m = l.transmissionDistribution().sampleVisibleNormal(wo, u);
+            s.wi = reflect(wo, m);
+            s.wi.z = -s.wi.z;
+            if (!compatible(m, wo, s.wi, false)) return std::nullopt;
+            s.lobe = BsdfLobe::Transmission | BsdfLobe::Glossy;
+        } else if (uLobe < prob.specularReflection + prob.specularTransmission + prob.diffuseReflection) {
+            s.wi = sampleCosineHemisphere(u);
+            s.lobe = BsdfLobe::Reflection | BsdfLobe::Diffuse;
+        } else {
+            s.wi = -sampleCosineHemisphere(u);
+            s.lobe = BsdfLobe::Transmission | BsdfLobe::Diffuse;
+        }
+        const bool reflected = (s.lobe & BsdfLobe::Reflection) != 0;
+        if (reflected ? s.wi.z <= 0.0f : s.wi.z >= 0.0f) return std::nullopt;
+        if (back) s.wi = -s.wi;
+        s.pdf = pdf(woAnySide, s.wi, uv);
+        if (!(s.pdf > 0.0f) || !std::isfinite(s.pdf)) return std::nullopt;
+        s.weight = eval(woAnySide, s.wi, uv, mode) / s.pdf;
+        return s;
+    }
+
+private:
+    struct Local {
+        Rgb baseColor;
+        float roughness, eta, specTint, anisotropic, sheen, sheenTint, specTrans, flatness, diffTrans;
+
+        AnisotropicGgx distribution(float scaledRoughness) const {
+            const float alpha = scaledRoughness * scaledRoughness;
+            const float aspect = std::sqrt(1.0f - 0.9f * anisotropic);
+            return {std::max(0.001f, alpha / aspect), std::max(0.001f, alpha * aspect)};
+        }
+        AnisotropicGgx reflectionDistribution() const { return distribution(roughness); }
+        AnisotropicGgx transmissionDistribution() const { return distribution((0.65f * eta - 0.35f) * roughness); }
+    };
+
+    struct Probabilities {
+        float specularReflection = 0.0f, specularTransmission = 0.0f, diffuseReflection = 0.0f,
+              diffuseTransmission = 0.0f;
+    };
+
+    Local local(const Vec2& uv) const {
+        Local l{};
+        l.baseColor = p_.baseColor->eval(uv);
+        l.roughness = p_.roughness->evalScalar(uv);
+        l.eta = p_.eta->evalScalar(uv);
+        l.specTint = scalarOr(p_.specTint, uv, 0.0f);
+        l.anisotropic = scalarOr(p_.anisotropic, uv, 0.0f);
+        l.sheen = scalarOr(p_.sheen, uv, 0.0f);
+        l.sheenTint = scalarOr(p_.sheenTint, uv, 0.0f);
+        l.specTrans = scalarOr(p_.specTrans, uv, 0.0f);
+        l.flatness = scalarOr(p_.flatness, uv, 0.0f);
+        // Mitsuba's diff_trans runs from 0 to 2; half of it is the share transmitted.
+        l.diffTrans = 0.5f * scalarOr(p_.diffTrans, uv, 0.0f);
+        return l;
+    }
+
+    // Mitsuba's choice: each specular lobe at half of spec_trans, the diffuse
+    // lobes sharing the rest as diff_trans / 2 divides it.
+    Probabilities probabilities(const Local& l) const {
+        Probabilities prob;
+        if (p_.specTrans) {
+            prob.specularReflection = 0.5f * l.specTrans * p_.specularReflectanceSamplingRate;
+            prob.specularTransmission = 0.5f * l.specTrans * p_.specularTransmittanceSamplingRate;
+        }
+        prob.diffuseReflection = p_.diffuseReflectanceSamplingRate * (1.0f - l.specTrans) * (1.0f - l.diffTrans);
+        if (p_.diffTrans)
+            prob.diffuseTransmission = p_.diffuseTransmittanceSamplingRate * (1.0f - l.specTrans) * l.diffTrans;
+        const float total =
+            prob.specularReflection + prob.specularTransmission + prob.diffuseReflection + prob.diffuseTransmission;
+        if (total > 0.0f) {
+            prob.specularReflection /= total;
+            prob.specularTransmission /= total;
+            prob.diffuseReflection /= total;
+            prob.diffuseTransmission /= total;
+        }
+        return prob;
+    }
+
+    // As the principled BSDF's test, with wo on the front side: for
+    // transmission wi must lie behind m as seen from the front.
+    static bool compatible(const Vec3& m, const Vec3& wo, const Vec3& wi, bool reflection) {
+        return glm::dot(wo, m) > 0.0f && (reflection ? glm::dot(wi, m) > 0.0f : glm::dot(wi, m) < 0.0f);
+    }
+
+    // Mitsuba's thin Fresnel term: the dielectric term blended by spec_tint
+    // towards Schlick's approximation with the tinted F0.
+    static Rgb thinFresnel(const Local& l, float fresnel, float cosOM) {
+        if (l.specTint <= 0.0f) return Rgb(fresnel);
+        const float lum = luminance(l.baseColor);
+        const Rgb tint = lum > 0.0f ? l.baseColor / lum : Rgb(1.0f);
+        const Rgb schlick = schlickFresnel(tint * schlickR0(l.eta), cosOM, l.eta);
+        return Rgb(fresnel) + (schlick - Rgb(fresnel)) * l.specTint;
+    }
+
+    PrincipledThinParameters p_;
+};
+
 }  // namespace
+
+std::shared_ptr<Bsdf> makePrincipledThin(PrincipledThinParameters parameters) {
+    return std::make_shared<PrincipledThinBsdf>(std::move(parameters));
+}
 
 float principledEtaFromSpecular(float specular) { return 2.0f / (1.0f - std::sqrt(0.08f * specular)) - 1.0f; }
 

@@ -40,4 +40,25 @@ float principledEtaFromSpecular(float specular);
 
 std::shared_ptr<Bsdf> makePrincipled(PrincipledParameters parameters);
 
+// Mitsuba 3's `principledthin`: a two-sided sheet without volume (Burley 2015,
+// Sec. 4: thin surfaces). Textures as above; eta is a texture too.
+struct PrincipledThinParameters {
+    std::shared_ptr<Texture> baseColor;  // default 0.5
+    std::shared_ptr<Texture> roughness;  // default 0.5
+    std::shared_ptr<Texture> eta;        // default 1.5
+    std::shared_ptr<Texture> specTint;
+    std::shared_ptr<Texture> anisotropic;
+    std::shared_ptr<Texture> sheen;
+    std::shared_ptr<Texture> sheenTint;
+    std::shared_ptr<Texture> specTrans;
+    std::shared_ptr<Texture> flatness;
+    std::shared_ptr<Texture> diffTrans;  // 0 to 2, as Mitsuba's
+    float specularReflectanceSamplingRate = 1.0f;
+    float specularTransmittanceSamplingRate = 1.0f;
+    float diffuseReflectanceSamplingRate = 1.0f;
+    float diffuseTransmittanceSamplingRate = 1.0f;
+};
+
+std::shared_ptr<Bsdf> makePrincipledThin(PrincipledThinParameters parameters);
+
 }  // namespace fg
