@@ -1423,7 +1423,7 @@ private:
         if (type == "null") return makeNull();
         if (type == "mask" || type == "bumpmap" || type == "normalmap") return makeAdapterBsdf(p);
         if (type == "principled") return makePrincipledBsdf(p);
-        if (type == "principledthin") p.fail("the principledthin BSDF is not supported");
+        if (type == "principledthin") return makePrincipledThinBsdf(p);
         if (type == "twosided") {
             const std::vector<Entry*> inner = p.objects("bsdf");
             if (inner.size() != 1) {
@@ -1433,7 +1433,7 @@ private:
             return makeTwoSided(scene_.bsdfs[static_cast<std::size_t>(bsdfIndex(*inner[0]->node))]);
         }
         p.fail("unknown bsdf type (supported: diffuse, dielectric, thindielectric, roughdielectric, conductor, roughconductor, "
-               "plastic, roughplastic, principled, null, twosided, mask, bumpmap, normalmap)");
+               "plastic, roughplastic, principled, principledthin, null, twosided, mask, bumpmap, normalmap)");
     }
 
     // Mitsuba 3's principled: scalar parameters left out or given as the
@@ -1472,10 +1472,33 @@ private:
         return makePrincipled(std::move(parameters));
     }
 
+    std::shared_ptr<Bsdf> makePrincipledThinBsdf(Props& p) {
+        PrincipledThinParameters parameters;
+        parameters.baseColor = textureParam(p, "base_color", Rgb(0.5f));
+        parameters.roughness = textureParam(p, "roughness", Rgb(0.5f));
+        parameters.eta = optionalTextureParam(p, "eta", ColourUse::NonNegative);
+        if (!parameters.eta) {
+            if (p.has("eta")) p.fail(*p.valueNode("eta"), "eta must be positive");
+            parameters.eta = makeConstantTexture(Rgb(1.5f));
+        }
+        parameters.specTint = optionalTextureParam(p, "spec_tint");
+        parameters.anisotropic = optionalTextureParam(p, "anisotropic");
+        parameters.sheen = optionalTextureParam(p, "sheen");
+        parameters.sheenTint = optionalTextureParam(p, "sheen_tint");
+        parameters.specTrans = optionalTextureParam(p, "spec_trans");
+        parameters.flatness = optionalTextureParam(p, "flatness");
+        parameters.diffTrans = optionalTextureParam(p, "diff_trans", ColourUse::NonNegative);
+        parameters.specularReflectanceSamplingRate = p.number("specular_reflectance_sampling_rate", 1.0f);
+        parameters.specularTransmittanceSamplingRate = p.number("specular_transmittance_sampling_rate", 1.0f);
+        parameters.diffuseReflectanceSamplingRate = p.number("diffuse_reflectance_sampling_rate", 1.0f);
+        parameters.diffuseTransmittanceSamplingRate = p.number("diffuse_transmittance_sampling_rate", 1.0f);
+        return makePrincipledThin(std::move(parameters));
+    }
+
     // A parameter that may be a texture, or null where it is left out or the number 0.
-    std::shared_ptr<Texture> optionalTextureParam(Props& p, std::string_view key) {
+    std::shared_ptr<Texture> optionalTextureParam(Props& p, std::string_view key, ColourUse use = ColourUse::Reflectance) {
         if (Entry* e = p.namedObject(key)) return texture(expectObject(*e, "texture", p.what() + " parameter " + inQuotes(key)));
-        const std::optional<Rgb> value = p.colour(key, ColourUse::Reflectance);
+        const std::optional<Rgb> value = p.colour(key, use);
         if (!value || *value == Rgb(0.0f)) return nullptr;
         return makeConstantTexture(*value);
     }

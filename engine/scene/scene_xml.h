@@ -120,7 +120,10 @@
 //                    spec_trans, flatness (textures, 0; their luminance); specular (0.5)
 //                    or eta; main_specular_sampling_rate, clearcoat_sampling_rate,
 //                    diffuse_reflectance_sampling_rate (1)
-//   principledthin is an error ("not supported")
+//   principledthin   principled's textures but metallic and clearcoat, plus eta (texture,
+//                    1.5) and diff_trans (texture, 0, range 0 to 2); specular_reflectance_,
+//                    specular_transmittance_, diffuse_reflectance_ and
+//                    diffuse_transmittance_sampling_rate (1)
 //   distribution: beckmann (Mitsuba's default) or ggx. Beckmann's Smith masking is the
 //   exact one, where Mitsuba uses Walter's rational fit (within 0.35 %).
 //   sample_visible is accepted, no effect (sampling strategy only).

@@ -303,9 +303,36 @@ TEST(SceneXmlMaterials, MaskBumpmapAndNormalmapWrapTheirMaterial) {
         EXPECT_NE(message.find(path.string() + ":8:"), std::string::npos) << message;
         EXPECT_NE(message.find("bsdf 'bumpmap'"), std::string::npos) << message;
     }
-    const std::string thin = expectErrorAt(dir, sceneText("    <bsdf type=\"principledthin\" id=\"p\"/>\n"),
-                                           "principledthin", "bsdf 'principledthin'", "principledthin.xml");
-    EXPECT_NE(thin.find("not supported"), std::string::npos) << thin;
+}
+
+TEST(SceneXmlMaterials, PrincipledThinReadsTextures) {
+    const fs::path dir = scratchDir();
+    const std::string text = sceneText(R"(
+    <shape type="rectangle"><bsdf type="principledthin">
+        <rgb name="base_color" value="0.6, 0.5, 0.4"/>
+        <texture name="diff_trans" type="checkerboard">
+            <float name="color0" value="0"/><float name="color1" value="1"/></texture>
+        <float name="eta" value="1.3"/><float name="flatness" value="0.5"/></bsdf></shape>
+)");
+    const Scene scene = loadXmlScene(writeFile(dir / "scene.xml", text).string());
+    const Bsdf& sheet = shapeBsdf(scene, 0);
+    EXPECT_NE(sheet.lobes() & BsdfLobe::Transmission, 0u);
+    const Vec2 even(0.1f, 0.1f), odd(0.6f, 0.1f);
+    const Vec3 wo(0.0f, 0.0f, 1.0f), through(0.0f, 0.0f, -1.0f);
+    // diff_trans 1 (of Mitsuba's 0 to 2): half the diffuse light goes through,
+    // as Lambert's base_color / pi. At normal incidence Burley's diffuse is
+    // Lambert and the fake subsurface 1.25 / 2, mixed half and half by flatness.
+    const Rgb lambert = Rgb(0.6f, 0.5f, 0.4f) * kInvPi;
+    const float flattened = 0.5f * (1.0f + 0.625f);
+    EXPECT_EQ(sheet.eval(wo, through, even, TransportMode::Radiance), Rgb(0.0f));
+    expectNear(sheet.eval(wo, through, odd, TransportMode::Radiance), 0.5f * lambert, 1e-6f, "diffuse transmission");
+    expectNear(sheet.eval(wo, wo, even, TransportMode::Radiance), flattened * lambert, 1e-6f, "diffuse reflection");
+    expectNear(sheet.eval(wo, wo, odd, TransportMode::Radiance), 0.5f * flattened * lambert, 1e-6f,
+               "halved reflection");
+    const std::string unknown = expectErrorAt(
+        dir, sceneText("    <bsdf type=\"principledthin\" id=\"p\">\n        <float name=\"clearcoat\" value=\"0.5\"/>\n    </bsdf>\n"),
+        "clearcoat", "bsdf 'principledthin'", "thin_unknown.xml");
+    EXPECT_NE(unknown.find("unknown parameter 'clearcoat'"), std::string::npos) << unknown;
 }
 
 TEST(SceneXmlMaterials, PrincipledReadsTexturesAndDefaults) {
