@@ -534,5 +534,32 @@ TEST(SceneXmlMaterials, PrincipledRendersAlikeByPathAndLightTracing) {
     for (int c = 0; c < 3; ++c) EXPECT_NEAR(ltMean[c] / ptMean[c], 1.0f, 0.03f) << c;
 }
 
+// The camera sees the floor through a principledthin sheet that the light
+// also crosses: path tracing and light tracing agree on light transmitted
+// twice (diffusely and straight through) and on the sheet's own reflection.
+TEST(SceneXmlMaterials, PrincipledThinRendersAlikeByPathAndLightTracing) {
+    const fs::path dir = scratchDir();
+    const Scene scene = loadXmlScene(writeFile(dir / "thin.xml", seenThroughScene(R"(
+        <bsdf type="principledthin">
+            <rgb name="base_color" value="0.9, 0.8, 0.7"/>
+            <float name="spec_trans" value="0.5"/><float name="diff_trans" value="1"/>
+            <float name="roughness" value="0.5"/>
+        </bsdf>
+)")).string());
+    FilmSettings film;
+    film.width = 8;
+    film.height = 8;
+    const std::map<std::string, ParamValue> pt = {{"pt.spp", std::int64_t{1024}}, {"pt.max_depth", std::int64_t{3}}};
+    const std::map<std::string, ParamValue> lt = {{"photon.photons", std::int64_t{3000000}},
+                                                  {"photon.store", std::string("global")},
+                                                  {"photon.store_direct", true},
+                                                  {"photon.max_depth", std::int64_t{3}},
+                                                  {"photon.differentials", false}};
+    const Rgb ptMean = test::renderPipeline(scene, "pt", pt, film, 1).mean();
+    const Rgb ltMean = test::renderPipeline(scene, "lt", lt, film, 2).mean();
+    ASSERT_GT(ptMean.x, 0.02f);
+    for (int c = 0; c < 3; ++c) EXPECT_NEAR(ltMean[c] / ptMean[c], 1.0f, 0.03f) << ptMean[c] << " " << ltMean[c];
+}
+
 }  // namespace
 }  // namespace fg
