@@ -1,17 +1,18 @@
 // Mitsuba 3's `principled` BSDF (see principled.h). Lobes, each weighted as
 // in Mitsuba 3's plugin:
-//  - Disney diffuse with retro-reflection (Burley 2015, Sec. 5.3, Eqs. 4-5) and,
-//    with `flatness`, the Hanrahan-Krueger-like "fake subsurface" of Burley
-//    2012 (Sec. 5.3), weighted by (1 - metallic)(1 - spec_trans);
+//  - Disney diffuse with retro-reflection (Burley 2015's diffuse and
+//    retro-reflection terms) and, with `flatness`, the Hanrahan-Krueger-like
+//    "fake subsurface" of Burley 2012, weighted by (1 - metallic)(1 - spec_trans);
 //  - sheen, a Schlick-weighted grazing term tinted towards the base colour's
-//    hue (Burley 2012, Sec. 5.3), only where the diffuse lobe is on;
-//  - the main GGX lobe (Walter et al. 2007; anisotropic alphas of Burley 2012,
-//    Sec. 5.4) reflecting with Mitsuba's Fresnel blend: the exact dielectric
+//    hue (Burley 2012), only where the diffuse lobe is on;
+//  - the main GGX lobe (Walter et al. 2007; the anisotropic alphas of Burley
+//    2012) reflecting with Mitsuba's Fresnel blend: the exact dielectric
 //    Fresnel term, Schlick's approximation towards base_color for `metallic`
 //    and towards the base colour's hue for `spec_tint`;
 //  - rough dielectric transmission weighted by (1 - metallic) spec_trans and
-//    sqrt(base_color) (Burley 2015, Sec. 4), with the exact Fresnel term;
-//  - clearcoat: GTR1 (Burley 2012, Eq. 4) with alpha from 0.1 to 0.001 as
+//    sqrt(base_color) (Burley 2015's specular transmission), with the exact
+//    Fresnel term;
+//  - clearcoat: GTR1 (Burley 2012, GTR with gamma = 1) with alpha from 0.1 to 0.001 as
 //    clearcoat_gloss goes from 0 to 1, Schlick Fresnel with F0 = 0.04 (IOR 1.5)
 //    and separable Smith GGX shadowing of roughness 0.25, scaled by
 //    clearcoat / 4; as in Mitsuba 3 its value is D F G |cos(theta_i)| without the
@@ -28,9 +29,9 @@ namespace fg {
 
 namespace {
 
-// Anisotropic GGX with separable Smith masking (Heitz 2014, "Understanding the
-// Masking-Shadowing Function", Eqs. 85-86 for D and Lambda); alphaX scales the
-// slopes along the shading frame's s axis.
+// Anisotropic GGX with separable Smith masking (D and Lambda as in Heitz 2014,
+// "Understanding the Masking-Shadowing Function"); alphaX scales the slopes
+// along the shading frame's s axis.
 class AnisotropicGgx {
 public:
     AnisotropicGgx(float alphaX, float alphaY) : alphaX_(alphaX), alphaY_(alphaY) {}
@@ -80,8 +81,8 @@ private:
     float alphaX_, alphaY_;
 };
 
-// Burley 2012, Eq. 4: GTR with gamma = 1, normalised so that D cos(theta_m)
-// integrates to 1 over the hemisphere.
+// Burley 2012's GTR with gamma = 1 (Berry's distribution), normalised so that
+// D cos(theta_m) integrates to 1 over the hemisphere (its Appendix B).
 class Gtr1 {
 public:
     explicit Gtr1(float alpha) : alpha2_(alpha * alpha) {}
@@ -284,8 +285,8 @@ private:
             flatness;
         float diffuseWeight, transmissionWeight;
 
-        // Burley 2012, Sec. 5.4: alpha = roughness^2, stretched by the aspect
-        // ratio sqrt(1 - 0.9 anisotropic); Mitsuba keeps alpha >= 0.001.
+        // Burley 2012: alpha = roughness^2, stretched by the aspect ratio
+        // sqrt(1 - 0.9 anisotropic); Mitsuba keeps alpha >= 0.001.
         AnisotropicGgx distribution() const {
             const float alpha = roughness * roughness;
             const float aspect = std::sqrt(1.0f - 0.9f * anisotropic);
@@ -386,15 +387,15 @@ private:
     Rgb diffuseAndSheen(const Local& l, const Vec3& wo, const Vec3& wi, const Vec3& m) const {
         const float cosO = std::abs(wo.z), cosI = std::abs(wi.z);
         const float fresnelO = schlickWeight(cosO), fresnelI = schlickWeight(cosI);
-        // Burley 2015, Eq. 4: the Lambertian part loses light at grazing angles...
+        // Burley 2015: the Lambertian part loses light at grazing angles...
         const float lambert = (1.0f - 0.5f * fresnelO) * (1.0f - 0.5f * fresnelI);
-        // ...and Eq. 5 adds the retro-reflection of rough surfaces.
+        // ...and the retro-reflection term gives it back on rough surfaces.
         const float cosD = glm::dot(m, wi);
         const float retroReflection = 2.0f * l.roughness * cosD * cosD;
         const float retro = retroReflection * (fresnelO + fresnelI + fresnelO * fresnelI * (retroReflection - 1.0f));
         float shape = lambert + retro;
         if (p_.flatness) {
-            // Burley 2012, Sec. 5.3: the Hanrahan-Krueger-inspired flattening,
+            // Burley 2012: the Hanrahan-Krueger-inspired flattening,
             // with Mitsuba's Fss90 = R_R / 2 (= roughness cos^2(theta_d)).
             const float fss90 = 0.5f * retroReflection;
             const float fss = (1.0f + (fss90 - 1.0f) * fresnelO) * (1.0f + (fss90 - 1.0f) * fresnelI);

@@ -40,8 +40,8 @@ float principledEtaFromSpecular(float specular);
 
 std::shared_ptr<Bsdf> makePrincipled(PrincipledParameters parameters);
 
-// Mitsuba 3's `principledthin`: a two-sided sheet without volume (Burley 2015,
-// Sec. 4: thin surfaces). Textures as above; eta is a texture too.
+// Mitsuba 3's `principledthin`: a two-sided sheet without volume (Burley 2015's
+// thin-surface BSDF). Textures as above; eta is a texture too.
 struct PrincipledThinParameters {
     std::shared_ptr<Texture> baseColor;  // default 0.5
     std::shared_ptr<Texture> roughness;  // default 0.5
