@@ -21,6 +21,7 @@
 
 #include "engine/shading/bsdf_adapters.h"
 #include "engine/shading/mesh_attribute_texture.h"
+#include "engine/shading/principled.h"
 
 #include "engine/core/error.h"
 #include "engine/core/text_input.h"
@@ -1485,7 +1486,8 @@ private:
         if (type == "null") return makeNull();
         if (type == "mask" || type == "bumpmap" || type == "normalmap") return makeAdapterBsdf(p);
         if (type == "blendbsdf") return makeBlendBsdf(p);
-        if (type == "principled" || type == "principledthin") p.fail("the principled BSDF is not supported");
+        if (type == "principled") return makePrincipledBsdf(p);
+        if (type == "principledthin") return makePrincipledThinBsdf(p);
         if (type == "twosided") {
             const std::vector<Entry*> inner = p.objects("bsdf");
             if (inner.size() != 1) {
@@ -1495,7 +1497,7 @@ private:
             return makeTwoSided(scene_.bsdfs[static_cast<std::size_t>(bsdfIndex(*inner[0]->node))]);
         }
         p.fail("unknown bsdf type (supported: diffuse, dielectric, thindielectric, roughdielectric, conductor, roughconductor, "
-               "plastic, roughplastic, null, twosided, mask, bumpmap, normalmap, blendbsdf)");
+               "plastic, roughplastic, principled, principledthin, null, twosided, mask, bumpmap, normalmap, blendbsdf)");
     }
 
     std::shared_ptr<Bsdf> makeBlendBsdf(Props& p) {
@@ -1509,6 +1511,73 @@ private:
             if (materials[i]->perturbsNormal()) p.fail(inner[i]->site(), "blending bump- or normal-mapped materials is not supported");
         }
         return makeBlend(std::move(materials[0]), std::move(materials[1]), weight);
+    }
+
+    // Mitsuba 3's principled: scalar parameters left out or given as the
+    // number 0 switch their lobe off, as Mitsuba's plugin does.
+    std::shared_ptr<Bsdf> makePrincipledBsdf(Props& p) {
+        PrincipledParameters parameters;
+        parameters.baseColor = textureParam(p, "base_color", Rgb(0.5f));
+        parameters.roughness = textureParam(p, "roughness", Rgb(0.5f));
+        parameters.metallic = optionalTextureParam(p, "metallic");
+        parameters.specTint = optionalTextureParam(p, "spec_tint");
+        parameters.anisotropic = optionalTextureParam(p, "anisotropic");
+        parameters.sheen = optionalTextureParam(p, "sheen");
+        parameters.sheenTint = optionalTextureParam(p, "sheen_tint");
+        parameters.clearcoat = optionalTextureParam(p, "clearcoat");
+        parameters.clearcoatGloss = optionalTextureParam(p, "clearcoat_gloss");
+        parameters.specTrans = optionalTextureParam(p, "spec_trans");
+        parameters.flatness = optionalTextureParam(p, "flatness");
+        const bool transmits = parameters.specTrans != nullptr;
+        if (p.has("eta") && p.has("specular")) p.fail("give either eta or specular, not both");
+        if (p.has("eta")) {
+            parameters.eta = p.number("eta", 1.5f);
+            if (!(parameters.eta > 0.0f)) p.fail(*p.valueNode("eta"), "eta must be positive");
+            // An index-matched interface cannot refract; Mitsuba nudges it.
+            if (transmits && parameters.eta == 1.0f) parameters.eta = 1.001f;
+        } else {
+            float specular = p.number("specular", 0.5f);
+            if (!(specular >= 0.0f && specular < 12.5f)) {
+                p.fail(*p.valueNode("specular"), "specular must be in [0, 12.5) (F0 = 0.08 specular)");
+            }
+            if (transmits && specular == 0.0f) specular = 1e-3f;
+            parameters.eta = principledEtaFromSpecular(specular);
+        }
+        parameters.mainSpecularSamplingRate = p.number("main_specular_sampling_rate", 1.0f);
+        parameters.clearcoatSamplingRate = p.number("clearcoat_sampling_rate", 1.0f);
+        parameters.diffuseReflectanceSamplingRate = p.number("diffuse_reflectance_sampling_rate", 1.0f);
+        return makePrincipled(std::move(parameters));
+    }
+
+    std::shared_ptr<Bsdf> makePrincipledThinBsdf(Props& p) {
+        PrincipledThinParameters parameters;
+        parameters.baseColor = textureParam(p, "base_color", Rgb(0.5f));
+        parameters.roughness = textureParam(p, "roughness", Rgb(0.5f));
+        parameters.eta = optionalTextureParam(p, "eta", ColourUse::NonNegative);
+        if (!parameters.eta) {
+            if (p.has("eta")) p.fail(*p.valueNode("eta"), "eta must be positive");
+            parameters.eta = makeConstantTexture(Rgb(1.5f));
+        }
+        parameters.specTint = optionalTextureParam(p, "spec_tint");
+        parameters.anisotropic = optionalTextureParam(p, "anisotropic");
+        parameters.sheen = optionalTextureParam(p, "sheen");
+        parameters.sheenTint = optionalTextureParam(p, "sheen_tint");
+        parameters.specTrans = optionalTextureParam(p, "spec_trans");
+        parameters.flatness = optionalTextureParam(p, "flatness");
+        parameters.diffTrans = optionalTextureParam(p, "diff_trans", ColourUse::NonNegative);
+        parameters.specularReflectanceSamplingRate = p.number("specular_reflectance_sampling_rate", 1.0f);
+        parameters.specularTransmittanceSamplingRate = p.number("specular_transmittance_sampling_rate", 1.0f);
+        parameters.diffuseReflectanceSamplingRate = p.number("diffuse_reflectance_sampling_rate", 1.0f);
+        parameters.diffuseTransmittanceSamplingRate = p.number("diffuse_transmittance_sampling_rate", 1.0f);
+        return makePrincipledThin(std::move(parameters));
+    }
+
+    // A parameter that may be a texture, or null where it is left out or the number 0.
+    std::shared_ptr<Texture> optionalTextureParam(Props& p, std::string_view key, ColourUse use = ColourUse::Reflectance) {
+        if (Entry* e = p.namedObject(key)) return texture(expectObject(*e, "texture", p.what() + " parameter " + inQuotes(key)));
+        const std::optional<Rgb> value = p.colour(key, use);
+        if (!value || *value == Rgb(0.0f)) return nullptr;
+        return makeConstantTexture(*value);
     }
 
     // The one material a mask, bump map or normal map wraps.

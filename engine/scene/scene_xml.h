@@ -118,7 +118,15 @@
 //   normalmap        normalmap (texture; tangent-space normals, usually raw), one nested bsdf
 //   blendbsdf        weight (texture or float in [0, 1]; its luminance), two nested bsdfs:
 //                    (1 - weight) first + weight second; neither may be a bump or normal map
-//   principled is an error ("not supported")
+//   principled       base_color (texture, 0.5), roughness (texture, 0.5), metallic,
+//                    spec_tint, anisotropic, sheen, sheen_tint, clearcoat, clearcoat_gloss,
+//                    spec_trans, flatness (textures, 0; their luminance); specular (0.5)
+//                    or eta; main_specular_sampling_rate, clearcoat_sampling_rate,
+//                    diffuse_reflectance_sampling_rate (1)
+//   principledthin   principled's textures but metallic and clearcoat, plus eta (texture,
+//                    1.5) and diff_trans (texture, 0, range 0 to 2); specular_reflectance_,
+//                    specular_transmittance_, diffuse_reflectance_ and
+//                    diffuse_transmittance_sampling_rate (1)
 //   distribution: beckmann (Mitsuba's default) or ggx. Beckmann's Smith masking is the
 //   exact one, where Mitsuba uses Walter's rational fit (within 0.35 %).
 //   sample_visible is accepted, no effect (sampling strategy only).

@@ -303,9 +303,98 @@ TEST(SceneXmlMaterials, MaskBumpmapAndNormalmapWrapTheirMaterial) {
         EXPECT_NE(message.find(path.string() + ":8:"), std::string::npos) << message;
         EXPECT_NE(message.find("bsdf 'bumpmap'"), std::string::npos) << message;
     }
-    const std::string principled = expectErrorAt(dir, sceneText("    <bsdf type=\"principled\" id=\"p\"/>\n"),
-                                                 "principled", "bsdf 'principled'", "principled.xml");
-    EXPECT_NE(principled.find("not supported"), std::string::npos) << principled;
+}
+
+TEST(SceneXmlMaterials, PrincipledThinReadsTextures) {
+    const fs::path dir = scratchDir();
+    const std::string text = sceneText(R"(
+    <shape type="rectangle"><bsdf type="principledthin">
+        <rgb name="base_color" value="0.6, 0.5, 0.4"/>
+        <texture name="diff_trans" type="checkerboard">
+            <float name="color0" value="0"/><float name="color1" value="1"/></texture>
+        <float name="eta" value="1.3"/><float name="flatness" value="0.5"/></bsdf></shape>
+)");
+    const Scene scene = loadXmlScene(writeFile(dir / "scene.xml", text).string());
+    const Bsdf& sheet = shapeBsdf(scene, 0);
+    EXPECT_NE(sheet.lobes() & BsdfLobe::Transmission, 0u);
+    const Vec2 even(0.1f, 0.1f), odd(0.6f, 0.1f);
+    const Vec3 wo(0.0f, 0.0f, 1.0f), through(0.0f, 0.0f, -1.0f);
+    // diff_trans 1 (of Mitsuba's 0 to 2): half the diffuse light goes through,
+    // as Lambert's base_color / pi. At normal incidence Burley's diffuse is
+    // Lambert and the fake subsurface 1.25 / 2, mixed half and half by flatness.
+    const Rgb lambert = Rgb(0.6f, 0.5f, 0.4f) * kInvPi;
+    const float flattened = 0.5f * (1.0f + 0.625f);
+    EXPECT_EQ(sheet.eval(wo, through, even, TransportMode::Radiance), Rgb(0.0f));
+    expectNear(sheet.eval(wo, through, odd, TransportMode::Radiance), 0.5f * lambert, 1e-6f, "diffuse transmission");
+    expectNear(sheet.eval(wo, wo, even, TransportMode::Radiance), flattened * lambert, 1e-6f, "diffuse reflection");
+    expectNear(sheet.eval(wo, wo, odd, TransportMode::Radiance), 0.5f * flattened * lambert, 1e-6f,
+               "halved reflection");
+    const std::string unknown = expectErrorAt(
+        dir, sceneText("    <bsdf type=\"principledthin\" id=\"p\">\n        <float name=\"clearcoat\" value=\"0.5\"/>\n    </bsdf>\n"),
+        "clearcoat", "bsdf 'principledthin'", "thin_unknown.xml");
+    EXPECT_NE(unknown.find("unknown parameter 'clearcoat'"), std::string::npos) << unknown;
+}
+
+TEST(SceneXmlMaterials, PrincipledReadsTexturesAndDefaults) {
+    const fs::path dir = scratchDir();
+    const std::string text = sceneText(R"(
+    <shape type="rectangle"><bsdf type="principled">
+        <texture name="base_color" type="checkerboard">
+            <rgb name="color0" value="0.8"/><rgb name="color1" value="0.2"/></texture>
+        <texture name="metallic" type="checkerboard">
+            <float name="color0" value="1"/><float name="color1" value="0"/></texture>
+        <float name="roughness" value="0.1"/>
+        <float name="spec_trans" value="0.5"/>
+        <float name="eta" value="1.33"/>
+        <float name="clearcoat" value="0.5"/><float name="clearcoat_gloss" value="0.8"/>
+        <float name="sheen" value="0.2"/><float name="sheen_tint" value="0.1"/>
+        <float name="spec_tint" value="0.4"/><float name="anisotropic" value="0.3"/>
+        <float name="flatness" value="0.2"/></bsdf></shape>
+    <shape type="rectangle"><bsdf type="principled"/></shape>
+)");
+    const Scene scene = loadXmlScene(writeFile(dir / "scene.xml", text).string());
+    const Vec2 even(0.1f, 0.1f), odd(0.6f, 0.1f);
+    const Bsdf& textured = shapeBsdf(scene, 0);
+    EXPECT_NE(textured.lobes() & BsdfLobe::Transmission, 0u);
+    // The even cells are a pure metal with a narrow lobe: far from the mirror
+    // direction only the faint clearcoat remains, where the odd cells' diffuse
+    // base shows.
+    const Vec3 wo(0.0f, 0.0f, 1.0f), wi = glm::normalize(Vec3(1.0f, 0.0f, 0.3f));
+    const Rgb metal = textured.eval(wo, wi, even, TransportMode::Radiance);
+    const Rgb dielectric = textured.eval(wo, wi, odd, TransportMode::Radiance);
+    EXPECT_LT(metal.x, 0.1f * dielectric.x) << metal.x << " vs " << dielectric.x;
+    // Refraction from outside crosses eta = 1.33.
+    bool refracted = false;
+    for (float uLobe = 0.0f; uLobe < 1.0f && !refracted; uLobe += 0.01f) {
+        const auto s = textured.sample(wo, odd, uLobe, Vec2(0.3f, 0.6f), TransportMode::Radiance);
+        if (s && s->wi.z < 0.0f) {
+            refracted = true;
+            EXPECT_NEAR(s->eta, 1.33f, 1e-6f);
+        }
+    }
+    EXPECT_TRUE(refracted);
+    // Mitsuba's defaults: base_color 0.5, roughness 0.5, specular 0.5, nothing
+    // transmitted, a diffuse value at normal incidence of 0.5 / pi plus the
+    // specular peak of F0 = 0.04.
+    const Bsdf& plain = shapeBsdf(scene, 1);
+    EXPECT_EQ(plain.lobes() & BsdfLobe::Transmission, 0u);
+    const float alpha = 0.25f;
+    const float specularPeak = 0.04f / (kPi * alpha * alpha * 4.0f);
+    EXPECT_NEAR(diffuseAlbedo(scene, 1, even).x, 0.5f + kPi * specularPeak, 1e-3f);
+}
+
+TEST(SceneXmlMaterials, PrincipledRejectsUnknownAndConflictingParameters) {
+    const fs::path dir = scratchDir();
+    const std::string unknown = expectErrorAt(
+        dir, sceneText("    <bsdf type=\"principled\" id=\"p\">\n        <float name=\"subsurface\" value=\"0.5\"/>\n    </bsdf>\n"),
+        "subsurface", "bsdf 'principled'", "unknown.xml");
+    EXPECT_NE(unknown.find("unknown parameter 'subsurface'"), std::string::npos) << unknown;
+    EXPECT_NE(unknown.find("clearcoat_gloss"), std::string::npos) << unknown;
+    const std::string both = expectErrorAt(
+        dir, sceneText("    <bsdf type=\"principled\" id=\"p\">\n        <float name=\"eta\" value=\"1.4\"/>\n"
+                       "        <float name=\"specular\" value=\"0.3\"/>\n    </bsdf>\n"),
+        "type=\"principled\"", "bsdf 'principled'", "both.xml");
+    EXPECT_NE(both.find("either eta or specular"), std::string::npos) << both;
 }
 
 // Floor in z = 0 seen from below a wide blocker at z = 2 that hides an area
@@ -411,6 +500,65 @@ TEST(SceneXmlMaterials, MaskIsSeenThroughByPathAndLightTracing) {
     EXPECT_NEAR(ptHalf.x / ptOpen.x, 0.25f, 0.01f);
     EXPECT_NEAR(ltOpen.x / ptOpen.x, 1.0f, 0.03f);
     EXPECT_NEAR(ltHalf.x / ltOpen.x, 0.25f, 0.0125f);  // about four standard errors
+}
+
+// A principled floor under an area light: path tracing (eval and sample with
+// MIS) and light tracing (photons scattered by sample in importance mode,
+// camera connections by eval) must agree.
+TEST(SceneXmlMaterials, PrincipledRendersAlikeByPathAndLightTracing) {
+    const fs::path dir = scratchDir();
+    const Scene scene = loadXmlScene(writeFile(dir / "principled.xml", seenThroughScene(R"(
+        <bsdf type="null"/>
+    </shape>
+    <shape type="rectangle">
+        <transform name="to_world"><scale value="0.999"/><translate z="0.001"/></transform>
+        <bsdf type="principled">
+            <rgb name="base_color" value="0.7, 0.5, 0.3"/>
+            <float name="roughness" value="0.4"/><float name="metallic" value="0.3"/>
+            <float name="clearcoat" value="0.5"/><float name="sheen" value="0.5"/>
+            <float name="anisotropic" value="0.5"/>
+        </bsdf>
+)")).string());
+    FilmSettings film;
+    film.width = 8;
+    film.height = 8;
+    const std::map<std::string, ParamValue> pt = {{"pt.spp", std::int64_t{512}}, {"pt.max_depth", std::int64_t{1}}};
+    const std::map<std::string, ParamValue> lt = {{"photon.photons", std::int64_t{3000000}},
+                                                  {"photon.store", std::string("global")},
+                                                  {"photon.store_direct", true},
+                                                  {"photon.max_depth", std::int64_t{1}},
+                                                  {"photon.differentials", false}};
+    const Rgb ptMean = test::renderPipeline(scene, "pt", pt, film, 1).mean();
+    const Rgb ltMean = test::renderPipeline(scene, "lt", lt, film, 2).mean();
+    ASSERT_GT(ptMean.x, 0.05f);
+    for (int c = 0; c < 3; ++c) EXPECT_NEAR(ltMean[c] / ptMean[c], 1.0f, 0.03f) << c;
+}
+
+// The camera sees the floor through a principledthin sheet that the light
+// also crosses: path tracing and light tracing agree on light transmitted
+// twice (diffusely and straight through) and on the sheet's own reflection.
+TEST(SceneXmlMaterials, PrincipledThinRendersAlikeByPathAndLightTracing) {
+    const fs::path dir = scratchDir();
+    const Scene scene = loadXmlScene(writeFile(dir / "thin.xml", seenThroughScene(R"(
+        <bsdf type="principledthin">
+            <rgb name="base_color" value="0.9, 0.8, 0.7"/>
+            <float name="spec_trans" value="0.5"/><float name="diff_trans" value="1"/>
+            <float name="roughness" value="0.5"/>
+        </bsdf>
+)")).string());
+    FilmSettings film;
+    film.width = 8;
+    film.height = 8;
+    const std::map<std::string, ParamValue> pt = {{"pt.spp", std::int64_t{1024}}, {"pt.max_depth", std::int64_t{3}}};
+    const std::map<std::string, ParamValue> lt = {{"photon.photons", std::int64_t{3000000}},
+                                                  {"photon.store", std::string("global")},
+                                                  {"photon.store_direct", true},
+                                                  {"photon.max_depth", std::int64_t{3}},
+                                                  {"photon.differentials", false}};
+    const Rgb ptMean = test::renderPipeline(scene, "pt", pt, film, 1).mean();
+    const Rgb ltMean = test::renderPipeline(scene, "lt", lt, film, 2).mean();
+    ASSERT_GT(ptMean.x, 0.02f);
+    for (int c = 0; c < 3; ++c) EXPECT_NEAR(ltMean[c] / ptMean[c], 1.0f, 0.03f) << ptMean[c] << " " << ltMean[c];
 }
 
 }  // namespace
