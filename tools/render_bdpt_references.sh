@@ -42,9 +42,9 @@ declare -A spp=(
   [cornell-box]=4096
   [volumetric-caustic]=8192
   [spot-fog]=4096
-  [gold-ring]=4096
+  [gold-ring]=16384
   [water-wave]=4096
-  [metal-ring]=4096
+  [metal-ring]=16384
 )
 # Exposure of each preview, in stops (as tools/render_references.sh's).
 declare -A exposure=(

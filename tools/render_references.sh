@@ -65,9 +65,9 @@ declare -A exposure=(
 declare -A bidirectional=(
   [volumetric-caustic]=4096
   [spot-fog]=4096
-  [gold-ring]=4096
+  [gold-ring]=16384
   [water-wave]=4096
-  [metal-ring]=4096
+  [metal-ring]=16384
 )
 binary="$build/fluxgraph"
 [[ -x "$binary" ]] || { echo "render_references.sh: no $binary; build first (cmake --build $build)" >&2; exit 2; }
