@@ -66,4 +66,16 @@ RenderedImage renderPipeline(const Scene& scene, const std::string& pipeline,
     return {image.width(), image.height(), image.resolve()};
 }
 
+std::vector<double> blockMeans(const std::vector<Rgb>& pixels, int width, int height, int blocksPerSide) {
+    std::vector<double> means(static_cast<std::size_t>(blocksPerSide * blocksPerSide), 0.0);
+    const int bw = width / blocksPerSide, bh = height / blocksPerSide;
+    for (int y = 0; y < height; ++y)
+        for (int x = 0; x < width; ++x) {
+            const Rgb& p = pixels[static_cast<std::size_t>(y) * static_cast<std::size_t>(width) + x];
+            means[static_cast<std::size_t>((y / bh) * blocksPerSide + x / bw)] +=
+                (static_cast<double>(p.x) + p.y + p.z) / (3.0 * bw * bh);
+        }
+    return means;
+}
+
 }  // namespace fg::test

@@ -36,4 +36,8 @@ RenderedImage renderPipeline(const Scene& scene, const std::string& pipeline,
                              const std::map<std::string, ParamValue>& params, const FilmSettings& film,
                              std::uint64_t seed = 1, int threads = 0);
 
+// Means (R, G, B averaged) of a width x height image over blocksPerSide x
+// blocksPerSide blocks, row by row.
+std::vector<double> blockMeans(const std::vector<Rgb>& pixels, int width, int height, int blocksPerSide);
+
 }  // namespace fg::test

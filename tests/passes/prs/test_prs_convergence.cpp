@@ -29,17 +29,8 @@ constexpr int kSize = 64;
 constexpr int kBlock = 8;  // pixels of the 64 x 64 image per block side
 constexpr int kBlocks = kSize / kBlock;
 
-// Block means (R, G, B averaged) of a w x h image in kBlocks x kBlocks blocks.
 std::vector<double> blockMeans(const std::vector<Rgb>& pixels, int width, int height) {
-    std::vector<double> means(kBlocks * kBlocks, 0.0);
-    const int bw = width / kBlocks, bh = height / kBlocks;
-    for (int y = 0; y < height; ++y)
-        for (int x = 0; x < width; ++x) {
-            const Rgb& p = pixels[static_cast<std::size_t>(y) * static_cast<std::size_t>(width) + x];
-            means[static_cast<std::size_t>((y / bh) * kBlocks + x / bw)] +=
-                (static_cast<double>(p.x) + p.y + p.z) / (3.0 * bw * bh);
-        }
-    return means;
+    return test::blockMeans(pixels, width, height, kBlocks);
 }
 
 struct BlockError {
