@@ -3,6 +3,7 @@
 
 #include "engine/core/error.h"
 #include "engine/core/scheduler.h"
+#include "tests/support/scene_text.h"
 
 #include <gtest/gtest.h>
 
@@ -17,15 +18,7 @@
 namespace fg {
 namespace {
 
-// 1-based line of the first line of `text` containing `needle`.
-int lineOf(const std::string& text, const std::string& needle) {
-    const auto at = text.find(needle);
-    if (at == std::string::npos) {
-        ADD_FAILURE() << "'" << needle << "' is not in the job text";
-        return -1;
-    }
-    return 1 + static_cast<int>(std::count(text.begin(), text.begin() + static_cast<std::ptrdiff_t>(at), '\n'));
-}
+using test::lineOf;
 
 ::testing::AssertionResult Contains(const std::string& text, const std::string& part) {
     if (text.find(part) != std::string::npos) return ::testing::AssertionSuccess();

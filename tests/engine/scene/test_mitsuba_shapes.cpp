@@ -8,6 +8,7 @@
 #include "engine/shading/light.h"
 #include "tests/support/chi2.h"
 #include "tests/support/cli_helpers.h"
+#include "tests/support/scene_text.h"
 
 #include <glm/gtc/matrix_transform.hpp>
 #include <gtest/gtest.h>
@@ -24,6 +25,7 @@ namespace fg {
 namespace {
 
 namespace fs = std::filesystem;
+using test::lineOf;
 
 fs::path scratchDir() { return test::scratchDirectory("mitsuba_shapes"); }
 
@@ -34,20 +36,8 @@ fs::path writeFile(const fs::path& path, const std::string& text) {
 
 bool contains(const std::string& text, const std::string& part) { return text.find(part) != std::string::npos; }
 
-int lineOf(const std::string& text, const std::string& marker) {
-    const auto pos = text.find(marker);
-    EXPECT_NE(pos, std::string::npos) << marker;
-    return 1 + static_cast<int>(std::count(text.begin(), text.begin() + static_cast<std::ptrdiff_t>(pos), '\n'));
-}
-
 std::string sceneText(const std::string& body, const std::string& sensor = "") {
-    return "<scene version=\"3.0.0\">\n" +
-           (sensor.empty() ? std::string("    <sensor type=\"perspective\">\n"
-                                         "        <film type=\"hdrfilm\"><integer name=\"width\" value=\"32\"/>"
-                                         "<integer name=\"height\" value=\"32\"/></film>\n"
-                                         "    </sensor>\n")
-                           : sensor) +
-           body + "</scene>\n";
+    return test::mitsubaSceneText(body, {.fov = std::nullopt, .sensor = sensor});
 }
 
 std::string loadErrorMessage(const fs::path& path) {

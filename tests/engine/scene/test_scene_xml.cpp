@@ -12,6 +12,7 @@
 #include "engine/scene/spectrum.h"
 #include "tests/support/render_helpers.h"
 #include "tests/support/cli_helpers.h"
+#include "tests/support/scene_text.h"
 
 #include <glm/gtc/matrix_transform.hpp>
 #include <gtest/gtest.h>
@@ -25,6 +26,7 @@ namespace fg {
 namespace {
 
 namespace fs = std::filesystem;
+using test::lineOf;
 
 const fs::path kCboxDir = fs::path(FLUXGRAPH_SOURCE_DIR) / ".." / "shared" / "scenes" / "mitsuba-cbox";
 const std::string kTomlCornellBox = std::string(FLUXGRAPH_SOURCE_DIR) + "/data/cornell-box/cornell-box.toml";
@@ -42,25 +44,7 @@ fs::path writeFile(const fs::path& path, const std::string& text) {
     return path;
 }
 
-// 1-based line of the first line containing `marker`.
-int lineOf(const std::string& text, const std::string& marker) {
-    const auto pos = text.find(marker);
-    EXPECT_NE(pos, std::string::npos) << marker;
-    return 1 + static_cast<int>(std::count(text.begin(), text.begin() + static_cast<std::ptrdiff_t>(pos), '\n'));
-}
-
 bool contains(const std::string& text, const std::string& part) { return text.find(part) != std::string::npos; }
-
-// A minimal valid scene around `body` (sensor first, so line numbers in the
-// body are easy to locate with lineOf on the full text).
-std::string sceneText(const std::string& body, const std::string& version = "3.0.0") {
-    return "<scene version=\"" + version + "\">\n"
-           "    <sensor type=\"perspective\">\n"
-           "        <float name=\"fov\" value=\"45\"/>\n"
-           "        <film type=\"hdrfilm\"><integer name=\"width\" value=\"32\"/><integer name=\"height\" value=\"32\"/></film>\n"
-           "    </sensor>\n" +
-           body + "</scene>\n";
-}
 
 const char* kQuadObj = "v -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nf 1/1 2/2 3/3 4/4\n";
 
@@ -235,7 +219,7 @@ TEST(SceneXml, CornellBoxRendersLikeTheTomlBox) {
 TEST(SceneXml, DefaultsSubstitutionAndDefines) {
     const fs::path dir = scratchDir();
     writeFile(dir / "meshes" / "quad.obj", kQuadObj);
-    const std::string text = sceneText(R"(
+    const std::string text = test::mitsubaSceneText(R"(
     <default name="albedo" value="0.25"/>
     <default name="mesh" value="quad"/>
     <default name="dir" value="meshes"/>
@@ -254,7 +238,7 @@ TEST(SceneXml, DefaultsSubstitutionAndDefines) {
     expectNear(diffuseAlbedo(overridden, 0), Rgb(0.75f, 0.5f, 0.75f), 1e-6f);
 
     // An undeclared parameter is an error at the element that uses it.
-    const std::string undeclared = sceneText("    <shape type=\"rectangle\"><float name=\"x\" value=\"$nope\"/></shape>\n");
+    const std::string undeclared = test::mitsubaSceneText("    <shape type=\"rectangle\"><float name=\"x\" value=\"$nope\"/></shape>\n");
     const std::string message = expectErrorAt(dir, undeclared, "$nope", "$nope", "undeclared.xml");
     EXPECT_TRUE(contains(message, "undefined parameter")) << message;
 }
@@ -270,7 +254,7 @@ TEST(SceneXml, IncludesArePathsRelativeToTheIncludingFile) {
     <shape type="rectangle" id="floor"><ref id="grey"/></shape>
 </scene>
 )");
-    const fs::path path = writeFile(dir / "scene.xml", sceneText("    <include filename=\"parts/materials.xml\"/>\n"));
+    const fs::path path = writeFile(dir / "scene.xml", test::mitsubaSceneText("    <include filename=\"parts/materials.xml\"/>\n"));
     const Scene scene = loadXmlScene(path.string());
     ASSERT_EQ(scene.shapes.size(), 1u);
     EXPECT_EQ(scene.shapes[0].name, "floor");
@@ -280,19 +264,19 @@ TEST(SceneXml, IncludesArePathsRelativeToTheIncludingFile) {
     writeFile(dir / "a.xml", "<scene version=\"3.0.0\">\n    <include filename=\"b.xml\"/>\n</scene>\n");
     const std::string b = "<scene version=\"3.0.0\">\n\n    <include filename=\"a.xml\"/>\n</scene>\n";
     writeFile(dir / "b.xml", b);
-    const fs::path cyclic = writeFile(dir / "cyclic.xml", sceneText("    <include filename=\"a.xml\"/>\n"));
+    const fs::path cyclic = writeFile(dir / "cyclic.xml", test::mitsubaSceneText("    <include filename=\"a.xml\"/>\n"));
     const std::string message = loadError(cyclic).what();
     EXPECT_TRUE(contains(message, (dir / "b.xml").string() + ":3:")) << message;
     EXPECT_TRUE(contains(message, "cycle")) << message;
 
     // A missing include names the including file and line.
-    const std::string missing = sceneText("    <include filename=\"nowhere.xml\"/>\n");
+    const std::string missing = test::mitsubaSceneText("    <include filename=\"nowhere.xml\"/>\n");
     const std::string m2 = expectErrorAt(dir, missing, "nowhere.xml", "nowhere.xml", "missing.xml");
     EXPECT_TRUE(contains(m2, "not found")) << m2;
 
     // Errors inside an included file name that file.
     writeFile(dir / "broken.xml", "<scene version=\"3.0.0\">\n    <bsdf type=\"velvet\" id=\"v\"/>\n</scene>\n");
-    const std::string m3 = loadError(writeFile(dir / "uses-broken.xml", sceneText("    <include filename=\"broken.xml\"/>\n"))).what();
+    const std::string m3 = loadError(writeFile(dir / "uses-broken.xml", test::mitsubaSceneText("    <include filename=\"broken.xml\"/>\n"))).what();
     EXPECT_TRUE(contains(m3, (dir / "broken.xml").string() + ":2:")) << m3;
     EXPECT_TRUE(contains(m3, "bsdf 'velvet'")) << m3;
 }
@@ -334,7 +318,7 @@ TEST(SceneXml, IncludeChainsAreBounded) {
         const std::string next = i + 1 < files ? "    <include filename=\"part" + std::to_string(i + 1) + ".xml\"/>\n" : "";
         writeFile(dir / ("part" + std::to_string(i) + ".xml"), "<scene version=\"3.0.0\">\n" + next + "</scene>\n");
     }
-    const fs::path path = writeFile(dir / "scene.xml", sceneText("    <include filename=\"part0.xml\"/>\n"));
+    const fs::path path = writeFile(dir / "scene.xml", test::mitsubaSceneText("    <include filename=\"part0.xml\"/>\n"));
     const std::string message = loadError(path).what();
     EXPECT_TRUE(contains(message, (dir / "part31.xml").string() + ":2: includes nested more than 32 deep")) << message;
 }
@@ -342,21 +326,21 @@ TEST(SceneXml, IncludeChainsAreBounded) {
 TEST(SceneXml, PathElementsAddSearchDirectories) {
     const fs::path dir = scratchDir();
     writeFile(dir / "assets" / "geometry" / "quad.obj", kQuadObj);
-    const std::string text = sceneText(R"(    <path value="assets/geometry"/>
+    const std::string text = test::mitsubaSceneText(R"(    <path value="assets/geometry"/>
     <shape type="obj"><string name="filename" value="quad.obj"/></shape>
 )");
     const Scene scene = loadXmlScene(writeFile(dir / "scene.xml", text).string());
     ASSERT_EQ(scene.shapes.size(), 1u);
     EXPECT_NEAR(scene.shapes[0].area(), 4.0f, 1e-5f);
     // Without the path the file is not found.
-    const std::string without = sceneText("    <shape type=\"obj\"><string name=\"filename\" value=\"quad.obj\"/></shape>\n");
+    const std::string without = test::mitsubaSceneText("    <shape type=\"obj\"><string name=\"filename\" value=\"quad.obj\"/></shape>\n");
     const std::string message = expectErrorAt(dir, without, "quad.obj", "shape 'obj'", "without.xml");
     EXPECT_TRUE(contains(message, "file not found")) << message;
 }
 
 TEST(SceneXml, ReferencesShareObjectsAndMayPointForward) {
     const fs::path dir = scratchDir();
-    const std::string text = sceneText(R"(
+    const std::string text = test::mitsubaSceneText(R"(
     <shape type="rectangle"><ref id="glass"/><ref name="interior" id="fog"/><ref name="exterior" id="air"/></shape>
     <shape type="cube"><ref id="glass"/><ref id="light"/></shape>
     <shape type="disk"><bsdf type="twosided"><ref id="matte"/></bsdf><ref id="light"/></shape>
@@ -399,7 +383,7 @@ TEST(SceneXml, ReferencesShareObjectsAndMayPointForward) {
 
 Vec3 transformedRectangleCorner(const std::string& steps, const Vec3& corner) {
     const fs::path dir = scratchDir();
-    const std::string text = sceneText("    <shape type=\"rectangle\"><transform name=\"to_world\">" + steps +
+    const std::string text = test::mitsubaSceneText("    <shape type=\"rectangle\"><transform name=\"to_world\">" + steps +
                                        "</transform></shape>\n");
     const Scene scene = loadXmlScene(writeFile(dir / "t.xml", text).string());
     const auto& mesh = std::get<TriangleMesh>(scene.shapes[0].geometry);
@@ -546,7 +530,7 @@ TEST(SceneXml, ShapesAndNormals) {
     writeFile(dir / "tri.ply",
               "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
               "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n2 0 0\n0 2 0\n3 0 1 2\n");
-    const std::string text = sceneText(R"(
+    const std::string text = test::mitsubaSceneText(R"(
     <shape type="sphere"><point name="center" x="1" y="2" z="3"/><float name="radius" value="0.5"/>
         <transform name="to_world"><scale value="2"/><translate x="1"/></transform></shape>
     <shape type="sphere"><boolean name="flip_normals" value="true"/></shape>
@@ -587,7 +571,7 @@ TEST(SceneXml, ShapesAndNormals) {
     expectNear(diffuseAlbedo(scene, 0), Rgb(0.5f), 1e-6f);
 
     // A stretched sphere (an ellipsoid) cannot be represented.
-    const std::string stretched = sceneText(
+    const std::string stretched = test::mitsubaSceneText(
         "    <shape type=\"sphere\"><transform name=\"to_world\"><scale x=\"1\" y=\"2\" z=\"1\"/></transform></shape>\n");
     expectErrorAt(dir, stretched, "to_world", "shape 'sphere'", "stretched.xml");
 }
@@ -600,7 +584,7 @@ TEST(SceneXml, MaterialsAndTextures) {
     image.height = 2;
     image.rgb = {Rgb(1, 0, 0), Rgb(0, 0, 1)};
     writeExr((dir / "stripes.exr").string(), image, {});
-    const std::string text = sceneText(R"(
+    const std::string text = test::mitsubaSceneText(R"(
     <shape type="rectangle"><bsdf type="diffuse"><texture type="bitmap" name="reflectance">
         <string name="filename" value="stripes.exr"/></texture></bsdf></shape>
     <shape type="rectangle"><bsdf type="diffuse"><texture type="checkerboard" name="reflectance">
@@ -641,17 +625,17 @@ TEST(SceneXml, MaterialsAndTextures) {
     expectNear(diffuseAlbedo(scene, 9), Rgb(0.2158605f), 1e-4f, "sRGB 128 decoded");
 
     // Distributions other than Beckmann (the default) and GGX are errors.
-    const std::string phong = sceneText(
+    const std::string phong = test::mitsubaSceneText(
         "    <bsdf type=\"roughconductor\" id=\"p\">\n        <string name=\"distribution\" value=\"phong\"/>\n    </bsdf>\n");
     expectErrorAt(dir, phong, "phong", "bsdf 'roughconductor'", "phong.xml");
-    const std::string aniso = sceneText(
+    const std::string aniso = test::mitsubaSceneText(
         "    <bsdf type=\"roughconductor\" id=\"p\">\n        <float name=\"alpha_u\" value=\"0.1\"/>\n"
         "        <float name=\"alpha_v\" value=\"0.3\"/>\n    </bsdf>\n");
     expectErrorAt(dir, aniso, "alpha_v", "bsdf 'roughconductor'", "aniso.xml");
-    const std::string bright = sceneText(
+    const std::string bright = test::mitsubaSceneText(
         "    <bsdf type=\"diffuse\" id=\"d\">\n        <rgb name=\"reflectance\" value=\"1.5, 0, 0\"/>\n    </bsdf>\n");
     expectErrorAt(dir, bright, "1.5, 0, 0", "bsdf 'diffuse'", "bright.xml");
-    const std::string unknownIor = sceneText(
+    const std::string unknownIor = test::mitsubaSceneText(
         "    <bsdf type=\"dielectric\" id=\"d\">\n        <string name=\"int_ior\" value=\"unobtainium\"/>\n    </bsdf>\n");
     expectErrorAt(dir, unknownIor, "unobtainium", "bsdf 'dielectric'", "ior.xml");
 }
@@ -660,7 +644,7 @@ TEST(SceneXml, MaterialsAndTextures) {
 // Mitsuba; roughplastic reads Mitsuba's parameters and defaults.
 TEST(SceneXml, RoughBsdfsTakeTheirDistribution) {
     const fs::path dir = scratchDir();
-    const std::string text = sceneText(R"(    <bsdf type="roughconductor" id="default"><string name="material" value="Au"/>
+    const std::string text = test::mitsubaSceneText(R"(    <bsdf type="roughconductor" id="default"><string name="material" value="Au"/>
         <float name="alpha" value="0.3"/></bsdf>
     <bsdf type="roughconductor" id="ggx"><string name="material" value="Au"/>
         <float name="alpha" value="0.3"/><string name="distribution" value="ggx"/></bsdf>
@@ -705,10 +689,10 @@ TEST(SceneXml, RoughBsdfsTakeTheirDistribution) {
         EXPECT_NE(loaded, value(*cases[i].other, cases[i].to)) << "shape " << i;
     }
 
-    const std::string unknown = sceneText(
+    const std::string unknown = test::mitsubaSceneText(
         "    <bsdf type=\"roughplastic\" id=\"p\">\n        <string name=\"distribution\" value=\"blinn\"/>\n    </bsdf>\n");
     expectErrorAt(dir, unknown, "blinn", "bsdf 'roughplastic'", "blinn.xml");
-    const std::string rough = sceneText(
+    const std::string rough = test::mitsubaSceneText(
         "    <bsdf type=\"roughplastic\" id=\"p\">\n        <float name=\"alpha\" value=\"-2\"/>\n    </bsdf>\n");
     expectErrorAt(dir, rough, "roughplastic", "alpha", "alpha.xml");
 }
@@ -806,7 +790,7 @@ TEST(SceneXml, Mitsuba06NamesAndDefaults) {
     ASSERT_TRUE(g.has_value());
     EXPECT_NEAR(g->pdf, sqr(0.6f / 2.6f), 1e-4f);
     // Mitsuba 3's conductor is a perfect mirror by default.
-    const std::string v3 = sceneText("    <bsdf type=\"conductor\" id=\"m\"/>\n    <shape type=\"rectangle\"><ref id=\"m\"/></shape>\n");
+    const std::string v3 = test::mitsubaSceneText("    <bsdf type=\"conductor\" id=\"m\"/>\n    <shape type=\"rectangle\"><ref id=\"m\"/></shape>\n");
     const Scene mirror = loadXmlScene(writeFile(dir / "new.xml", v3).string());
     const auto m = mirror.bsdfs[0]->sample(Vec3(0, 0, 1), Vec2(0.5f), 0.5f, Vec2(0.5f), TransportMode::Radiance);
     ASSERT_TRUE(m.has_value());
@@ -819,11 +803,11 @@ TEST(SceneXml, ErrorsNameFileLineAndPlugin) {
     const fs::path dir = scratchDir();
     writeFile(dir / "quad.obj", kQuadObj);
     // Unknown plugin type.
-    expectErrorAt(dir, sceneText("    <bsdf type=\"hair\" id=\"m\"/>\n"), "hair", "bsdf 'hair'", "plugin.xml");
-    expectErrorAt(dir, sceneText("    <shape type=\"serialized\"/>\n"), "serialized", "shape 'serialized'", "plugin2.xml");
-    expectErrorAt(dir, sceneText("    <emitter type=\"sunsky\"/>\n"), "sunsky", "emitter 'sunsky'", "plugin3.xml");
+    expectErrorAt(dir, test::mitsubaSceneText("    <bsdf type=\"hair\" id=\"m\"/>\n"), "hair", "bsdf 'hair'", "plugin.xml");
+    expectErrorAt(dir, test::mitsubaSceneText("    <shape type=\"serialized\"/>\n"), "serialized", "shape 'serialized'", "plugin2.xml");
+    expectErrorAt(dir, test::mitsubaSceneText("    <emitter type=\"sunsky\"/>\n"), "sunsky", "emitter 'sunsky'", "plugin3.xml");
     // Unknown parameter of a supported plugin, reported at the parameter's own line.
-    const std::string unknown = sceneText(
+    const std::string unknown = test::mitsubaSceneText(
         "    <bsdf type=\"diffuse\" id=\"d\">\n        <float name=\"roughness\" value=\"0.1\"/>\n    </bsdf>\n");
     const std::string m1 = expectErrorAt(dir, unknown, "roughness", "bsdf 'diffuse'", "param.xml");
     EXPECT_TRUE(contains(m1, "unknown parameter 'roughness'")) << m1;
@@ -833,46 +817,46 @@ TEST(SceneXml, ErrorsNameFileLineAndPlugin) {
                                   "        <float name=\"fov\" value=\"4o\"/>\n    </sensor>\n</scene>\n";
     const std::string m2 = expectErrorAt(dir, malformed, "4o", "sensor 'perspective'", "number.xml");
     EXPECT_TRUE(contains(m2, "'4o' is not a number")) << m2;
-    expectErrorAt(dir, sceneText("    <shape type=\"rectangle\">\n        <transform name=\"to_world\"><translate x=\"1e\"/></transform>\n    </shape>\n"),
+    expectErrorAt(dir, test::mitsubaSceneText("    <shape type=\"rectangle\">\n        <transform name=\"to_world\"><translate x=\"1e\"/></transform>\n    </shape>\n"),
                   "1e", "shape 'rectangle'", "number2.xml");
-    expectErrorAt(dir, sceneText("    <shape type=\"rectangle\">\n        <bsdf type=\"diffuse\"><rgb name=\"reflectance\" value=\"0.1, 0.2\"/></bsdf>\n    </shape>\n"),
+    expectErrorAt(dir, test::mitsubaSceneText("    <shape type=\"rectangle\">\n        <bsdf type=\"diffuse\"><rgb name=\"reflectance\" value=\"0.1, 0.2\"/></bsdf>\n    </shape>\n"),
                   "0.1, 0.2", "bsdf 'diffuse'", "number3.xml");
-    expectErrorAt(dir, sceneText("    <shape type=\"rectangle\">\n        <boolean name=\"flip_normals\" value=\"yes\"/>\n    </shape>\n"),
+    expectErrorAt(dir, test::mitsubaSceneText("    <shape type=\"rectangle\">\n        <boolean name=\"flip_normals\" value=\"yes\"/>\n    </shape>\n"),
                   "yes", "shape 'rectangle'", "bool.xml");
     // Missing file.
     const std::string m3 = expectErrorAt(
-        dir, sceneText("    <shape type=\"obj\">\n        <string name=\"filename\" value=\"nosuch.obj\"/>\n    </shape>\n"),
+        dir, test::mitsubaSceneText("    <shape type=\"obj\">\n        <string name=\"filename\" value=\"nosuch.obj\"/>\n    </shape>\n"),
         "nosuch.obj", "shape 'obj'", "file.xml");
     EXPECT_TRUE(contains(m3, "nosuch.obj")) << m3;
     // Missing ref id.
     const std::string m4 = expectErrorAt(
-        dir, sceneText("    <shape type=\"rectangle\">\n        <ref id=\"nosuch\"/>\n    </shape>\n"), "nosuch",
+        dir, test::mitsubaSceneText("    <shape type=\"rectangle\">\n        <ref id=\"nosuch\"/>\n    </shape>\n"), "nosuch",
         "shape 'rectangle'", "ref.xml");
     EXPECT_TRUE(contains(m4, "unknown id 'nosuch'")) << m4;
     // A reference to the wrong kind of object.
-    expectErrorAt(dir, sceneText("    <texture type=\"checkerboard\" id=\"t\"/>\n    <shape type=\"rectangle\">\n"
+    expectErrorAt(dir, test::mitsubaSceneText("    <texture type=\"checkerboard\" id=\"t\"/>\n    <shape type=\"rectangle\">\n"
                                  "        <ref id=\"t\"/>\n    </shape>\n"),
                   "<ref id=\"t\"/>", "shape 'rectangle'", "kind.xml");
     // Objects that reach themselves through references.
-    const std::string cycle = sceneText("    <bsdf type=\"twosided\" id=\"a\"><ref id=\"b\"/></bsdf>\n"
+    const std::string cycle = test::mitsubaSceneText("    <bsdf type=\"twosided\" id=\"a\"><ref id=\"b\"/></bsdf>\n"
                                         "    <bsdf type=\"twosided\" id=\"b\"><ref id=\"a\"/></bsdf>\n");
     expectErrorAt(dir, cycle, "id=\"a\"", "bsdf 'twosided'", "cycle.xml");
     // Misspelt attribute, unknown element, XML syntax, duplicate id, missing or old version.
-    expectErrorAt(dir, sceneText("    <shape type=\"rectangle\">\n        <float nam=\"x\" value=\"1\"/>\n    </shape>\n"),
+    expectErrorAt(dir, test::mitsubaSceneText("    <shape type=\"rectangle\">\n        <float nam=\"x\" value=\"1\"/>\n    </shape>\n"),
                   "nam=", "shape 'rectangle'", "attr.xml");
-    expectErrorAt(dir, sceneText("    <shape type=\"rectangle\">\n        <animation/>\n    </shape>\n"), "animation",
+    expectErrorAt(dir, test::mitsubaSceneText("    <shape type=\"rectangle\">\n        <animation/>\n    </shape>\n"), "animation",
                   "shape 'rectangle'", "element.xml");
-    const std::string syntax = sceneText("    <shape type=\"rectangle\">\n    </shap>\n");
+    const std::string syntax = test::mitsubaSceneText("    <shape type=\"rectangle\">\n    </shap>\n");
     const fs::path syntaxPath = writeFile(dir / "syntax.xml", syntax);
     const std::string m5 = loadError(syntaxPath).what();
     EXPECT_TRUE(contains(m5, syntaxPath.string() + ":" + std::to_string(lineOf(syntax, "</shap>")) + ":")) << m5;
-    const std::string twice = sceneText("    <bsdf type=\"null\" id=\"x\"/>\n    <bsdf type=\"null\" id=\"x\"/>\n");
+    const std::string twice = test::mitsubaSceneText("    <bsdf type=\"null\" id=\"x\"/>\n    <bsdf type=\"null\" id=\"x\"/>\n");
     const fs::path twicePath = writeFile(dir / "twice.xml", twice);
     EXPECT_TRUE(contains(loadError(twicePath).what(), twicePath.string() + ":7:")) << loadError(twicePath).what();
     EXPECT_TRUE(contains(loadError(writeFile(dir / "nover.xml", "<scene>\n</scene>\n")).what(), "version"));
     EXPECT_TRUE(contains(loadError(writeFile(dir / "v4.xml", "<scene version=\"0.4.0\">\n</scene>\n")).what(), "0.4.0"));
     // Parameters fluxgraph cannot honour are errors, not silently dropped.
-    expectErrorAt(dir, sceneText("    <bsdf type=\"plastic\" id=\"p\">\n        <rgb name=\"specular_reflectance\" value=\"0.5\"/>\n    </bsdf>\n"),
+    expectErrorAt(dir, test::mitsubaSceneText("    <bsdf type=\"plastic\" id=\"p\">\n        <rgb name=\"specular_reflectance\" value=\"0.5\"/>\n    </bsdf>\n"),
                   "specular_reflectance", "bsdf 'plastic'", "unsupported.xml");
     expectErrorAt(dir, "<scene version=\"3.0.0\">\n    <sensor type=\"thinlens\"/>\n</scene>\n", "thinlens",
                   "sensor 'thinlens'", "sensor.xml");
@@ -941,7 +925,7 @@ namespace {
 // its file:line and plugin; a broken shared object is reported once.
 TEST(SceneXml, ReportsEveryProblemAtOnce) {
     const fs::path dir = scratchDir();
-    const std::string text = sceneText(R"(    <bsdf type="diffuse" id="shared"><float name="roughness" value="1"/></bsdf>
+    const std::string text = test::mitsubaSceneText(R"(    <bsdf type="diffuse" id="shared"><float name="roughness" value="1"/></bsdf>
     <shape type="sphere"><ref id="shared"/></shape>
     <shape type="sphere"><ref id="shared"/></shape>
     <shape type="hyperboloid"/>
@@ -966,7 +950,7 @@ TEST(SceneXml, ReportsEveryProblemAtOnce) {
 // One problem keeps the single-error form (file and line of the element).
 TEST(SceneXml, OneProblemIsOneError) {
     const fs::path dir = scratchDir();
-    const std::string text = sceneText("    <shape type=\"hyperboloid\"/>\n");
+    const std::string text = test::mitsubaSceneText("    <shape type=\"hyperboloid\"/>\n");
     const fs::path path = writeFile(dir / "scene.xml", text);
     const InputError error = loadError(path);
     EXPECT_TRUE(error.problems().empty());
@@ -978,7 +962,7 @@ TEST(SceneXml, ProblemReportIsCapped) {
     const fs::path dir = scratchDir();
     std::string body;
     for (int i = 0; i < 80; ++i) body += "    <shape type=\"hyperboloid" + std::to_string(i) + "\"/>\n";
-    const fs::path path = writeFile(dir / "scene.xml", sceneText(body));
+    const fs::path path = writeFile(dir / "scene.xml", test::mitsubaSceneText(body));
     const InputError error = loadError(path);
     ASSERT_EQ(error.problems().size(), 51u);
     EXPECT_TRUE(contains(error.problems().back(), "stopped after 50 problems")) << error.problems().back();

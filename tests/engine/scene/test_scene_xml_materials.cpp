@@ -9,6 +9,7 @@
 #include "engine/shading/bsdf.h"
 #include "tests/support/render_helpers.h"
 #include "tests/support/cli_helpers.h"
+#include "tests/support/scene_text.h"
 
 #include <gtest/gtest.h>
 
@@ -23,27 +24,13 @@ namespace fg {
 namespace {
 
 namespace fs = std::filesystem;
+using test::lineOf;
 
 fs::path scratchDir() { return test::scratchDirectory("scene_xml_materials"); }
 
 fs::path writeFile(const fs::path& path, const std::string& text) {
     test::writeText(path, text);
     return path;
-}
-
-std::string sceneText(const std::string& body) {
-    return "<scene version=\"3.0.0\">\n"
-           "    <sensor type=\"perspective\">\n"
-           "        <float name=\"fov\" value=\"45\"/>\n"
-           "        <film type=\"hdrfilm\"><integer name=\"width\" value=\"32\"/><integer name=\"height\" value=\"32\"/></film>\n"
-           "    </sensor>\n" +
-           body + "</scene>\n";
-}
-
-int lineOf(const std::string& text, const std::string& marker) {
-    const auto pos = text.find(marker);
-    EXPECT_NE(pos, std::string::npos) << marker;
-    return 1 + static_cast<int>(std::count(text.begin(), text.begin() + static_cast<std::ptrdiff_t>(pos), '\n'));
 }
 
 // Loads `text` expecting an InputError on the line of `marker` that names `plugin`; returns the message.
@@ -98,7 +85,7 @@ std::string bitmapShape(const std::string& wrap, const std::string& filter) {
 TEST(SceneXmlMaterials, BitmapToUvRotatesAndOffsetsBeforeWrapping) {
     const fs::path dir = scratchDir();
     writeTexels(dir / "texels.exr");
-    const Scene scene = loadXmlScene(writeFile(dir / "scene.xml", sceneText(bitmapShape("repeat", "nearest") +
+    const Scene scene = loadXmlScene(writeFile(dir / "scene.xml", test::mitsubaSceneText(bitmapShape("repeat", "nearest") +
                                                                               bitmapShape("mirror", "nearest") +
                                                                               bitmapShape("clamp", "nearest") +
                                                                               bitmapShape("clamp", "bilinear")))
@@ -134,13 +121,13 @@ TEST(SceneXmlMaterials, LegacyOffsetsAndBadTextureOptions) {
     // u' = 2 u + 0.25: u = 0.2 -> 0.65 -> column 2; v = 0.8 -> row 1 from the top.
     expectNear(diffuseAlbedo(scene, 0, Vec2(0.2f, 0.8f)), texelColour(2, 1), 1e-6f, "uscale and uoffset");
 
-    const std::string wrap = sceneText(
+    const std::string wrap = test::mitsubaSceneText(
         "    <texture type=\"bitmap\" id=\"t\">\n        <string name=\"filename\" value=\"texels.exr\"/>\n"
         "        <string name=\"wrap_mode\" value=\"zero\"/>\n    </texture>\n"
         "    <shape type=\"rectangle\"><bsdf type=\"diffuse\"><ref name=\"reflectance\" id=\"t\"/></bsdf></shape>\n");
     const std::string m1 = expectErrorAt(dir, wrap, "zero", "texture 'bitmap'", "wrap.xml");
     EXPECT_NE(m1.find("repeat, mirror, clamp"), std::string::npos) << m1;
-    const std::string singular = sceneText(
+    const std::string singular = test::mitsubaSceneText(
         "    <texture type=\"checkerboard\" id=\"t\">\n"
         "        <transform name=\"to_uv\"><matrix value=\"1 0 0 0  2 0 1 0  0 1 0 0  0 0 0 1\"/></transform>\n"
         "    </texture>\n"
@@ -152,7 +139,7 @@ TEST(SceneXmlMaterials, LegacyOffsetsAndBadTextureOptions) {
 
 TEST(SceneXmlMaterials, SpecularParametersTakeTextures) {
     const fs::path dir = scratchDir();
-    const std::string text = sceneText(R"(
+    const std::string text = test::mitsubaSceneText(R"(
     <shape type="rectangle"><bsdf type="roughconductor"><float name="alpha" value="0.1"/>
         <string name="distribution" value="ggx"/>
         <texture name="specular_reflectance" type="checkerboard">
@@ -196,7 +183,7 @@ TEST(SceneXmlMaterials, EveryNamedConductorLoads) {
     for (std::string_view name : names)
         body += "    <shape type=\"rectangle\"><bsdf type=\"conductor\"><string name=\"material\" value=\"" +
                 std::string(name) + "\"/></bsdf></shape>\n";
-    const Scene scene = loadXmlScene(writeFile(dir / "scene.xml", sceneText(body)).string());
+    const Scene scene = loadXmlScene(writeFile(dir / "scene.xml", test::mitsubaSceneText(body)).string());
     ASSERT_EQ(scene.shapes.size(), names.size());
     for (std::size_t i = 0; i < names.size(); ++i) {
         const ConductorIor ior = *conductorPreset(names[i]);
@@ -204,7 +191,7 @@ TEST(SceneXmlMaterials, EveryNamedConductorLoads) {
         ASSERT_TRUE(s) << names[i];
         expectNear(s->weight, fresnelConductor(1.0f, ior.eta, ior.k), 1e-6f, std::string(names[i]));
     }
-    const std::string unknown = sceneText(
+    const std::string unknown = test::mitsubaSceneText(
         "    <bsdf type=\"conductor\" id=\"c\">\n        <string name=\"material\" value=\"Unobtainium\"/>\n    </bsdf>\n");
     const std::string message = expectErrorAt(dir, unknown, "Unobtainium", "bsdf 'conductor'", "unknown.xml");
     EXPECT_NE(message.find("Cu2O"), std::string::npos) << "the message lists the names: " << message;
@@ -246,7 +233,7 @@ TEST(SceneXmlMaterials, ConductorTableIsTheIntegratedSpectra) {
 
 TEST(SceneXmlMaterials, MaskBumpmapAndNormalmapWrapTheirMaterial) {
     const fs::path dir = scratchDir();
-    const std::string text = sceneText(R"(
+    const std::string text = test::mitsubaSceneText(R"(
     <shape type="rectangle"><bsdf type="mask"><float name="opacity" value="0.25"/>
         <bsdf type="diffuse"><rgb name="reflectance" value="0.6"/></bsdf></bsdf></shape>
     <shape type="rectangle"><bsdf type="mask">
@@ -288,9 +275,9 @@ TEST(SceneXmlMaterials, MaskBumpmapAndNormalmapWrapTheirMaterial) {
     // (1, 0, 0) lies in the surface; it is kept as given, on the geometric normal's side.
     expectNear(n, Vec3(1, 0, 0), 1e-6f, "normal map");
 
-    expectErrorAt(dir, sceneText("    <bsdf type=\"mask\" id=\"m\">\n        <float name=\"opacity\" value=\"0.5\"/>\n    </bsdf>\n"),
+    expectErrorAt(dir, test::mitsubaSceneText("    <bsdf type=\"mask\" id=\"m\">\n        <float name=\"opacity\" value=\"0.5\"/>\n    </bsdf>\n"),
                   "type=\"mask\"", "bsdf 'mask'", "nonested.xml");
-    const std::string twoTextures = sceneText(
+    const std::string twoTextures = test::mitsubaSceneText(
         "    <bsdf type=\"bumpmap\" id=\"b\">\n        <texture type=\"checkerboard\"/>\n"
         "        <texture type=\"checkerboard\"/>\n        <bsdf type=\"diffuse\"/>\n    </bsdf>\n");
     const fs::path path = writeFile(dir / "two.xml", twoTextures);
@@ -307,7 +294,7 @@ TEST(SceneXmlMaterials, MaskBumpmapAndNormalmapWrapTheirMaterial) {
 
 TEST(SceneXmlMaterials, PrincipledThinReadsTextures) {
     const fs::path dir = scratchDir();
-    const std::string text = sceneText(R"(
+    const std::string text = test::mitsubaSceneText(R"(
     <shape type="rectangle"><bsdf type="principledthin">
         <rgb name="base_color" value="0.6, 0.5, 0.4"/>
         <texture name="diff_trans" type="checkerboard">
@@ -330,14 +317,14 @@ TEST(SceneXmlMaterials, PrincipledThinReadsTextures) {
     expectNear(sheet.eval(wo, wo, odd, TransportMode::Radiance), 0.5f * flattened * lambert, 1e-6f,
                "halved reflection");
     const std::string unknown = expectErrorAt(
-        dir, sceneText("    <bsdf type=\"principledthin\" id=\"p\">\n        <float name=\"clearcoat\" value=\"0.5\"/>\n    </bsdf>\n"),
+        dir, test::mitsubaSceneText("    <bsdf type=\"principledthin\" id=\"p\">\n        <float name=\"clearcoat\" value=\"0.5\"/>\n    </bsdf>\n"),
         "clearcoat", "bsdf 'principledthin'", "thin_unknown.xml");
     EXPECT_NE(unknown.find("unknown parameter 'clearcoat'"), std::string::npos) << unknown;
 }
 
 TEST(SceneXmlMaterials, PrincipledReadsTexturesAndDefaults) {
     const fs::path dir = scratchDir();
-    const std::string text = sceneText(R"(
+    const std::string text = test::mitsubaSceneText(R"(
     <shape type="rectangle"><bsdf type="principled">
         <texture name="base_color" type="checkerboard">
             <rgb name="color0" value="0.8"/><rgb name="color1" value="0.2"/></texture>
@@ -386,12 +373,12 @@ TEST(SceneXmlMaterials, PrincipledReadsTexturesAndDefaults) {
 TEST(SceneXmlMaterials, PrincipledRejectsUnknownAndConflictingParameters) {
     const fs::path dir = scratchDir();
     const std::string unknown = expectErrorAt(
-        dir, sceneText("    <bsdf type=\"principled\" id=\"p\">\n        <float name=\"subsurface\" value=\"0.5\"/>\n    </bsdf>\n"),
+        dir, test::mitsubaSceneText("    <bsdf type=\"principled\" id=\"p\">\n        <float name=\"subsurface\" value=\"0.5\"/>\n    </bsdf>\n"),
         "subsurface", "bsdf 'principled'", "unknown.xml");
     EXPECT_NE(unknown.find("unknown parameter 'subsurface'"), std::string::npos) << unknown;
     EXPECT_NE(unknown.find("clearcoat_gloss"), std::string::npos) << unknown;
     const std::string both = expectErrorAt(
-        dir, sceneText("    <bsdf type=\"principled\" id=\"p\">\n        <float name=\"eta\" value=\"1.4\"/>\n"
+        dir, test::mitsubaSceneText("    <bsdf type=\"principled\" id=\"p\">\n        <float name=\"eta\" value=\"1.4\"/>\n"
                        "        <float name=\"specular\" value=\"0.3\"/>\n    </bsdf>\n"),
         "type=\"principled\"", "bsdf 'principled'", "both.xml");
     EXPECT_NE(both.find("either eta or specular"), std::string::npos) << both;

@@ -8,6 +8,7 @@
 #include "engine/core/error.h"
 #include "engine/shading/bsdf.h"
 #include "tests/support/cli_helpers.h"
+#include "tests/support/scene_text.h"
 
 #include <gtest/gtest.h>
 
@@ -19,26 +20,16 @@ namespace fg {
 namespace {
 
 namespace fs = std::filesystem;
+using test::lineOf;
+
+// An 8-pixel film without a fov: these tests only trace rays at known points.
+std::string sceneText(const std::string& body) { return test::mitsubaSceneText(body, {.filmSize = 8, .fov = std::nullopt}); }
 
 fs::path scratchDir() { return test::scratchDirectory("scene_xml_mesh_attributes"); }
 
 fs::path writeFile(const fs::path& path, const std::string& text) {
     test::writeText(path, text);
     return path;
-}
-
-std::string sceneText(const std::string& body) {
-    return "<scene version=\"3.0.0\">\n"
-           "    <sensor type=\"perspective\">\n"
-           "        <film type=\"hdrfilm\"><integer name=\"width\" value=\"8\"/><integer name=\"height\" value=\"8\"/></film>\n"
-           "    </sensor>\n" +
-           body + "</scene>\n";
-}
-
-int lineOf(const std::string& text, const std::string& marker) {
-    const auto pos = text.find(marker);
-    EXPECT_NE(pos, std::string::npos) << marker;
-    return 1 + static_cast<int>(std::count(text.begin(), text.begin() + static_cast<std::ptrdiff_t>(pos), '\n'));
 }
 
 // The unit square at z = 0 as two triangles, (0 1 2) and (0 2 3), with a
