@@ -165,6 +165,11 @@ float bdptPdf(const BdptScene& bs, const BdptVertex* prev, const BdptVertex& cur
     return 0.0f;
 }
 
+BdptSpecularPdfs bdptSpecularPdfs(const Vec3&, const Vec3&, float) {
+    // Both zero: remapZero makes them 1, the same Dirac factor on either side.
+    return {};
+}
+
 float bdptDistancePdf(const FreeFlightSegment& segment, const BdptVertex& start, const BdptVertex& end, bool towardsEnd) {
     if (start.infinite || end.infinite) return 1.0f;
     return towardsEnd ? segment.towardEnd(end.kind == BdptVertexKind::Medium)
