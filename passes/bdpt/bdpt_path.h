@@ -123,7 +123,10 @@ float bdptPdfLight(const BdptScene& bs, const BdptVertex& v, const BdptVertex& n
 
 // Solid-angle densities a specular (Dirac) scattering is given in the
 // weights: `forward` for the sampled direction wi, `reverse` for wo (both in
-// the shading frame; eta = IOR on wi's side / IOR on wo's side, BsdfSample::eta).
+// the shading frame; eta = IOR on wi's side / IOR on wo's side, BsdfSample::eta),
+// the coefficients of one common delta: the same value for a direction
+// whichever subpath crossed the vertex, as densities must be for their ratios
+// to be those of the strategies (Veach §10.2).
 struct BdptSpecularPdfs {
     float forward = 0.0f;
     float reverse = 0.0f;
