@@ -96,7 +96,11 @@ TEST_P(BdptDataScene, AgreesWithPathTracerPerBlock) {
 INSTANTIATE_TEST_SUITE_P(Data, BdptDataScene,
                          ::testing::Values(SceneCase{"cornell-box/cornell-box.xml", 64, 256},
                                            SceneCase{"medium-box/medium-box.toml", 64, 256},
-                                           SceneCase{"water-wave/water-wave.xml", 64, 256},
+                                           // pt at 256 spp misses the caustic through the water in
+                                           // some 4 x 4 blocks (flagged blocks had pt far below the
+                                           // reference, bdpt near it); per 8 x 8 block, none over
+                                           // eight seed pairs.
+                                           SceneCase{"water-wave/water-wave.xml", 64, 256, 8},
                                            // The ring caustic is heavy-tailed for both at these
                                            // sample counts: per 4 x 4 block, 3 to 12 of 192 block
                                            // channels fell beyond 3 sigma over eight seed pairs,
