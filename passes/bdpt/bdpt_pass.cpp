@@ -256,7 +256,9 @@ int randomWalk(const BdptScene& bs, Ray ray, Rgb beta, float pdfDirection, int m
         float pdfReverse = bsdf->pdf(chosen->wi, woLocal, sp.texturePoint());
         if (chosen->isSpecular()) {
             added.delta = true;
-            pdfForward = pdfReverse = 0.0f;
+            const BdptSpecularPdfs specular = bdptSpecularPdfs(woLocal, chosen->wi, chosen->eta);
+            pdfForward = specular.forward;
+            pdfReverse = specular.reverse;
         }
         path[count - 2].pdfRev = bdptConvertDensity(pdfReverse, added, path[count - 2]) * added.distancePdfRev;
         if (chosen->lobe & BsdfLobe::Transmission) {

@@ -121,6 +121,18 @@ float bdptPdfLightOrigin(const BdptScene& bs, const BdptVertex& v);
 // Density of `next` when a light subpath starts at light vertex `v` and leaves towards it.
 float bdptPdfLight(const BdptScene& bs, const BdptVertex& v, const BdptVertex& next);
 
+// Solid-angle densities a specular (Dirac) scattering is given in the
+// weights: `forward` for the sampled direction wi, `reverse` for wo (both in
+// the shading frame; eta = IOR on wi's side / IOR on wo's side, BsdfSample::eta),
+// the coefficients of one common delta: the same value for a direction
+// whichever subpath crossed the vertex, as densities must be for their ratios
+// to be those of the strategies (Veach §10.2).
+struct BdptSpecularPdfs {
+    float forward = 0.0f;
+    float reverse = 0.0f;
+};
+BdptSpecularPdfs bdptSpecularPdfs(const Vec3& woLocal, const Vec3& wiLocal, float eta);
+
 // Free-flight density of reaching `end` from `start` (towardsEnd) or `start`
 // from `end` along a segment whose media were walked from `start`.
 float bdptDistancePdf(const FreeFlightSegment& segment, const BdptVertex& start, const BdptVertex& end, bool towardsEnd);

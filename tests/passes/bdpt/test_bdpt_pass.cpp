@@ -17,6 +17,9 @@
 #include <array>
 #include <cmath>
 #include <cstdio>
+#include <map>
+#include <string>
+#include <vector>
 
 namespace fg {
 namespace {
@@ -226,6 +229,95 @@ TEST(BdptPass, MirrorCausticIsOnlyTheLightTracingStrategy) {
         for (float v : values) sum += v;
         if (name.starts_with("s3t1.")) EXPECT_NEAR(sum, name == "s3t1.G" ? measured : sum, 1e-3 * measured) << name;
         else EXPECT_EQ(sum, 0.0) << name;
+    }
+}
+
+// A pool: a camera under a flat water surface (IOR 1.33) looks straight down
+// at a diffuse floor lit by a disk lamp above the water. Light reaches the
+// floor only through the refraction, by two strategies: s0t4 (the floor's
+// BSDF-sampled ray refracts into the lamp) and s3t1 (light tracing). With
+// floor, surface, lamp and image plane all parallel, the ratio of their
+// densities is the same for every such path, eta^2 p(lamp point) / p(floor
+// point from the camera) (the closed form of test_bdpt_path.cpp's pool, checked
+// there against finite differences of Snell's law), so the power-heuristic
+// weights are constants and a weighted strategy image is its raw image times
+// that constant in every pixel, same seed: a check of the subpaths' own
+// densities through a real dielectric.
+TEST(BdptPass, PoolCausticWeightsAreTheDensityRatiosThroughTheRefraction) {
+    const float eta = 1.33f, cameraHeight = 0.85f, lampHeight = 4.0f, fov = 60.0f;
+    Scene scene;
+    Shape floor;
+    TriangleMesh plane = makeRectangleMesh();
+    plane.transform(glm::scale(Mat4(1.0f), Vec3(5.0f)));
+    floor.geometry = plane;
+    floor.bsdf = addDiffuse(scene, Rgb(0.8f));
+    scene.shapes.push_back(floor);
+    Shape water;
+    TriangleMesh surface = makeRectangleMesh();
+    surface.transform(glm::translate(Mat4(1.0f), Vec3(0, 0, 1.0f)) * glm::scale(Mat4(1.0f), Vec3(5.0f)));
+    water.geometry = surface;
+    scene.bsdfs.push_back(makeDielectric(eta));
+    water.bsdf = static_cast<int>(scene.bsdfs.size()) - 1;
+    scene.shapes.push_back(water);
+    Shape lamp;
+    TriangleMesh disk = makeDiskMesh(64);
+    disk.transform(glm::translate(Mat4(1.0f), Vec3(0, 0, lampHeight)) * glm::rotate(Mat4(1.0f), kPi, Vec3(1, 0, 0)) *
+                   glm::scale(Mat4(1.0f), Vec3(0.5f)));
+    lamp.geometry = disk;
+    lamp.bsdf = addDiffuse(scene, Rgb(0.0f));
+    lamp.areaLight = 0;
+    scene.lights.push_back(makeAreaLight(lamp, Rgb(20.0f)));
+    scene.lightShape.push_back(static_cast<int>(scene.shapes.size()));
+    scene.shapes.push_back(lamp);
+    scene.camera.eye = Vec3(0.0f, 0.0f, cameraHeight);
+    scene.camera.target = Vec3(0.0f);
+    scene.camera.up = Vec3(0, 1, 0);
+    scene.camera.fovYDegrees = fov;
+    scene.finalize();
+
+    const int w = 16, h = 16;
+    const auto render = [&](bool weighted) {
+        return renderBdptFilm(scene, {{"spp", std::int64_t{64}}, {"max_depth", std::int64_t{3}},
+                                      {"strategy_aovs", std::int64_t{3}}, {"strategy_weighted", weighted}},
+                              smallFilm(w, h), 5);
+    };
+    const Film weighted = render(true), raw = render(false);
+
+    const auto origin = scene.lights[0]->sampleEmission(Vec2(0.5f), Vec2(0.5f));
+    ASSERT_TRUE(origin);
+    const float tanHalf = std::tan(0.5f * fov * kPi / 180.0f);
+    const double imagePlaneArea = 4.0 * tanHalf * tanHalf;  // at unit distance, square image
+    // The camera's area density on a floor parallel to its image plane.
+    const double floorPdf = 1.0 / (imagePlaneArea * cameraHeight * cameraHeight);
+    const double ratio = static_cast<double>(eta) * eta * origin->pdfPosition / floorPdf;
+    const double lightWeight = ratio * ratio / (1.0 + ratio * ratio);
+    const std::map<std::string, double> expected = {{"s0t4.G", 1.0 - lightWeight}, {"s3t1.G", lightWeight}};
+
+    const auto channel = [](const Film& film, const std::string& name) -> const std::vector<float>& {
+        for (const auto& [n, values] : film.aovs())
+            if (n == name) return values;
+        ADD_FAILURE() << "no AOV " << name;
+        static const std::vector<float> none;
+        return none;
+    };
+    for (const auto& [name, weight] : expected) {
+        const std::vector<float>& a = channel(weighted, name);
+        const std::vector<float>& b = channel(raw, name);
+        ASSERT_EQ(a.size(), b.size());
+        int lit = 0;
+        for (std::size_t i = 0; i < a.size(); ++i) {
+            if (!(b[i] > 0.0f)) continue;
+            ++lit;
+            EXPECT_NEAR(a[i] / b[i], weight, 1e-4 + 1e-4 * weight) << name << " pixel " << i << ", density ratio " << ratio;
+        }
+        EXPECT_GT(lit, w * h / 4) << name << ": " << lit << " pixels lit";
+    }
+    // The other strategies of up to three segments see nothing.
+    for (const auto& [name, values] : weighted.aovs()) {
+        if (name.starts_with("s0t4.") || name.starts_with("s3t1.")) continue;
+        double sum = 0.0;
+        for (float v : values) sum += v;
+        EXPECT_EQ(sum, 0.0) << name;
     }
 }
 

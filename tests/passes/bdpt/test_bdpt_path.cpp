@@ -241,5 +241,231 @@ TEST(BdptMis, WeightsOfAllStrategiesSumToOne) {
     EXPECT_GT(inDense, 50);
 }
 
+// A pool: a diffuse floor at y = 0 under a flat water surface at y = 1
+// (IOR 1.33 below, normals up), a downward-facing disk lamp at y = 4 and a
+// camera under the water looking down. Light reaches the floor only through
+// the refraction, so a path camera -> floor -> surface -> lamp is made by two
+// strategies alone: s = 0 (the camera path's ray from the floor refracts into
+// the lamp) and t = 1 (the light path refracts onto the floor, which is
+// connected to the camera); the refracting vertex is no connection's end.
+struct PoolScene {
+    Scene scene;
+    static constexpr int kFloor = 0, kSurface = 1, kLamp = 2;
+    static constexpr float kEta = 1.33f;
+    static constexpr float kLampHeight = 4.0f, kLampRadius = 1.0f;
+
+    PoolScene() {
+        scene.bsdfs.push_back(makeDiffuse(makeConstantTexture(Rgb(0.8f))));
+        scene.bsdfs.push_back(makeDielectric(kEta));
+        const Mat4 faceUp = glm::rotate(Mat4(1.0f), -kPi / 2.0f, Vec3(1, 0, 0));
+        Shape floor;
+        TriangleMesh floorMesh = makeRectangleMesh();
+        floorMesh.transform(glm::scale(Mat4(1.0f), Vec3(3.0f)) * faceUp);
+        floor.geometry = floorMesh;
+        floor.bsdf = 0;
+        scene.shapes.push_back(floor);
+        Shape surface;
+        TriangleMesh surfaceMesh = makeRectangleMesh();
+        surfaceMesh.transform(glm::translate(Mat4(1.0f), Vec3(0.0f, 1.0f, 0.0f)) * glm::scale(Mat4(1.0f), Vec3(3.0f)) * faceUp);
+        surface.geometry = surfaceMesh;
+        surface.bsdf = 1;
+        scene.shapes.push_back(surface);
+        Shape lamp;
+        TriangleMesh lampMesh = makeDiskMesh(64);
+        lampMesh.transform(glm::translate(Mat4(1.0f), Vec3(0.0f, kLampHeight, 0.0f)) *
+                           glm::rotate(Mat4(1.0f), kPi / 2.0f, Vec3(1, 0, 0)) * glm::scale(Mat4(1.0f), Vec3(kLampRadius)));
+        lamp.geometry = lampMesh;
+        lamp.bsdf = 0;
+        lamp.areaLight = 0;
+        scene.lights.push_back(makeAreaLight(lamp, Rgb(10.0f)));
+        scene.lightShape.push_back(kLamp);
+        scene.shapes.push_back(lamp);
+        scene.camera.eye = Vec3(0.0f, 0.85f, 0.0f);
+        // Tilted, so that the camera's area density, and with it the best weights, vary over the floor.
+        scene.camera.target = Vec3(0.5f, 0.0f, 0.0f);
+        scene.camera.up = Vec3(0.0f, 0.0f, -1.0f);
+        scene.camera.fovYDegrees = 90.0f;
+        scene.camera.width = scene.camera.height = 64;
+        scene.finalize();
+    }
+};
+
+BdptVertex poolVertex(const Vec3& p, int shape, const Vec3& normal) {
+    BdptVertex v;
+    v.kind = BdptVertexKind::Surface;
+    v.p = p;
+    v.ng = v.ns = normal;
+    v.shape = static_cast<std::uint32_t>(shape);
+    return v;
+}
+
+// Where a ray from the floor point x1 up through the surface point x2 meets
+// the lamp's plane, by Snell's law in double precision (independent of the BSDF code).
+glm::dvec3 refractToLampPlane(const glm::dvec3& x1, const glm::dvec3& x2) {
+    const glm::dvec3 d = glm::normalize(x2 - x1);
+    const glm::dvec3 n(0.0, 1.0, 0.0);
+    const double r = static_cast<double>(PoolScene::kEta);  // water over air
+    const double c = glm::dot(d, n);
+    const glm::dvec3 up = r * d + (std::sqrt(1.0 - r * r * (1.0 - c * c)) - r * c) * n;
+    return x2 + ((static_cast<double>(PoolScene::kLampHeight) - x2.y) / up.y) * up;
+}
+
+// One path x0 (camera) .. x3 (lamp) through the surface, as both subpaths store it.
+struct PoolPath {
+    std::vector<BdptVertex> camera;  // z0 camera, z1 floor, z2 surface (specular), z3 lamp
+    std::vector<BdptVertex> light;   // y0 lamp, y1 surface (specular), y2 floor
+};
+
+// Traces the path backwards from a lamp point through a surface point with
+// the dielectric's own refraction; false when the floor point is outside the image.
+bool makePoolPath(const PoolScene& ps, const BdptScene& bs, const Vec3& x3, const Vec3& x2, PoolPath& path) {
+    const Bsdf& water = *ps.scene.bsdfs[PoolScene::kSurface];
+    const Frame frame(Vec3(0.0f, 1.0f, 0.0f));
+    const Vec3 toLamp = glm::normalize(x3 - x2);
+    // Transmission: a lobe sample beyond the Fresnel reflectance.
+    const auto down = water.sample(frame.toLocal(toLamp), TexturePoint{Vec2(0.0f)}, 0.9999f, Vec2(0.5f), TransportMode::Importance);
+    if (!down || !(down->lobe & BsdfLobe::Transmission)) return false;
+    const Vec3 toFloor = frame.toWorld(down->wi);
+    const Vec3 x1 = x2 + (-x2.y / toFloor.y) * toFloor;
+    const Vec3 eye = ps.scene.camera.eye;
+    if (!(bs.cameraDirectionPdf(glm::normalize(x1 - eye)) > 0.0f)) return false;
+
+    const Vec3 up(0.0f, 1.0f, 0.0f), lampNormal(0.0f, -1.0f, 0.0f);
+    std::vector<BdptVertex>& z = path.camera;
+    z.assign(4, BdptVertex());
+    z[0].kind = BdptVertexKind::Camera;
+    z[0].p = eye;
+    z[1] = poolVertex(x1, PoolScene::kFloor, up);
+    z[2] = poolVertex(x2, PoolScene::kSurface, up);
+    z[3] = poolVertex(x3, PoolScene::kLamp, lampNormal);
+    z[3].light = 0;
+    for (std::size_t i = 1; i < 4; ++i) z[i].wo = bdptDirection(z[i], z[i - 1]);
+    z[2].delta = true;
+    const auto up2 = water.sample(frame.toLocal(z[2].wo), TexturePoint{Vec2(0.0f)}, 0.9999f, Vec2(0.5f), TransportMode::Radiance);
+    if (!up2 || glm::length(frame.toWorld(up2->wi) - toLamp) > 1e-4f) return false;
+    const BdptSpecularPdfs cameraSpecular = bdptSpecularPdfs(frame.toLocal(z[2].wo), up2->wi, up2->eta);
+    z[0].pdfFwd = 1.0f;
+    z[1].pdfFwd = bdptPdf(bs, nullptr, z[0], z[1]);
+    z[2].pdfFwd = bdptPdf(bs, &z[0], z[1], z[2]);
+    z[3].pdfFwd = bdptConvertDensity(cameraSpecular.forward, z[2], z[3]);
+    z[0].pdfRev = bdptPdf(bs, &z[2], z[1], z[0]);
+    z[1].pdfRev = bdptConvertDensity(cameraSpecular.reverse, z[2], z[1]);
+    z[2].pdfRev = z[3].pdfRev = -1.0f;  // the weight sets them
+
+    std::vector<BdptVertex>& y = path.light;
+    y.assign(3, BdptVertex());
+    y[0].kind = BdptVertexKind::Light;
+    y[0].p = x3;
+    y[0].ng = lampNormal;
+    y[0].light = 0;
+    y[1] = poolVertex(x2, PoolScene::kSurface, up);
+    y[2] = poolVertex(x1, PoolScene::kFloor, up);
+    for (std::size_t i = 1; i < 3; ++i) y[i].wo = bdptDirection(y[i], y[i - 1]);
+    y[1].delta = true;
+    const BdptSpecularPdfs lightSpecular = bdptSpecularPdfs(frame.toLocal(toLamp), down->wi, down->eta);
+    y[0].pdfFwd = bdptPdfLightOrigin(bs, y[0]);
+    y[1].pdfFwd = bdptPdf(bs, nullptr, y[0], y[1]);
+    y[2].pdfFwd = bdptConvertDensity(lightSpecular.forward, y[1], y[2]);
+    y[0].pdfRev = bdptConvertDensity(lightSpecular.reverse, y[1], y[0]);
+    y[1].pdfRev = y[2].pdfRev = -1.0f;
+    return true;
+}
+
+// Densities of the two strategies in one measure, dA(x1) dA(x2) (x3 follows
+// from them by the refraction): the camera path samples x1 and x2; the light
+// path samples x3 and x2, its density carried over to x1 by the Jacobian
+// |dA(x3) / dA(x1)| at fixed x2, by central differences of Snell's law.
+struct StrategyDensities {
+    double camera = 0.0;  // s = 0, t = 4
+    double light = 0.0;   // s = 3, t = 1
+};
+
+StrategyDensities poolDensities(const PoolPath& path) {
+    const glm::dvec3 x1(path.camera[1].p), x2(path.camera[2].p);
+    const double h = 1e-4;
+    const auto lampAt = [&](double dx, double dz) { return refractToLampPlane(x1 + glm::dvec3(dx, 0.0, dz), x2); };
+    const glm::dvec3 ddx = (lampAt(h, 0.0) - lampAt(-h, 0.0)) / (2.0 * h);
+    const glm::dvec3 ddz = (lampAt(0.0, h) - lampAt(0.0, -h)) / (2.0 * h);
+    const double jacobian = std::abs(ddx.x * ddz.z - ddx.z * ddz.x);  // both planes horizontal
+    StrategyDensities d;
+    d.camera = static_cast<double>(path.camera[1].pdfFwd) * path.camera[2].pdfFwd;
+    d.light = static_cast<double>(path.light[0].pdfFwd) * path.light[1].pdfFwd * jacobian;
+    return d;
+}
+
+// Random lamp and surface points whose refracted path lands on the floor in view.
+template <typename Check>
+int forPoolPaths(const PoolScene& ps, const BdptScene& bs, Check check) {
+    jobs::Rng rng(11, 13, 17);
+    int checked = 0;
+    for (int trial = 0; trial < 200; ++trial) {
+        const Vec2 u = rng.uniform2();
+        const float radius = PoolScene::kLampRadius * std::sqrt(u.x), phi = 2.0f * kPi * u.y;
+        const Vec3 x3(radius * std::cos(phi), PoolScene::kLampHeight, radius * std::sin(phi));
+        const Vec2 v = rng.uniform2();
+        const Vec3 x2(1.6f * (v.x - 0.5f), 1.0f, 1.6f * (v.y - 0.5f));
+        PoolPath path;
+        if (!makePoolPath(ps, bs, x3, x2, path)) continue;
+        ++checked;
+        check(path, trial);
+    }
+    return checked;
+}
+
+// The densities of a vertex from the side that did not sample it, as the
+// other subpath stores them, must be the densities that subpath samples it
+// with: across the refraction they hold the Dirac factor of opposite
+// directions, which must be the same factor for the weights to compare like with like.
+TEST(BdptMis, SpecularReverseDensitiesMatchTheOtherSubpath) {
+    PoolScene ps;
+    const RayQuery rays(ps.scene);
+    const BdptScene bs(ps.scene, rays, ps.scene.camera);
+    const int checked = forPoolPaths(ps, bs, [](const PoolPath& path, int trial) {
+        // The floor point, sampled by the light path through the refraction.
+        EXPECT_NEAR(path.camera[1].pdfRev, path.light[2].pdfFwd, 1e-4f * path.light[2].pdfFwd) << "trial " << trial;
+        // The lamp point, sampled by the camera path through the refraction.
+        EXPECT_NEAR(path.camera[3].pdfFwd, path.light[0].pdfRev, 1e-4f * path.light[0].pdfRev) << "trial " << trial;
+        EXPECT_GT(path.camera[1].pdfRev, 0.0f) << "trial " << trial;
+        EXPECT_GT(path.camera[3].pdfFwd, 0.0f) << "trial " << trial;
+    });
+    EXPECT_GT(checked, 100);
+}
+
+// Through a refraction the weights of the two strategies must be the
+// heuristics of their true densities (Veach §9.2: p_i / sum_j p_j, or its
+// squares), which account for how the refraction maps the floor onto the
+// lamp (distances on either side, the cosines and eta^2): the Dirac factors
+// do not cancel to 1 unless they are expressed in the same measure.
+TEST(BdptMis, WeightsThroughARefractionFollowTheTrueDensities) {
+    PoolScene ps;
+    const RayQuery rays(ps.scene);
+    const BdptScene bs(ps.scene, rays, ps.scene.camera);
+    double smallest = kInfinity, largest = 0.0;
+    const int checked = forPoolPaths(ps, bs, [&](const PoolPath& path, int trial) {
+        const StrategyDensities d = poolDensities(path);
+        const double ratio = d.light / d.camera;
+        // Closed form for flat, horizontal floor, surface and lamp: the
+        // lamp's cosine-weighted emission through the refraction reaches the
+        // floor with eta^2 times the density with which the floor's diffuse
+        // sampling reaches the surface, so the ratio is eta^2 p(x3) / p_camera(x1).
+        const double closedForm = static_cast<double>(PoolScene::kEta) * PoolScene::kEta * path.light[0].pdfFwd / path.camera[1].pdfFwd;
+        EXPECT_NEAR(ratio, closedForm, 1e-3 * closedForm) << "trial " << trial;
+        smallest = std::min(smallest, ratio);
+        largest = std::max(largest, ratio);
+        for (MisHeuristic h : {MisHeuristic::Balance, MisHeuristic::Power}) {
+            const float cameraWeight = bdptMisWeight(bs, {}, path.camera, nullptr, 0, 4, h);
+            const float lightWeight =
+                bdptMisWeight(bs, path.light, std::span<const BdptVertex>(path.camera).first(1), nullptr, 3, 1, h);
+            EXPECT_NEAR(cameraWeight + lightWeight, 1.0f, 1e-4f) << "trial " << trial;
+            const double r = h == MisHeuristic::Power ? ratio * ratio : ratio;
+            EXPECT_NEAR(lightWeight, r / (1.0 + r), 2e-3) << "trial " << trial << ", density ratio " << ratio;
+            EXPECT_NEAR(cameraWeight, 1.0 / (1.0 + r), 2e-3) << "trial " << trial << ", density ratio " << ratio;
+        }
+    });
+    EXPECT_GT(checked, 100);
+    // The geometry must give the check something to discriminate.
+    EXPECT_LT(smallest, largest * 0.8) << "density ratios " << smallest << " to " << largest;
+}
+
 }  // namespace
 }  // namespace fg
