@@ -294,11 +294,22 @@ private:
             if (glm::length(mean) > 1e-6f) {
                 const std::uint32_t packed = encodeNormal(glm::normalize(mean));
                 const Vec3 reference = decodeNormal(packed);
-                float minCos = 1.0f;
-                for (std::size_t i = begin; i < end; ++i) minCos = std::min(minCos, glm::dot(reference, n[ids_[i]]));
+                float minCos = 1.0f, maxSin = 0.0f;
+                for (std::size_t i = begin; i < end; ++i) {
+                    minCos = std::min(minCos, glm::dot(reference, n[ids_[i]]));
+                    // sin δ from the cross product, not from cos δ: a float
+                    // cosine rounds to 1 below δ ≈ 3.5e-4, and the 16-bit
+                    // octahedral reference is off a flat wall's normal by up
+                    // to about 3e-5 (2.2e-5 for an axis normal), so
+                    // √(1 − cos²) gave C_max = 0 there and culled rays within
+                    // 3e-5 rad of grazing that still reach the wall's
+                    // vertices with dir·n_x < 0.
+                    const Vec3 unit = glm::normalize(n[ids_[i]]);
+                    maxSin = std::max(maxSin, glm::length(glm::cross(reference, unit)));
+                }
                 if (minCos >= cosLimit) {
                     // sin δ, rounded up (the kind bits take the lowest mantissa bits).
-                    const float sinDelta = std::sqrt(std::max(0.0f, 1.0f - minCos * minCos)) * 1.0001f + 1e-6f;
+                    const float sinDelta = maxSin * 1.0001f + 1e-6f;
                     const std::uint32_t bits = (floatBits(sinDelta) + 3u) & ~3u;
                     nodes_.push_back({packed, bits | SplatKdNode::Cull});
                     mayCull = false;

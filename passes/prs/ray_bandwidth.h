@@ -22,6 +22,7 @@
 #include <array>
 #include <cmath>
 #include <cstdint>
+#include <limits>
 
 namespace fg {
 
@@ -33,6 +34,19 @@ struct BandwidthSettings {
 };
 
 inline constexpr double kBandwidthSceneScaleFactor = 0.2;  // a of mu_C = a <sqrt(D)>
+
+// Eq. 7's density of a ray as the model reads it. The densities are stored as
+// floats, and on deep paths in scenes measured in millimetres they fall below
+// FLT_MIN (each bounce multiplies by about p_s / D ~ 1e-6): a subnormal then
+// reads as itself or as zero depending on the thread's floating-point mode
+// (denormals-are-zero). That mode is not the same for every run in one
+// process: passes ran with DAZ and FTZ set from the command line and in a
+// test run alone, without them in the same test after other tests, and w
+// came out 0.00111 or 0.000286 for the same rays. Every density below
+// FLT_MIN counts as zero, in either mode, as it did with DAZ.
+inline double readDensity(float density) {
+    return density >= std::numeric_limits<float>::min() ? static_cast<double>(density) : 0.0;
+}
 inline constexpr double kBandwidthCalibrationCount = 1e5;  // m_0 = (10^5)^(1/6) normalises h at M = 10^5
 
 struct BandwidthModel {
@@ -80,8 +94,8 @@ inline BandwidthModel fitBandwidthModel(const PhotonRayBuffer& rays, float clamp
         if (path[i] >= settings.pilotPaths) continue;
         ++pilotRays;
         sumLength += std::max(static_cast<double>(clampDistance), static_cast<double>(length[i]));
-        if (density[i] > 0.0f) {
-            sumR += std::pow(static_cast<double>(density[i]), -0.5 * settings.sensitivity);
+        if (const double p = readDensity(density[i]); p > 0.0) {
+            sumR += std::pow(p, -0.5 * settings.sensitivity);
             ++densityRays;
         }
     }
@@ -103,8 +117,8 @@ inline void assignBandwidths(PhotonRayBuffer& rays, const BandwidthModel& model)
     auto h0 = rays.column<RayH0>();
     auto dh = rays.column<RayDh>();
     for (std::size_t i = 0; i < rays.size(); ++i) {
-        const double start = model.atOrigin(originDensity[i], vertex[i], rayClass[i]);
-        const double end = model.clamped(density[i], rayClass[i]);
+        const double start = model.atOrigin(readDensity(originDensity[i]), vertex[i], rayClass[i]);
+        const double end = model.clamped(readDensity(density[i]), rayClass[i]);
         h0[i] = static_cast<float>(std::min(start, end));
         dh[i] = length[i] > 0.0f ? static_cast<float>(std::max(0.0, end - start) / length[i]) : 0.0f;
     }

@@ -119,6 +119,9 @@ public:
         ctx.addCounter("direct_rays", static_cast<std::int64_t>(model.countPerClass[PhotonRayClass::Direct]));
         ctx.addCounter("caustic_rays", static_cast<std::int64_t>(model.countPerClass[PhotonRayClass::Caustic]));
         ctx.addCounter("global_rays", static_cast<std::int64_t>(model.countPerClass[PhotonRayClass::Global]));
+        std::int64_t underflowed = 0;
+        for (float p : rays.column<RayDensity>()) underflowed += readDensity(p) == 0.0;
+        ctx.addCounter("underflowed_densities", underflowed);
     }
 };
 

@@ -87,7 +87,7 @@ TEST(SplatKdTree, Invariants) {
     };
     std::vector<Item> stack{{0, tree.boundsMin(), tree.boundsMax(), Vec3(0.0f), 2.0f}};
     std::size_t covered = 0;
-    int cullNodes = 0;
+    int cullNodes = 0, sinesAboveCullSin = 0;
     while (!stack.empty()) {
         const Item item = stack.back();
         stack.pop_back();
@@ -105,6 +105,9 @@ TEST(SplatKdTree, Invariants) {
                     const float c = glm::dot(tree.slotNormal(s), item.cullNormal);
                     EXPECT_GE(std::sqrt(std::max(0.0f, 1.0f - item.cullSin * item.cullSin)), 0.0f);
                     EXPECT_GE(c, std::sqrt(std::max(0.0f, 1.0f - item.cullSin * item.cullSin)) - 1e-4f);
+                    // sin of the angle itself, which a cosine near 1 cannot resolve.
+                    if (glm::length(glm::cross(item.cullNormal, glm::normalize(tree.slotNormal(s)))) > item.cullSin)
+                        ++sinesAboveCullSin;
                 }
             }
             covered += count;
@@ -126,6 +129,7 @@ TEST(SplatKdTree, Invariants) {
     }
     EXPECT_EQ(covered, p.size());
     EXPECT_GT(cullNodes, 2);  // the three walls at least
+    EXPECT_EQ(sinesAboveCullSin, 0);
 }
 
 class SplatKdTreeTraversal : public ::testing::TestWithParam<float> {};
@@ -156,6 +160,60 @@ TEST_P(SplatKdTreeTraversal, FindsEveryFeasibleVertex) {
 }
 
 INSTANTIATE_TEST_SUITE_P(CullNodes, SplatKdTreeTraversal, ::testing::Values(0.0f, 45.0f, 89.0f));
+
+// A flat wall's culling node: its 16-bit octahedral reference normal is off
+// the wall's normal by about 2e-5 rad, so C_max must be at least that. A ray
+// descending onto the wall at a few 1e-6 rad still reaches its vertices
+// (dir·n_x < 0) while dir·n_ref > 0; a C_max taken from √(1 − cos²δ) in
+// float (cos δ rounds to 1) culled it. On the Cornell box at 128², 2 spp,
+// such rays were the deposits the 16-vertex tree lost.
+TEST(SplatKdTree, GrazingRaysAreNotCulledOffFlatWalls) {
+    int cases = 0;
+    for (const Vec3 wall : {Vec3(0, 0, 1), Vec3(0, -1, 0), glm::normalize(Vec3(0.3f, 0.2f, 0.93f))}) {
+        const Vec3 t1 = glm::normalize(std::abs(wall.x) < 0.9f ? glm::cross(wall, Vec3(1, 0, 0)) : glm::cross(wall, Vec3(0, 1, 0)));
+        const Vec3 t2 = glm::cross(wall, t1);
+        std::vector<Vec3> p, n;
+        for (std::uint64_t i = 0; i < 3000; ++i) {
+            jobs::Rng rng(7, 3, i);
+            const Vec2 u = rng.uniform2() - Vec2(0.5f);
+            p.push_back(u.x * t1 + u.y * t2);
+            n.push_back(wall);
+        }
+        const SplatKdTree tree(p, n, {16, 0.0f, 45.0f});
+        ASSERT_EQ(tree.nodes()[0].kind(), SplatKdNode::Cull);
+        const Vec3 reference = SplatKdTree::decodeNormal(tree.nodes()[0].a);
+        // The reference's tilt off the wall, in double: in float the
+        // cancellation leaves g off the wall's plane by more than the tilt.
+        const glm::dvec3 w = glm::normalize(glm::dvec3(wall)), along = glm::dvec3(reference) - glm::dot(glm::dvec3(reference), w) * w;
+        const double tilt = glm::length(along);
+        ASSERT_GT(tilt, 5e-6) << "the quantised reference must differ from the wall's normal for this test";
+        const glm::dvec3 g = along / tilt, side = glm::cross(w, g);
+        for (const double slope : {0.125, 0.25, 0.5})
+            for (const double yaw : {-0.3, 0.0, 0.3}) {
+                const glm::dvec3 heading = std::cos(yaw) * g + std::sin(yaw) * side;
+                SplatRay ray;
+                ray.direction = Vec3(glm::normalize(heading - slope * tilt * w));
+                ray.origin = Vec3(-0.7 * heading + 0.002 * w);
+                ray.length = 1.4f;
+                ray.h0 = 0.05f;
+                ray.dh = 0.0f;
+                ASSERT_LT(glm::dot(ray.direction, wall), 0.0f);
+                ASSERT_GT(glm::dot(ray.direction, reference), 1e-6f);  // the old C_max would cull it
+                std::set<std::uint32_t> expected, found;
+                for (std::uint32_t v = 0; v < p.size(); ++v)
+                    if (splatWeight(ray, SplatEndCap::TangentPlane, p[v], n[v]) > 0.0f) expected.insert(v);
+                tree.forEachCandidate(splatCone(ray, SplatEndCap::TangentPlane), [&](std::uint32_t slot) {
+                    const std::uint32_t v = tree.vertexOf(slot);
+                    if (splatWeight(ray, SplatEndCap::TangentPlane, p[v], n[v]) > 0.0f) found.insert(v);
+                });
+                EXPECT_GT(expected.size(), 50u);
+                EXPECT_EQ(found, expected) << "wall " << wall.x << "," << wall.y << "," << wall.z << " slope " << slope
+                                           << " yaw " << yaw;
+                ++cases;
+            }
+    }
+    EXPECT_EQ(cases, 27);
+}
 
 }  // namespace
 }  // namespace fg

@@ -13,8 +13,13 @@
 #include "jobs/random.h"
 
 #include <gtest/gtest.h>
+#if defined(__x86_64__) || defined(__SSE__)
+#include <xmmintrin.h>
+#endif
 
 #include <cmath>
+#include <cstring>
+#include <limits>
 #include <memory>
 #include <string>
 
@@ -254,6 +259,52 @@ TEST(PrsBandwidth, DoublingPhotonCountScalesEveryBandwidth) {
     }
     EXPECT_GT(clamped, 100);
 }
+
+
+// Densities below FLT_MIN (deep paths in millimetre scenes: 1.3 % of the
+// Cornell box's rays) are subnormal floats, which arithmetic reads as zero
+// when the thread's denormals-are-zero flag is set. The passes met both
+// modes in one test process (set from the command line and in a test run
+// alone, clear after other tests had started the thread pool), and
+// FinalGathering's figures moved with the order of the tests: the model must
+// give the same bits in either mode.
+#if defined(__x86_64__) || defined(__SSE__)
+TEST(PrsBandwidth, SameBandwidthsWithAndWithoutDenormalsAreZero) {
+    const auto makeRays = [] {
+        PhotonRayBuffer rays = randomPaths(3000, 0, 31);
+        for (std::uint64_t p = 0; p < 200; ++p) {  // densities that underflowed to subnormals or zero
+            const float tiny =
+                p % 4 == 0 ? 0.0f : std::numeric_limits<float>::denorm_min() * static_cast<float>(1 + 997 * p);
+            rays.append(handMadeRay(3000 + p, 1, p % 2 ? tiny : 1e-3f, tiny, 0.5f));
+        }
+        return rays;
+    };
+    BandwidthSettings settings;
+    settings.pilotPaths = 1u << 30;
+    const auto run = [&](bool denormalsAreZero, double& w) {
+        constexpr unsigned kFlushToZero = 0x8000, kDenormalsAreZero = 0x40;
+        const unsigned saved = _mm_getcsr();
+        _mm_setcsr(denormalsAreZero ? (saved | kFlushToZero | kDenormalsAreZero)
+                                    : (saved & ~(kFlushToZero | kDenormalsAreZero)));
+        PhotonRayBuffer rays = makeRays();
+        const BandwidthModel model = fitBandwidthModel(rays, 0.1f, settings);
+        assignBandwidths(rays, model);
+        _mm_setcsr(saved);
+        w = model.normalisation;
+        return rays;
+    };
+    double wOff = 0.0, wOn = 0.0;
+    const PhotonRayBuffer off = run(false, wOff), on = run(true, wOn);
+    EXPECT_GT(wOff, 0.0);
+    EXPECT_EQ(wOff, wOn);
+    ASSERT_EQ(off.size(), on.size());
+    int differing = 0;
+    for (std::size_t i = 0; i < off.size(); ++i)
+        differing += std::memcmp(&off.column<RayH0>()[i], &on.column<RayH0>()[i], sizeof(float)) != 0 ||
+                     std::memcmp(&off.column<RayDh>()[i], &on.column<RayDh>()[i], sizeof(float)) != 0;
+    EXPECT_EQ(differing, 0);
+}
+#endif
 
 }  // namespace
 }  // namespace fg

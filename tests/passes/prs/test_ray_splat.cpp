@@ -12,6 +12,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
 
 namespace fg {
@@ -120,6 +121,57 @@ TEST(PrsTangentPlaneCap, RebuiltHitOffItsPlaneKeepsTheFarFootprint) {
         // A surface 1 mm behind the plane stays cut off.
         EXPECT_EQ(splatWeight(ray, SplatEndCap::TangentPlane, beyond - Vec3(0.0f, 0.0f, 1.0f), Vec3(0, 0, 1)), 0.0f);
     }
+}
+
+// Share of the 2D Epanechnikov kernel's mass beyond a line at distance x R
+// from its centre: (8 / 3π) ∫_x^1 (1 − u²)^{3/2} du.
+double kernelMassBeyond(double x) {
+    if (x >= 1.0) return 0.0;
+    return (1.5 * kPi - x * (5.0 - 2.0 * x * x) * std::sqrt(1.0 - x * x) - 3.0 * std::asin(x)) / (3.0 * kPi);
+}
+
+// A ray of length L meets the plane z = 0 at θ from its normal. Its frustum
+// starts at the origin (t_p >= 0), while its footprint on the plane reaches
+// R tan θ back from the hit: in the plane's coordinate a = s cos θ the cut
+// lies c = L / tan θ before the centre, and a wall at the origin facing the
+// ray's horizontal heading ((x − x_i)·n_i > 0) cuts at c = L sin θ cos θ. The
+// flux deposited on the plane is 1 − kernelMassBeyond(c / R) of the ray's:
+// short rays at grazing incidence with wide kernels lose up to half (on
+// data/metal-ring the caustic rays from the ring's wall to the floor, L up
+// to 1, θ = 73°; README "Final gathering").
+TEST(PrsShortRayOntoPlane, FootprintIsCutAtTheRayOrigin) {
+    const double theta = glm::radians(73.0);
+    const Vec3 heading(1.0f, 0.0f, 0.0f);
+    const Vec3 direction(static_cast<float>(std::sin(theta)), 0.0f, static_cast<float>(-std::cos(theta)));
+    const float h = 0.2f;
+    for (const bool wall : {false, true})
+        for (const float length : {0.05f, 0.2f, 0.5f, 1.5f}) {
+            SplatRay ray;
+            ray.length = length;
+            ray.origin = -length * direction;  // the hit at the plane's origin
+            ray.direction = direction;
+            ray.h0 = h;
+            ray.dh = 0.0f;
+            ray.endNormal = Vec3(0, 0, 1);
+            if (wall) ray.originNormal = heading;
+            // Quadrature over the plane: cells of h / 100 along x (the ellipse
+            // is 1 / cos θ = 3.4 times longer that way) and h / 60 across.
+            const double dx = h / 100.0, dy = h / 60.0;
+            double deposited = 0.0;
+            for (int i = -400; i <= 400; ++i)
+                for (int j = -70; j <= 70; ++j)
+                    deposited += dx * dy * splatWeight(ray, SplatEndCap::TangentPlane,
+                                                       Vec3(static_cast<float>(i * dx), static_cast<float>(j * dy), 0.0f),
+                                                       Vec3(0, 0, 1));
+            const double cut = wall ? length * std::sin(theta) * std::cos(theta) : length / std::tan(theta);
+            const double expected = 1.0 - kernelMassBeyond(cut / h);
+            std::printf("%s, L / R = %.2f: deposited %.4f, closed form %.4f\n", wall ? "wall" : "no wall",
+                        static_cast<double>(length / h), deposited, expected);
+            EXPECT_NEAR(deposited, expected, 0.01) << (wall ? "wall" : "no wall") << ", L = " << length;
+            if (cut < 0.9 * h) {
+                EXPECT_LT(deposited, 0.99) << "the cut must show, L = " << length;
+            }
+        }
 }
 
 TEST(PrsPipeline, SameImageOnOneAndTwoThreads) {
