@@ -16,7 +16,7 @@ Usage:
   tools/bdpt_report.py [--build build] [--threads 2] [--spp 16] [--seed 3]
                        [--scenes cornell-box,volumetric-caustic]
                        [--reference out/bdpt-references] [--crop volumetric-caustic=0,16,128,112]
-                       [--out out/bdpt-report]
+                       [--out out/bdpt-report] [--clock wall|cpu]
 
 The jobs are data/<scene>/bdpt.toml and data/<scene>/pt.toml with the
 sample count set on the command line.
@@ -85,7 +85,11 @@ def main():
     ap.add_argument("--crop", action="append", default=["volumetric-caustic=0,16,128,112"],
                     help="scene=x,y,w,h also compared over that rectangle")
     ap.add_argument("--out", default="out/bdpt-report")
+    ap.add_argument("--clock", choices=["wall", "cpu"], default="wall",
+                    help="time that sets pt's equal-time budget and the rates: wall seconds, or CPU seconds of the "
+                         "pass (the fair choice on a shared machine; pair it with --threads 1)")
     args = ap.parse_args()
+    seconds = f"{args.clock}_seconds"
 
     binary = Path(args.build) / "fluxgraph"
     if not binary.exists():
@@ -103,19 +107,20 @@ def main():
         b, b_image = render(binary, bdpt_job, out, f"{scene}-bdpt", args.threads, [f"passes.bdpt.spp={args.spp}"], args.seed)
         # A short pt run measures its rate, from which the equal-time sample count follows.
         p, _ = render(binary, pt_job, out, f"{scene}-pt-probe", args.threads, [f"passes.pt.spp={args.spp}"], args.seed)
-        pt_spp = max(1, round(args.spp * b["wall_seconds"] / p["wall_seconds"]))
+        pt_spp = max(1, round(args.spp * b[seconds] / p[seconds]))
         p_eq, p_image = render(binary, pt_job, out, f"{scene}-pt", args.threads, [f"passes.pt.spp={pt_spp}"], args.seed)
         bdpt_vertices = b["counters"].get("camera_vertices", 0) + b["counters"].get("light_vertices", 0)
         row = {
             "scene": scene,
+            "clock": args.clock,
             "bdpt_spp": args.spp,
-            "bdpt_seconds": b["wall_seconds"],
-            "bdpt_samples_per_s": b["items"] / b["wall_seconds"],
-            "bdpt_vertices_per_s": bdpt_vertices / b["wall_seconds"],
-            "pt_samples_per_s": p["items"] / p["wall_seconds"],
-            "pt_segments_per_s": p["counters"].get("path_segments", 0) / p["wall_seconds"],
+            "bdpt_seconds": b[seconds],
+            "bdpt_samples_per_s": b["items"] / b[seconds],
+            "bdpt_vertices_per_s": bdpt_vertices / b[seconds],
+            "pt_samples_per_s": p["items"] / p[seconds],
+            "pt_segments_per_s": p["counters"].get("path_segments", 0) / p[seconds],
             "pt_equal_time_spp": pt_spp,
-            "pt_seconds": p_eq["wall_seconds"],
+            "pt_seconds": p_eq[seconds],
         }
         reference = Path(args.reference) / scene / "reference.exr" if args.reference else None
         if reference and reference.exists():
