@@ -27,6 +27,7 @@
 #include "jobs/parallel.h"
 
 #include <algorithm>
+#include <cmath>
 #include <ctime>
 #include <optional>
 #include <vector>
@@ -74,9 +75,11 @@ struct PixelRect {
     }
 };
 
-SplatTargets indexTargets(const Scene& scene, const EyeVertexBuffer::View& vertices, const PixelRect& rect) {
+SplatTargets indexTargets(const Scene& scene, const EyeVertexBuffer::View& vertices, const PixelRect& rect,
+                          std::uint32_t leafSize) {
     SplatTargets out;
-    SplatKdTreeOptions options;  // §7.1's leaf size and 0.1 % of the scene diagonal, as splat_index's defaults
+    SplatKdTreeOptions options;  // 0.1 % of the scene diagonal, as splat_index's default
+    options.maxLeafSize = leafSize;
     options.minCellDiagonal = 0.001f * glm::length(scene.boundsMax - scene.boundsMin);
     out.tree.build(vertices.column<EyePosition>(), vertices.column<EyeNormal>(), options);
     out.targets.assign(vertices.size(), SplatTargets::Target{});
@@ -166,6 +169,28 @@ std::vector<Rgb> splatOnto(const Scene& scene, const EyeVertexBuffer::View& vert
     return total;
 }
 
+// The mean kernel radius where the rays meet a surface, R(t_hit), in
+// millionths of the scene diagonal: the bandwidth to compare with the photon
+// map's mean gather radius (final_gather's mean_gather_radius_ppm), as the
+// paper chooses C for equal mean bandwidths (§9, Fig. 9). Rays that escape
+// or carry no footprint do not count. Summed in integers, so the figure does
+// not depend on the order.
+std::int64_t meanHitRadiusPpm(const Scene& scene, const PhotonRayBuffer& rays) {
+    const auto h0 = rays.column<RayH0>();
+    const auto dh = rays.column<RayDh>();
+    const auto length = rays.column<RayLength>();
+    const auto endNormal = rays.column<RayEndNormal>();
+    const double scale = 1e6 / static_cast<double>(glm::length(scene.boundsMax - scene.boundsMin));
+    std::int64_t sum = 0, count = 0;
+    for (std::size_t r = 0; r < rays.size(); ++r) {
+        const float radius = h0[r] + dh[r] * length[r];
+        if (endNormal[r] == Vec3(0.0f) || !(radius > 0.0f)) continue;
+        sum += std::llround(scale * static_cast<double>(radius));
+        ++count;
+    }
+    return count > 0 ? sum / count : 0;
+}
+
 class FinalGatherSplatPass final : public Pass {
 public:
     void run(PassContext& ctx) override {
@@ -178,6 +203,7 @@ public:
         const SplatEndCap cap = ctx.params().getString("end_cap") == "hemisphere" ? SplatEndCap::Hemisphere
                                                                                   : SplatEndCap::TangentPlane;
         const bool useCullNodes = ctx.params().getBool("cull_nodes");
+        const auto leafSize = static_cast<std::uint32_t>(ctx.params().getInt("leaf_size"));
         const PhotonRayBuffer& rays = photonRays.rays;
 
         Film& global = ctx.createOutput<Film>("global", ctx.filmSettings());
@@ -206,7 +232,7 @@ public:
 
             start = std::clock();
             const EyeVertexBuffer::View hitView = hits.vertices.view();
-            const SplatTargets targets = indexTargets(scene, hitView, rect);
+            const SplatTargets targets = indexTargets(scene, hitView, rect, leafSize);
             const std::vector<Rgb> local =
                 splatOnto(scene, hitView, targets, rect.size(), rays, everyClass, cap, useCullNodes, counts);
             for (std::size_t i = 0; i < local.size(); ++i) globalPixels[rect.global(i)] += local[i];
@@ -218,7 +244,7 @@ public:
         if (photonRays.countPerClass[PhotonRayClass::Caustic] > 0) {
             const auto start = std::clock();
             const PixelRect film{0, 0, width, height, width};
-            const SplatTargets targets = indexTargets(scene, eye, film);
+            const SplatTargets targets = indexTargets(scene, eye, film, leafSize);
             const auto causticOnly = [](std::uint8_t c) { return c == PhotonRayClass::Caustic; };
             caustic.addToPixels(
                 splatOnto(scene, eye, targets, film.size(), rays, causticOnly, cap, useCullNodes, counts), 1.0f);
@@ -226,6 +252,7 @@ public:
         }
         ctx.addItems(hitCount);
         ctx.addCounter("gather_hits", hitCount);
+        ctx.addCounter("mean_hit_radius_ppm", meanHitRadiusPpm(scene, rays));
         ctx.addCounter("vertex_candidates", counts.candidates);
         ctx.addCounter("vertex_deposits", counts.deposits);
         ctx.addCounter("trace_cpu_us", traceMicroseconds);
@@ -256,6 +283,8 @@ PassRegistration finalGatherSplatPass() {
         {"end_cap", ParamType::String, std::string("tangent_plane"), 0, 0, {"tangent_plane", "hemisphere"},
          "footprint beyond the hit point, as ray_splat's"},
         {"cull_nodes", ParamType::Bool, true, 0, 0, {}, "use the kd-trees' backface-culling nodes"},
+        {"leaf_size", ParamType::Int, std::int64_t{16}, 1, 1 << 20, {},
+         "kd-tree nodes with fewer hits become leaves (§7.1: 16)"},
     };
     const auto preflight = [](const PreflightContext& pf) {
         if (!pf.scene.media.empty())
