@@ -240,6 +240,27 @@ TEST(FinalGathering, TilesAndLeafSizeKeepTheDeposits) {
     EXPECT_GT(bigLeaves.counters.at("vertex_candidates"), oneTile.counters.at("vertex_candidates"));
 }
 
+// fg_splat enters a kd node only where the ray meets its vertices' tight box
+// grown by the largest radius: that skips only leaves that cannot deposit
+// and keeps Algorithm 1's child order, so the deposits and the image are
+// exactly those of the cell-clipping traversal, from fewer candidates.
+TEST(FinalGathering, TightBoxTraversalKeepsEveryDepositInOrder) {
+    const Scene scene = loadScene((cornellBoxDir() / "cornell-box.xml").string());
+    for (const double smoothness : {1.0, 0.3}) {
+        std::map<std::string, ParamValue> params = finalGatherParams("prs-fg", 10000, 4);
+        params["ray_bandwidth.smoothness"] = smoothness;
+        params["fg_splat.tiles"] = std::int64_t{2};
+        params["fg_splat.traversal"] = std::string("cells");
+        const CountedRender cells = renderCounted(scene, "prs-fg", params, "fg_splat", 24);
+        params["fg_splat.traversal"] = std::string("tight_boxes");
+        const CountedRender boxes = renderCounted(scene, "prs-fg", params, "fg_splat", 24);
+        ASSERT_GT(cells.counters.at("vertex_deposits"), 10000);
+        EXPECT_EQ(boxes.counters.at("vertex_deposits"), cells.counters.at("vertex_deposits")) << "C = " << smoothness;
+        EXPECT_LT(boxes.counters.at("vertex_candidates"), cells.counters.at("vertex_candidates")) << "C = " << smoothness;
+        EXPECT_EQ(boxes.pixels, cells.pixels) << "C = " << smoothness;
+    }
+}
+
 std::string planError(const std::string& pipeline, const std::map<std::string, ParamValue>& params) {
     const Scene scene = loadScene((cornellBoxDir() / "cornell-box.xml").string());
     try {
@@ -272,6 +293,9 @@ TEST(FinalGathering, ParametersOutsideTheirRangesAreRefused) {
     params = finalGatherParams("prs-fg", 1000, 1);
     params["fg_splat.end_cap"] = std::string("sphere");
     EXPECT_NE(planError("prs-fg", params).find("end_cap"), std::string::npos);
+    params = finalGatherParams("prs-fg", 1000, 1);
+    params["fg_splat.traversal"] = std::string("bvh");
+    EXPECT_NE(planError("prs-fg", params).find("traversal"), std::string::npos);
 }
 
 // Without direct photons in the map and its index the hits would miss the
