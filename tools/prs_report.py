@@ -100,7 +100,7 @@ def main():
             ("RS (prs, C = 1.0, S = 0.4)", os.path.join(SCENE_DIR, "prs.toml")),
             ("RC (prs-rc, C = 0.6, S = 0.4, ε = 0.7)", os.path.join(SCENE_DIR, "prs-rc.toml")),
             ("PM-FG (pm-fg, k = 100, 16 FGRs)", os.path.join(SCENE_DIR, "pm-fg.toml")),
-            ("RS-FG (prs-fg, C = 0.45, S = 0.8, 16 FGRs, 1 tile)", os.path.join(SCENE_DIR, "prs-fg.toml")),
+            ("RS-FG (prs-fg, C = 0.6, S = 0.8, 16 FGRs, 1 tile)", os.path.join(SCENE_DIR, "prs-fg.toml")),
         ]
         for label, job in methods:
             out_dir = os.path.join(scratch, str(len(rows)))
