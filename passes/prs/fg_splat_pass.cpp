@@ -144,22 +144,25 @@ void forEachCandidateInBoxes(const SplatTargets& targets, const SplatCone& cone,
         }
         return true;
     };
-    const float maxGrow = cone.radius(cone.tMax) * 1.0001f + slack;
     // A vertex that deposits at t_p lies within R(t_p) of the ray there, so
-    // t_p falls in the clipped part; R grows with t, so R(t1) bounds it, and
-    // clipping again with that tighter radius loses nothing either.
-    const auto reaches = [&](const SplatTargets::NodeBox& box, float& t0, float& t1) {
-        if (!clip(box, maxGrow, t0, t1)) return false;
-        return clip(box, cone.radius(t1) * 1.0001f + slack, t0, t1);
+    // t_p falls in the part of the ray clipped by every grown box that holds
+    // the vertex; R grows with t, so a child's boxes need growing only by R
+    // at the end of its parent's clipped part.
+    const auto grown = [&](float t) { return cone.radius(t) * 1.0001f + slack; };
+    struct Entry {
+        std::uint32_t node;
+        float grow;
     };
-    std::uint32_t stack[128];
+    Entry stack[128];
     int top = 0;
-    stack[top++] = 0;
+    stack[top++] = {0, grown(cone.tMax)};
     while (top > 0) {
-        const std::uint32_t i = stack[--top];
+        const Entry e = stack[--top];
+        const std::uint32_t i = e.node;
         const SplatTargets::NodeBox& box = targets.boxes[i];
         float t0 = 0.0f, t1 = 0.0f;
-        if (!reaches(box, t0, t1)) continue;
+        if (!clip(box, e.grow, t0, t1)) continue;
+        const float childGrow = grown(t1);
         const SplatKdNode node = nodes[i];
         switch (node.kind()) {
         case SplatKdNode::Empty:
@@ -170,7 +173,7 @@ void forEachCandidateInBoxes(const SplatTargets& targets, const SplatCone& cone,
             const Vec3 centre = 0.5f * (box.lo + box.hi);
             const float tc = std::clamp(glm::dot(centre - cone.origin, cone.direction), t0, t1);
             const Vec3 offset = centre - (cone.origin + tc * cone.direction);
-            const float reach = 0.5f * glm::length(box.hi - box.lo) * 1.0001f + cone.radius(t1) * 1.0001f + slack;
+            const float reach = 0.5f * glm::length(box.hi - box.lo) * 1.0001f + childGrow;
             if (glm::dot(offset, offset) > reach * reach) break;
             for (std::uint32_t s = node.a; s < node.a + (node.b >> 2); ++s) visit(s);
             break;
@@ -179,15 +182,15 @@ void forEachCandidateInBoxes(const SplatTargets& targets, const SplatCone& cone,
             if (useCullNodes && glm::dot(cone.direction, SplatKdTree::decodeNormal(node.a)) >
                                     SplatKdTree::decodeFloat(node.b & ~3u))
                 break;
-            stack[top++] = i + 1;
+            stack[top++] = {i + 1, childGrow};
             break;
         case SplatKdNode::Interior: {
             const int axis = static_cast<int>((node.b >> 2) & 3u);
             const std::uint32_t left = i + 1, right = i + (node.b >> 4);
             // As Algorithm 1's order: left first when the ray runs along the axis or parallel to the plane.
             const bool rightFirst = std::abs(cone.direction[axis]) >= 1e-12f && cone.direction[axis] < 0.0f;
-            stack[top++] = rightFirst ? left : right;
-            stack[top++] = rightFirst ? right : left;
+            stack[top++] = {rightFirst ? left : right, childGrow};
+            stack[top++] = {rightFirst ? right : left, childGrow};
             break;
         }
         }
