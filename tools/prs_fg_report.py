@@ -15,7 +15,16 @@ final_gather's gather_cpu_us, process CPU time; the paper's 0.66x) and the
 gather rays' trace time. Renders run on one thread (--threads 1); on a
 shared machine CPU times are still noisy.
 
+With --indirect the jobs run without direct light (eye direct_light = false)
+and are compared with the reference less a one-bounce pt image (rendered
+once, --direct-spp samples): per-pixel RMSE and the RMS error of 8 x 8 block
+means (the low-frequency error the density estimate leaves; the per-pixel
+error is mostly the gather rays' noise), both as means over the seeds, and
+the mean bandwidths (fg_splat's mean_hit_radius_ppm, final_gather's
+mean_gather_radius_ppm).
+
 Usage: tools/prs_fg_report.py [--build DIR] [--seeds 1 2 3 4] [--photons N] [--fg-rays N]
+                              [--indirect [--direct-spp N]] [--set-prs KEY=VALUE ...] [--set-pm KEY=VALUE ...]
 """
 import argparse
 import json
@@ -48,11 +57,13 @@ def counters(stats, instance):
     raise SystemExit(f"no pass '{instance}' in the render's statistics")
 
 
-def render(binary, job, work, seed, photons, fg_rays):
+def render(binary, job, work, seed, photons, fg_rays, extra=()):
     out = work / f"{job.stem}-{seed}"
     stats = out / "stats.json"
     command = [str(binary), "render", str(job), "-q", "--threads", "1", "--out", str(out), "--stats", str(stats),
                "--set", f"passes.photon.seed={seed}"]
+    for setting in extra:
+        command += ["--set", setting]
     if photons:
         command += ["--set", f"passes.photon.photons={photons}"]
     if fg_rays:
@@ -73,12 +84,39 @@ def mean_and_error(values):
     return mean, math.sqrt(var / len(values))
 
 
+def indirect_reference(binary, work, reference, spp):
+    """The reference less a one-bounce path-traced image (emission and direct light)."""
+    out = work / "pt-direct"
+    subprocess.run([str(binary), "render", str(ROOT / "data" / "cornell-box" / "pt.toml"), "-q", "--out", str(out),
+                    "--set", "passes.pt.max_depth=1", "--set", f"passes.pt.spp={spp}"], check=True)
+    direct = read_exr_rgb(next(out.glob("*.exr")))
+    return [tuple(a - b for a, b in zip(r, d)) for r, d in zip(reference, direct)]
+
+
+def image_errors(pixels, target, width, block=8):
+    """Per-pixel RMSE and the RMS error of block x block means (channel means)."""
+    se = sum(sum((a - b) ** 2 for a, b in zip(p, q)) / 3.0 for p, q in zip(pixels, target)) / len(target)
+    blocks = []
+    for by in range(0, width, block):
+        for bx in range(0, width, block):
+            d = 0.0
+            for y in range(by, by + block):
+                for x in range(bx, bx + block):
+                    d += (sum(pixels[y * width + x]) - sum(target[y * width + x])) / 3.0
+            blocks.append((d / (block * block)) ** 2)
+    return math.sqrt(se), math.sqrt(sum(blocks) / len(blocks))
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--build", default=str(ROOT / "build"))
     parser.add_argument("--seeds", type=int, nargs="+", default=[11, 12, 13, 14])
     parser.add_argument("--photons", type=int, default=0, help="override the jobs' photon count")
     parser.add_argument("--fg-rays", type=int, default=0, help="override the jobs' final-gather rays")
+    parser.add_argument("--indirect", action="store_true", help="indirect light only, with RMSE and block error")
+    parser.add_argument("--direct-spp", type=int, default=1024, help="samples of the one-bounce pt image")
+    parser.add_argument("--set-prs", nargs="*", default=[], help="extra --set for prs-fg (e.g. passes.ray_bandwidth.smoothness=1)")
+    parser.add_argument("--set-pm", nargs="*", default=[], help="extra --set for pm-fg")
     args = parser.parse_args()
     binary = Path(args.build) / "fluxgraph"
     scene_dir = ROOT / "data" / "cornell-box"
@@ -88,20 +126,32 @@ def main():
         raise SystemExit("the reference is not 128 x 128")
     ref_means = [crop_mean(reference, width, c) for c in CROPS]
 
-    rows = {}
+    rows, quality = {}, {}
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
-        for job, instance, time_key in (("pm-fg", "final_gather", "gather_cpu_us"), ("prs-fg", "fg_splat", "splat_cpu_us")):
+        target = reference
+        if args.indirect:
+            target = indirect_reference(binary, work, reference, args.direct_spp)
+            ref_means = [crop_mean(target, width, c) for c in CROPS]
+        for job, instance, time_key, radius_key, extra in (
+                ("pm-fg", "final_gather", "gather_cpu_us", "mean_gather_radius_ppm", args.set_pm),
+                ("prs-fg", "fg_splat", "splat_cpu_us", "mean_hit_radius_ppm", args.set_prs)):
+            extra = list(extra) + (["passes.eye.direct_light=false"] if args.indirect else [])
             errors = [[] for _ in CROPS]
-            splat, trace = [], []
+            splat, trace, rmse, block, radius = [], [], [], [], []
             for seed in args.seeds:
-                pixels, stats = render(binary, scene_dir / f"{job}.toml", work, seed, args.photons, args.fg_rays)
+                pixels, stats = render(binary, scene_dir / f"{job}.toml", work, seed, args.photons, args.fg_rays, extra)
                 for i, crop in enumerate(CROPS):
                     errors[i].append(100.0 * (crop_mean(pixels, width, crop) - ref_means[i]) / ref_means[i])
                 c = counters(stats, instance)
                 splat.append(c[time_key] / 1e6)
                 trace.append(c["trace_cpu_us"] / 1e6)
+                radius.append(c.get(radius_key, 0))
+                e = image_errors(pixels, target, width)
+                rmse.append(e[0])
+                block.append(e[1])
             rows[job] = (errors, splat, trace)
+            quality[job] = (rmse, block, radius)
 
     print("| pipeline | " + " | ".join(f"crop {','.join(map(str, c))}" for c in CROPS) +
           " | T_S (CPU s) | gather-ray trace (CPU s) |")
@@ -112,6 +162,11 @@ def main():
             mean, err = mean_and_error(e)
             cells.append(f"{mean:+.1f} % ± {err:.1f}")
         print(f"| {job} | " + " | ".join(cells) + f" | {sum(splat) / len(splat):.2f} | {sum(trace) / len(trace):.2f} |")
+    what = "indirect light, against the reference less one-bounce pt" if args.indirect else "the full image"
+    print(f"\n| pipeline ({what}) | RMSE | 8 x 8 block RMSE | mean radius (ppm of the diagonal) |")
+    print("|---|---:|---:|---:|")
+    for job, (rmse, block, radius) in quality.items():
+        print(f"| {job} | {sum(rmse) / len(rmse):.5f} | {sum(block) / len(block):.5f} | {sum(radius) / len(radius):.0f} |")
     ts_ratio = sum(rows["prs-fg"][1]) / sum(rows["pm-fg"][1])
     print(f"\nT_S prs-fg / pm-fg = {ts_ratio:.2f} (the paper: 0.66); seeds {args.seeds}")
 

@@ -30,6 +30,7 @@
 #include "jobs/random.h"
 
 #include <algorithm>
+#include <cmath>
 #include <atomic>
 #include <ctime>
 #include <limits>
@@ -95,7 +96,8 @@ public:
             primariesByTile(eye, globalFilm.width(), globalFilm.height(), tiles);
 
         std::vector<Rgb> globalPixels(globalFilm.pixelCount(), Rgb(0.0f));
-        std::atomic<std::int64_t> photonsUsed{0}, secondaryGathers{0};
+        std::atomic<std::int64_t> photonsUsed{0}, secondaryGathers{0}, radiusPpmSum{0}, radiusCount{0};
+        const double ppmScale = 1e6 / static_cast<double>(glm::length(scene.boundsMax - scene.boundsMin));
         std::int64_t hitCount = 0, traceMicroseconds = 0, gatherMicroseconds = 0;
         std::vector<Rgb> contribution;
         for (std::size_t tile = 0; tile < byTile.size(); ++tile) {
@@ -113,11 +115,15 @@ public:
             jobs::parallelForChunks(hitView.size(), 256, [&](jobs::IndexRange range) {
                 std::vector<std::uint32_t> ids(global.k);
                 std::vector<float> dist2(global.k);
-                std::int64_t used = 0, gathered = 0;
+                std::int64_t used = 0, gathered = 0, ppmSum = 0, ppmCount = 0;
                 for (std::size_t i = range.begin; i != range.end; ++i) {
                     const VertexBrdf brdf(scene, hitView, i);
                     float h2 = 0.0f;
                     Rgb L = gatherRadiance(hitView.column<EyePosition>()[i], brdf, global, maxRadius, ids, dist2, used, &h2);
+                    if (h2 > 0.0f) {
+                        ppmSum += std::llround(ppmScale * std::sqrt(static_cast<double>(h2)));
+                        ++ppmCount;
+                    }
                     const float reach = secondary.distanceFactor * secondary.distanceFactor * h2;
                     if (secondary.enabled && hits.distance[i] * hits.distance[i] < reach) {
                         jobs::Rng rng(ctx.seed(), secondary.stream, firstHit + i);
@@ -130,6 +136,8 @@ public:
                 }
                 photonsUsed += used;
                 secondaryGathers += gathered;
+                radiusPpmSum += ppmSum;
+                radiusCount += ppmCount;
             });
             const auto pixelOf = hitView.column<EyePixel>();
             for (std::size_t i = 0; i < hitView.size(); ++i) globalPixels[pixelOf[i]] += contribution[i];
@@ -164,6 +172,9 @@ public:
         ctx.addCounter("gather_hits", hitCount);
         ctx.addCounter("photon_contributions", photonsUsed.load());
         ctx.addCounter("secondary_gathers", secondaryGathers.load());
+        // The mean gather radius at the hits, in millionths of the scene
+        // diagonal, to match fg_splat's bandwidth against (mean_hit_radius_ppm).
+        ctx.addCounter("mean_gather_radius_ppm", radiusCount.load() > 0 ? radiusPpmSum.load() / radiusCount.load() : 0);
         ctx.addCounter("trace_cpu_us", traceMicroseconds);
         ctx.addCounter("gather_cpu_us", gatherMicroseconds);
     }

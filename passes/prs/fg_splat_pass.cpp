@@ -27,6 +27,7 @@
 #include "jobs/parallel.h"
 
 #include <algorithm>
+#include <cmath>
 #include <ctime>
 #include <optional>
 #include <vector>
@@ -50,6 +51,11 @@ std::int64_t cpuMicrosecondsSince(std::clock_t start) {
 // tree order, what a deposit needs. f_s at a Lambertian vertex is one
 // constant, folded into `weight` with the throughput once per vertex.
 struct SplatTargets {
+    // The tight bounding box of each node's vertices (empty nodes: lo > hi).
+    struct NodeBox {
+        Vec3 lo{kInfinity};
+        Vec3 hi{-kInfinity};
+    };
     struct Target {
         Vec3 geometricNormal{0.0f};
         Rgb weight{0.0f};
@@ -58,8 +64,138 @@ struct SplatTargets {
         bool lambertian = false;
     };
     SplatKdTree tree;
+    std::vector<NodeBox> boxes;
     std::vector<Target> targets;
 };
+
+// Tight boxes, children before parents (a node's children follow it in the
+// node array, so one backward sweep sees them first).
+std::vector<SplatTargets::NodeBox> nodeBoxes(const SplatKdTree& tree) {
+    const std::span<const SplatKdNode> nodes = tree.nodes();
+    std::vector<SplatTargets::NodeBox> boxes(nodes.size());
+    for (std::size_t i = nodes.size(); i-- > 0;) {
+        SplatTargets::NodeBox& box = boxes[i];
+        const SplatKdNode node = nodes[i];
+        switch (node.kind()) {
+        case SplatKdNode::Empty:
+            break;
+        case SplatKdNode::Leaf:
+            for (std::uint32_t s = node.a; s < node.a + (node.b >> 2); ++s) {
+                box.lo = glm::min(box.lo, tree.slotPosition(s));
+                box.hi = glm::max(box.hi, tree.slotPosition(s));
+            }
+            break;
+        case SplatKdNode::Cull:
+            box = boxes[i + 1];
+            break;
+        case SplatKdNode::Interior: {
+            const SplatTargets::NodeBox& left = boxes[i + 1];
+            const SplatTargets::NodeBox& right = boxes[i + (node.b >> 4)];
+            box.lo = glm::min(left.lo, right.lo);
+            box.hi = glm::max(left.hi, right.hi);
+            break;
+        }
+        }
+    }
+    return boxes;
+}
+
+// Algorithm 1 (§7.2) clips the ray against the kd cells, which with the
+// sliding-midpoint rule reach far into the empty space between the walls: a
+// ray crossing the box visits every cell along its way down to the leaves
+// (on the Cornell box about half of fg_splat's time went to the traversal).
+// Here a node is entered only if the ray's segment [0, tMax] meets the tight
+// box of its vertices grown by the largest radius, R(tMax): a vertex within
+// R(t_p) <= R(tMax) of the ray lies in every box that holds it grown by
+// that much, so no vertex the splat would accept is lost. Children are
+// visited nearest first by the sign of dir[axis], as Algorithm 1 does, and
+// the culling nodes are tested the same way, so the vertices that deposit
+// are met in the same order and the image is the same bit for bit; only
+// leaves that cannot deposit are skipped.
+template <class Visit>
+void forEachCandidateInBoxes(const SplatTargets& targets, const SplatCone& cone, Visit&& visit, bool useCullNodes) {
+    const std::span<const SplatKdNode> nodes = targets.tree.nodes();
+    if (nodes.empty()) return;
+    // Slack for rounding in the slab test: relative to the coordinates, far
+    // above float rounding (6e-8), far below any radius that matters.
+    const Vec3 end = cone.origin + cone.tMax * cone.direction;
+    const float scale = std::max({std::abs(cone.origin.x), std::abs(cone.origin.y), std::abs(cone.origin.z),
+                                  std::abs(end.x), std::abs(end.y), std::abs(end.z)});
+    const float slack = 1e-5f * (1.0f + scale);
+    Vec3 inverse;
+    for (int a = 0; a < 3; ++a) inverse[a] = cone.direction[a] != 0.0f ? 1.0f / cone.direction[a] : kInfinity;
+    // The part [t0, t1] of [0, tMax] where the ray runs through the box grown by `grow`.
+    const auto clip = [&](const SplatTargets::NodeBox& box, float grow, float& t0, float& t1) {
+        t0 = 0.0f;
+        t1 = cone.tMax;
+        for (int a = 0; a < 3; ++a) {
+            const float lo = box.lo[a] - grow, hi = box.hi[a] + grow;
+            if (!(lo <= hi)) return false;  // empty
+            const float o = cone.origin[a];
+            if (cone.direction[a] == 0.0f) {
+                if (o < lo || o > hi) return false;
+                continue;
+            }
+            float ta = (lo - o) * inverse[a], tb = (hi - o) * inverse[a];
+            if (ta > tb) std::swap(ta, tb);
+            t0 = std::max(t0, ta);
+            t1 = std::min(t1, tb);
+            if (t0 > t1) return false;
+        }
+        return true;
+    };
+    // A vertex that deposits at t_p lies within R(t_p) of the ray there, so
+    // t_p falls in the part of the ray clipped by every grown box that holds
+    // the vertex; R grows with t, so a child's boxes need growing only by R
+    // at the end of its parent's clipped part.
+    const auto grown = [&](float t) { return cone.radius(t) * 1.0001f + slack; };
+    struct Entry {
+        std::uint32_t node;
+        float grow;
+    };
+    Entry stack[128];
+    int top = 0;
+    stack[top++] = {0, grown(cone.tMax)};
+    while (top > 0) {
+        const Entry e = stack[--top];
+        const std::uint32_t i = e.node;
+        const SplatTargets::NodeBox& box = targets.boxes[i];
+        float t0 = 0.0f, t1 = 0.0f;
+        if (!clip(box, e.grow, t0, t1)) continue;
+        const float childGrow = grown(t1);
+        const SplatKdNode node = nodes[i];
+        switch (node.kind()) {
+        case SplatKdNode::Empty:
+            break;
+        case SplatKdNode::Leaf: {
+            // Within the box's sphere: the ray's point nearest its centre on
+            // [t0, t1] is no farther from the centre than the point at t_p.
+            const Vec3 centre = 0.5f * (box.lo + box.hi);
+            const float tc = std::clamp(glm::dot(centre - cone.origin, cone.direction), t0, t1);
+            const Vec3 offset = centre - (cone.origin + tc * cone.direction);
+            const float reach = 0.5f * glm::length(box.hi - box.lo) * 1.0001f + childGrow;
+            if (glm::dot(offset, offset) > reach * reach) break;
+            for (std::uint32_t s = node.a; s < node.a + (node.b >> 2); ++s) visit(s);
+            break;
+        }
+        case SplatKdNode::Cull:
+            if (useCullNodes && glm::dot(cone.direction, SplatKdTree::decodeNormal(node.a)) >
+                                    SplatKdTree::decodeFloat(node.b & ~3u))
+                break;
+            stack[top++] = {i + 1, childGrow};
+            break;
+        case SplatKdNode::Interior: {
+            const int axis = static_cast<int>((node.b >> 2) & 3u);
+            const std::uint32_t left = i + 1, right = i + (node.b >> 4);
+            // As Algorithm 1's order: left first when the ray runs along the axis or parallel to the plane.
+            const bool rightFirst = std::abs(cone.direction[axis]) >= 1e-12f && cone.direction[axis] < 0.0f;
+            stack[top++] = {rightFirst ? left : right, childGrow};
+            stack[top++] = {rightFirst ? right : left, childGrow};
+            break;
+        }
+        }
+    }
+}
 
 // A rectangle of the film: pixels x in [x0, x1), y in [y0, y1).
 struct PixelRect {
@@ -74,11 +210,14 @@ struct PixelRect {
     }
 };
 
-SplatTargets indexTargets(const Scene& scene, const EyeVertexBuffer::View& vertices, const PixelRect& rect) {
+SplatTargets indexTargets(const Scene& scene, const EyeVertexBuffer::View& vertices, const PixelRect& rect,
+                          std::uint32_t leafSize) {
     SplatTargets out;
-    SplatKdTreeOptions options;  // §7.1's leaf size and 0.1 % of the scene diagonal, as splat_index's defaults
+    SplatKdTreeOptions options;  // 0.1 % of the scene diagonal, as splat_index's default
+    options.maxLeafSize = leafSize;
     options.minCellDiagonal = 0.001f * glm::length(scene.boundsMax - scene.boundsMin);
     out.tree.build(vertices.column<EyePosition>(), vertices.column<EyeNormal>(), options);
+    out.boxes = nodeBoxes(out.tree);
     out.targets.assign(vertices.size(), SplatTargets::Target{});
     jobs::parallelFor(vertices.size(), 4096, [&](std::size_t slot) {
         SplatTargets::Target& t = out.targets[slot];
@@ -107,7 +246,7 @@ struct SplatCounts {
 template <class WantedClass>
 std::vector<Rgb> splatOnto(const Scene& scene, const EyeVertexBuffer::View& vertices, const SplatTargets& targets,
                            std::size_t pixelCount, const PhotonRayBuffer& rays, WantedClass wanted, SplatEndCap cap,
-                           bool useCullNodes, SplatCounts& counts) {
+                           bool useCullNodes, bool tightBoxes, SplatCounts& counts) {
     const auto origin = rays.column<RayOrigin>();
     const auto direction = rays.column<RayDirection>();
     const auto length = rays.column<RayLength>();
@@ -134,27 +273,28 @@ std::vector<Rgb> splatOnto(const Scene& scene, const EyeVertexBuffer::View& vert
             if (!(ray.h0 > 0.0f || ray.dh > 0.0f)) continue;
             const Vec3 incident = -ray.direction;
             const SplatFrustum frustum(ray, cap);
-            targets.tree.forEachCandidate(
-                splatCone(ray, cap),
-                [&](std::uint32_t slot) {
-                    ++acc.counts.candidates;
-                    const float weight =
-                        frustum.weight(targets.tree.slotPosition(slot), targets.tree.slotNormal(slot));
-                    if (!(weight > 0.0f)) return;
-                    const SplatTargets::Target& target = targets.targets[slot];
-                    Rgb f;
-                    if (target.lambertian) {
-                        if (!(glm::dot(incident, target.geometricNormal) > 0.0f)) return;
-                        f = target.weight;
-                    } else {
-                        f = VertexBrdf(scene, vertices, target.vertex)(incident) * throughput[target.vertex];
-                    }
-                    const Rgb value = f * power[r] * weight;
-                    if (!isFinite(value)) return;
-                    acc.pixels[target.pixel] += value;
-                    ++acc.counts.deposits;
-                },
-                useCullNodes);
+            const auto deposit = [&](std::uint32_t slot) {
+                ++acc.counts.candidates;
+                const float weight =
+                    frustum.weight(targets.tree.slotPosition(slot), targets.tree.slotNormal(slot));
+                if (!(weight > 0.0f)) return;
+                const SplatTargets::Target& target = targets.targets[slot];
+                Rgb f;
+                if (target.lambertian) {
+                    if (!(glm::dot(incident, target.geometricNormal) > 0.0f)) return;
+                    f = target.weight;
+                } else {
+                    f = VertexBrdf(scene, vertices, target.vertex)(incident) * throughput[target.vertex];
+                }
+                const Rgb value = f * power[r] * weight;
+                if (!isFinite(value)) return;
+                acc.pixels[target.pixel] += value;
+                ++acc.counts.deposits;
+            };
+            if (tightBoxes)
+                forEachCandidateInBoxes(targets, splatCone(ray, cap), deposit, useCullNodes);
+            else
+                targets.tree.forEachCandidate(splatCone(ray, cap), deposit, useCullNodes);
         }
     });
     std::vector<Rgb> total(pixelCount, Rgb(0.0f));
@@ -164,6 +304,28 @@ std::vector<Rgb> splatOnto(const Scene& scene, const EyeVertexBuffer::View& vert
         counts.deposits += block.counts.deposits;
     }
     return total;
+}
+
+// The mean kernel radius where the rays meet a surface, R(t_hit), in
+// millionths of the scene diagonal: the bandwidth to compare with the photon
+// map's mean gather radius (final_gather's mean_gather_radius_ppm), as the
+// paper chooses C for equal mean bandwidths (§9, Fig. 9). Rays that escape
+// or carry no footprint do not count. Summed in integers, so the figure does
+// not depend on the order.
+std::int64_t meanHitRadiusPpm(const Scene& scene, const PhotonRayBuffer& rays) {
+    const auto h0 = rays.column<RayH0>();
+    const auto dh = rays.column<RayDh>();
+    const auto length = rays.column<RayLength>();
+    const auto endNormal = rays.column<RayEndNormal>();
+    const double scale = 1e6 / static_cast<double>(glm::length(scene.boundsMax - scene.boundsMin));
+    std::int64_t sum = 0, count = 0;
+    for (std::size_t r = 0; r < rays.size(); ++r) {
+        const float radius = h0[r] + dh[r] * length[r];
+        if (endNormal[r] == Vec3(0.0f) || !(radius > 0.0f)) continue;
+        sum += std::llround(scale * static_cast<double>(radius));
+        ++count;
+    }
+    return count > 0 ? sum / count : 0;
 }
 
 class FinalGatherSplatPass final : public Pass {
@@ -178,6 +340,8 @@ public:
         const SplatEndCap cap = ctx.params().getString("end_cap") == "hemisphere" ? SplatEndCap::Hemisphere
                                                                                   : SplatEndCap::TangentPlane;
         const bool useCullNodes = ctx.params().getBool("cull_nodes");
+        const bool tightBoxes = ctx.params().getString("traversal") == "tight_boxes";
+        const auto leafSize = static_cast<std::uint32_t>(ctx.params().getInt("leaf_size"));
         const PhotonRayBuffer& rays = photonRays.rays;
 
         Film& global = ctx.createOutput<Film>("global", ctx.filmSettings());
@@ -206,9 +370,9 @@ public:
 
             start = std::clock();
             const EyeVertexBuffer::View hitView = hits.vertices.view();
-            const SplatTargets targets = indexTargets(scene, hitView, rect);
+            const SplatTargets targets = indexTargets(scene, hitView, rect, leafSize);
             const std::vector<Rgb> local =
-                splatOnto(scene, hitView, targets, rect.size(), rays, everyClass, cap, useCullNodes, counts);
+                splatOnto(scene, hitView, targets, rect.size(), rays, everyClass, cap, useCullNodes, tightBoxes, counts);
             for (std::size_t i = 0; i < local.size(); ++i) globalPixels[rect.global(i)] += local[i];
             splatMicroseconds += cpuMicrosecondsSince(start);
             ctx.reportProgress(static_cast<double>(tile + 1) / static_cast<double>(byTile.size()));
@@ -218,14 +382,15 @@ public:
         if (photonRays.countPerClass[PhotonRayClass::Caustic] > 0) {
             const auto start = std::clock();
             const PixelRect film{0, 0, width, height, width};
-            const SplatTargets targets = indexTargets(scene, eye, film);
+            const SplatTargets targets = indexTargets(scene, eye, film, leafSize);
             const auto causticOnly = [](std::uint8_t c) { return c == PhotonRayClass::Caustic; };
             caustic.addToPixels(
-                splatOnto(scene, eye, targets, film.size(), rays, causticOnly, cap, useCullNodes, counts), 1.0f);
+                splatOnto(scene, eye, targets, film.size(), rays, causticOnly, cap, useCullNodes, tightBoxes, counts), 1.0f);
             splatMicroseconds += cpuMicrosecondsSince(start);
         }
         ctx.addItems(hitCount);
         ctx.addCounter("gather_hits", hitCount);
+        ctx.addCounter("mean_hit_radius_ppm", meanHitRadiusPpm(scene, rays));
         ctx.addCounter("vertex_candidates", counts.candidates);
         ctx.addCounter("vertex_deposits", counts.deposits);
         ctx.addCounter("trace_cpu_us", traceMicroseconds);
@@ -256,6 +421,11 @@ PassRegistration finalGatherSplatPass() {
         {"end_cap", ParamType::String, std::string("tangent_plane"), 0, 0, {"tangent_plane", "hemisphere"},
          "footprint beyond the hit point, as ray_splat's"},
         {"cull_nodes", ParamType::Bool, true, 0, 0, {}, "use the kd-trees' backface-culling nodes"},
+        {"traversal", ParamType::String, std::string("tight_boxes"), 0, 0, {"tight_boxes", "cells"},
+         "search: kd nodes entered where the ray meets their vertices' box grown by the largest radius, or "
+         "Algorithm 1's cell clipping (same deposits in the same order)"},
+        {"leaf_size", ParamType::Int, std::int64_t{16}, 1, 1 << 20, {},
+         "kd-tree nodes with fewer hits become leaves (§7.1: 16)"},
     };
     const auto preflight = [](const PreflightContext& pf) {
         if (!pf.scene.media.empty())

@@ -3,13 +3,19 @@
 // Cornell box: both give the same image on 1 and 2 threads, both converge
 // towards the path-traced reference as the photon count grows, and their
 // parameters are checked before any work.
+#include "engine/accel/ray_query.h"
 #include "engine/core/error.h"
+#include "engine/core/scheduler.h"
+#include "engine/image/film.h"
 #include "engine/image/image_io.h"
 #include "engine/scene/scene_loader.h"
+#include "passes/passes.h"
+#include "tests/support/pass_helpers.h"
 #include "tests/support/render_helpers.h"
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -153,6 +159,108 @@ TEST(FinalGathering, SecondaryGatheringKeepsTheIndirectLight) {
     EXPECT_NE(once.pixels, twice.pixels);
 }
 
+// One render's image and the counters of one of its passes.
+struct CountedRender {
+    std::vector<Rgb> pixels;
+    std::map<std::string, std::int64_t> counters;
+};
+
+CountedRender renderCounted(const Scene& scene, const std::string& pipeline,
+                            const std::map<std::string, ParamValue>& params, const std::string& instance, int size) {
+    JobParams jobParams;
+    for (const auto& [key, value] : params) {
+        const auto dot = key.find('.');
+        jobParams.values[key.substr(0, dot)][key.substr(dot + 1)] = {value, "test"};
+    }
+    const ExecutionPlan plan = ExecutionPlan::build(*findPipeline(pipeline), jobParams, "test");
+    const RayQuery rays(scene);
+    RunOptions options;
+    options.film = test::smallFilm(size, size);
+    const RunResult run = execute(plan, scene, rays, options);
+    const auto stats = std::find_if(run.stats.begin(), run.stats.end(),
+                                    [&](const PassStats& s) { return s.instance == instance; });
+    EXPECT_NE(stats, run.stats.end()) << instance;
+    CountedRender out{test::bufferAs<Film>(run.results.at("image")).resolve(), {}};
+    if (stats != run.stats.end())
+        for (const auto& [name, value] : stats->counters) out.counters[name] = value;
+    return out;
+}
+
+// The paper compares photon maps and ray splatting at equal mean bandwidth
+// (§9, Fig. 9), so both passes report theirs. Every ray's h scales with C,
+// clamps included (§6: h-bar = C mu_C (M / 10^5)^(-1/6)), so halving C halves
+// fg_splat's mean radius at the hits; the k-nearest radius grows as sqrt(k)
+// where the photon density is locally even, so a quarter of k about halves it.
+TEST(FinalGathering, MeanBandwidthsFollowSmoothnessAndK) {
+    const Scene scene = loadScene((cornellBoxDir() / "cornell-box.xml").string());
+    std::map<std::string, ParamValue> params = finalGatherParams("prs-fg", 20000, 2);
+    const std::int64_t wide = renderCounted(scene, "prs-fg", params, "fg_splat", 16).counters.at("mean_hit_radius_ppm");
+    params["ray_bandwidth.smoothness"] = 0.5;
+    const std::int64_t narrow = renderCounted(scene, "prs-fg", params, "fg_splat", 16).counters.at("mean_hit_radius_ppm");
+    std::printf("prs-fg mean radius at the hits: %lld ppm at C = 1, %lld at C = 0.5\n", static_cast<long long>(wide),
+                static_cast<long long>(narrow));
+    ASSERT_GT(wide, 1000);
+    EXPECT_NEAR(static_cast<double>(narrow) / static_cast<double>(wide), 0.5, 0.005);
+
+    params = finalGatherParams("pm-fg", 20000, 2);
+    params["final_gather.k_global"] = std::int64_t{100};
+    const std::int64_t many =
+        renderCounted(scene, "pm-fg", params, "final_gather", 16).counters.at("mean_gather_radius_ppm");
+    params["final_gather.k_global"] = std::int64_t{25};
+    const std::int64_t few =
+        renderCounted(scene, "pm-fg", params, "final_gather", 16).counters.at("mean_gather_radius_ppm");
+    std::printf("pm-fg mean gather radius: %lld ppm at k = 100, %lld at k = 25\n", static_cast<long long>(many),
+                static_cast<long long>(few));
+    ASSERT_GT(many, 1000);
+    EXPECT_NEAR(static_cast<double>(few) / static_cast<double>(many), 0.5, 0.1);
+}
+
+// Tiles and leaf size change how the hits are searched, not which (ray, hit)
+// pairs deposit: the same deposits, and the image up to the order of the
+// floating-point sums. Bigger leaves hand the splat more candidates.
+TEST(FinalGathering, TilesAndLeafSizeKeepTheDeposits) {
+    const Scene scene = loadScene((cornellBoxDir() / "cornell-box.xml").string());
+    std::map<std::string, ParamValue> params = finalGatherParams("prs-fg", 10000, 4);
+    params["fg_splat.tiles"] = std::int64_t{3};
+    const CountedRender base = renderCounted(scene, "prs-fg", params, "fg_splat", 24);
+    params["fg_splat.tiles"] = std::int64_t{1};
+    const CountedRender oneTile = renderCounted(scene, "prs-fg", params, "fg_splat", 24);
+    params["fg_splat.leaf_size"] = std::int64_t{64};
+    const CountedRender bigLeaves = renderCounted(scene, "prs-fg", params, "fg_splat", 24);
+    const std::int64_t deposits = base.counters.at("vertex_deposits");
+    ASSERT_GT(deposits, 10000);
+    for (const CountedRender* other : {&oneTile, &bigLeaves}) {
+        EXPECT_NEAR(static_cast<double>(other->counters.at("vertex_deposits")), static_cast<double>(deposits),
+                    1e-6 * static_cast<double>(deposits));
+        ASSERT_EQ(other->pixels.size(), base.pixels.size());
+        for (std::size_t i = 0; i < base.pixels.size(); ++i)
+            for (int c = 0; c < 3; ++c)
+                EXPECT_NEAR(other->pixels[i][c], base.pixels[i][c], 1e-4f * (1.0f + base.pixels[i][c])) << "pixel " << i;
+    }
+    EXPECT_GT(bigLeaves.counters.at("vertex_candidates"), oneTile.counters.at("vertex_candidates"));
+}
+
+// fg_splat enters a kd node only where the ray meets its vertices' tight box
+// grown by the largest radius: that skips only leaves that cannot deposit
+// and keeps Algorithm 1's child order, so the deposits and the image are
+// exactly those of the cell-clipping traversal, from fewer candidates.
+TEST(FinalGathering, TightBoxTraversalKeepsEveryDepositInOrder) {
+    const Scene scene = loadScene((cornellBoxDir() / "cornell-box.xml").string());
+    for (const double smoothness : {1.0, 0.3}) {
+        std::map<std::string, ParamValue> params = finalGatherParams("prs-fg", 10000, 4);
+        params["ray_bandwidth.smoothness"] = smoothness;
+        params["fg_splat.tiles"] = std::int64_t{2};
+        params["fg_splat.traversal"] = std::string("cells");
+        const CountedRender cells = renderCounted(scene, "prs-fg", params, "fg_splat", 24);
+        params["fg_splat.traversal"] = std::string("tight_boxes");
+        const CountedRender boxes = renderCounted(scene, "prs-fg", params, "fg_splat", 24);
+        ASSERT_GT(cells.counters.at("vertex_deposits"), 10000);
+        EXPECT_EQ(boxes.counters.at("vertex_deposits"), cells.counters.at("vertex_deposits")) << "C = " << smoothness;
+        EXPECT_LT(boxes.counters.at("vertex_candidates"), cells.counters.at("vertex_candidates")) << "C = " << smoothness;
+        EXPECT_EQ(boxes.pixels, cells.pixels) << "C = " << smoothness;
+    }
+}
+
 std::string planError(const std::string& pipeline, const std::map<std::string, ParamValue>& params) {
     const Scene scene = loadScene((cornellBoxDir() / "cornell-box.xml").string());
     try {
@@ -168,6 +276,7 @@ TEST(FinalGathering, ParametersOutsideTheirRangesAreRefused) {
              {"prs-fg", "fg_splat.fg_rays", 0},
              {"prs-fg", "fg_splat.tiles", 0},
              {"prs-fg", "fg_splat.tiles", 65},
+             {"prs-fg", "fg_splat.leaf_size", 0},
              {"pm-fg", "final_gather.fg_rays", 4097},
              {"pm-fg", "final_gather.k_global", 0},
              {"pm-fg", "final_gather.secondary_rays", 0},
@@ -184,6 +293,9 @@ TEST(FinalGathering, ParametersOutsideTheirRangesAreRefused) {
     params = finalGatherParams("prs-fg", 1000, 1);
     params["fg_splat.end_cap"] = std::string("sphere");
     EXPECT_NE(planError("prs-fg", params).find("end_cap"), std::string::npos);
+    params = finalGatherParams("prs-fg", 1000, 1);
+    params["fg_splat.traversal"] = std::string("bvh");
+    EXPECT_NE(planError("prs-fg", params).find("traversal"), std::string::npos);
 }
 
 // Without direct photons in the map and its index the hits would miss the
