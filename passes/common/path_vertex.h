@@ -68,12 +68,27 @@ struct ShadowRequest {
     bool pending = false;
 };
 
+// A vertex at which a camera path could be guided (a surface event of a BSDF
+// with smooth, non-transmissive lobes only): where the radiance cache is
+// looked up when there is one. The importon pass stores these (Vorba et al.
+// 2014 §4.1: records are created where guided paths query the cache).
+struct GuidableVertex {
+    Vec3 position;
+    Vec3 normal;    // shading normal on the side the path arrived from
+    Vec3 incident;  // unit direction back along the arriving ray
+    float weight;   // mean of the path throughput on arrival
+    int bounces;    // scattering events before this one
+};
+
 struct PathVertexState {
     Ray& ray;
     Rgb& throughput;
     Rgb& radiance;
     PathHistory& history;
     jobs::Rng& rng;
+    // Receives the guidable vertices the path passes, if set. Recording them
+    // draws no random number, so the path is the same with or without it.
+    std::vector<GuidableVertex>* guidable = nullptr;
 };
 
 // Consumes the hit of state.ray; returns false when the path ends. May fill `shadow`.
