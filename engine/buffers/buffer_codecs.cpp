@@ -304,6 +304,7 @@ BufferCodec guidingCacheCodec() {
                     !validMixture(gmms[i]))
                     reader.fail("corrupt buffer: guiding record " + std::to_string(i));
             }
+            cache.buildCoverGrid();
             return cache;
         });
 }

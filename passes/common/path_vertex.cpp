@@ -89,7 +89,9 @@ VertexGuide findGuide(const PathTracerScene& pts, const Bsdf& bsdf, const Surfac
     VertexGuide guide;
     if (!pts.guiding || !guidableBsdf(bsdf)) return guide;
     const Vec3 facing = facingNormal(sp, toViewer);
-    const std::optional<std::uint32_t> record = pts.guiding->lookup(sp.p, facing, GuidingCacheQuery{pts.guidingCandidates});
+    const std::optional<std::uint32_t> record = pts.guidingCovering && pts.guiding->hasCoverGrid()
+                                                     ? pts.guiding->lookupCovering(sp.p, facing)
+                                                     : pts.guiding->lookup(sp.p, facing, GuidingCacheQuery{pts.guidingCandidates});
     if (!record) return guide;
     const DirectionalGmm& gmm = pts.guiding->records.column<GuideMixture>()[*record];
     if (!gmm.usable()) return guide;

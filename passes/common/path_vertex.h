@@ -31,10 +31,14 @@ struct PathTracerScene {
     // probability guidingBsdfProbability (α), the cache's GMM otherwise.
     const GuidingCache* guiding = nullptr;
     float guidingBsdfProbability = 0.5f;
-    // M of Eq. 11: records compared per guided vertex. The query is most of
-    // guiding's cost in pt (§6: 26 % of the time in the paper); the paper does
-    // not give M. pt's parameter guiding_candidates sets it.
+    // M of Eq. 11 for a cache without a cover grid (GuidingCache::lookupCovering
+    // is used otherwise); the paper does not give M. pt's parameter
+    // guiding_candidates sets it.
     std::uint32_t guidingCandidates = 2;
+    // Query of the radiance cache: true = the records covering the vertex
+    // (GuidingCache::lookupCovering), false = the M nearest (Eq. 11 with
+    // GuidingCache::lookup). pt's parameter guiding_query sets it.
+    bool guidingCovering = true;
 };
 
 struct PathLimits {

@@ -193,6 +193,8 @@ public:
         if (existing > 0) {
             cache.rebuildIndex();
             clampNeighbourRadii(cache, settings.query.candidates);
+            // Misses are judged by the query guided paths will make.
+            cache.buildCoverGrid();
         }
 
         // Query points: the importons when given (where guided camera paths
@@ -220,7 +222,10 @@ public:
         std::vector<std::uint8_t> missed(queryCount, 0);
         jobs::parallelForChunks(queryCount, 1024, [&](jobs::IndexRange r) {
             for (std::size_t q = r.begin; q != r.end; ++q)
-                missed[q] = cache.lookup(queryPositions[q], queryNormals[q], settings.query) ? 0 : 1;
+                missed[q] = (cache.hasCoverGrid() ? cache.lookupCovering(queryPositions[q], queryNormals[q])
+                                                  : cache.lookup(queryPositions[q], queryNormals[q], settings.query))
+                                ? 0
+                                : 1;
         });
 
         // New records in item order; each skips query points an earlier one covers.
@@ -277,6 +282,7 @@ public:
         });
         cache.rebuildIndex();
         clampNeighbourRadii(cache, settings.query.candidates);
+        cache.buildCoverGrid();
         ctx.addItems(static_cast<std::int64_t>(cache.records.size()));
         ctx.addCounter("records_created", static_cast<std::int64_t>(fresh.size()));
         std::int64_t totalSweeps = 0;
@@ -304,7 +310,8 @@ PassRegistration cacheUpdatePass() {
     spec.outputs = {{"cache", "GuidingCache", "the updated cache of directional GMMs"}};
     spec.params = {
         {"training_particles", ParamType::Int, std::int64_t{250}, 1, 4096, {}, "N: nearest particles per record (Fig. 7)"},
-        {"candidates", ParamType::Int, std::int64_t{16}, 1, 64, {}, "M: records compared by Eq. 11 per query"},
+        {"candidates", ParamType::Int, std::int64_t{16}, 1, 64, {},
+         "M: nearest records for neighbour clamping, and for Eq. 11 if the cover grid is not built"},
         {"kl_threshold", ParamType::Float, 0.5, 1e-6, 1e6, {}, "KL divergence a lobe may change by within the validity radius"},
         {"tolerance", ParamType::Float, 1e-3, 1e-12, 1.0, {}, "off-line EM stops when a sweep changes the log-likelihood by less than this times max(|L|, total weight)"},
         {"new_record_spacing", ParamType::Float, 1.0, 0.05, 4.0, {},
