@@ -56,6 +56,7 @@ constexpr std::size_t kMaxCovering = 64;
 void GuidingCache::buildCoverGrid() {
     coverOffsets_.clear();
     coverRecords_.clear();
+    cover_.clear();
     const std::size_t count = records.size();
     if (count == 0) return;
     const auto positions = records.column<GuidePosition>();
@@ -121,6 +122,11 @@ void GuidingCache::buildCoverGrid() {
     for (std::size_t i = 0; i < count; ++i)
         forCells(i, [&](std::size_t c) { coverRecords_[cursor[c]++] = static_cast<std::uint32_t>(i); });
     coverOffsets_ = std::move(offsets);
+    const auto normals = records.column<GuideNormal>();
+    const auto gmms = records.column<GuideMixture>();
+    cover_.resize(count);
+    for (std::size_t i = 0; i < count; ++i)
+        cover_[i] = {positions[i], radii[i] * radii[i], normals[i], gmms[i].usable() ? 1u : 0u};
 }
 
 std::optional<std::uint32_t> GuidingCache::lookupCovering(const Vec3& x, const Vec3& n) const {
@@ -133,18 +139,16 @@ std::optional<std::uint32_t> GuidingCache::lookupCovering(const Vec3& x, const V
     }
     const std::size_t cell =
         (static_cast<std::size_t>(cellIndex[2]) * resolution_[1] + cellIndex[1]) * resolution_[0] + cellIndex[0];
-    const auto positions = records.column<GuidePosition>();
-    const auto normals = records.column<GuideNormal>();
-    const auto radii = records.column<GuideValidityRadius>();
     std::uint32_t ids[kMaxCovering];
     float dist2[kMaxCovering], angular[kMaxCovering];
     std::size_t found = 0;
     float h2 = 0.0f;
     for (std::uint32_t k = coverOffsets_[cell]; k != coverOffsets_[cell + 1] && found < kMaxCovering; ++k) {
         const std::uint32_t i = coverRecords_[k];
-        const float d2 = KdTree::distance2(x, positions[i]);
-        if (d2 > radii[i] * radii[i]) continue;
-        const float cosine = glm::dot(n, normals[i]);
+        const CoverRecord& record = cover_[i];
+        const float d2 = KdTree::distance2(x, record.position);
+        if (d2 > record.radius2) continue;
+        const float cosine = glm::dot(n, record.normal);
         if (!(cosine > 0.0f)) continue;
         ids[found] = i;
         dist2[found] = d2;

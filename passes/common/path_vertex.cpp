@@ -94,7 +94,7 @@ VertexGuide findGuide(const PathTracerScene& pts, const Bsdf& bsdf, const Surfac
                                                      : pts.guiding->lookup(sp.p, facing, GuidingCacheQuery{pts.guidingCandidates});
     if (!record) return guide;
     const DirectionalGmm& gmm = pts.guiding->records.column<GuideMixture>()[*record];
-    if (!gmm.usable()) return guide;
+    if (!(pts.guiding->hasCoverGrid() ? pts.guiding->usable(*record) : gmm.usable())) return guide;
     guide.gmm = &gmm;
     guide.frame = Frame(pts.guiding->records.column<GuideNormal>()[*record]);
     guide.bsdfProbability = pts.guidingBsdfProbability;
