@@ -31,8 +31,8 @@ struct PathTracerScene {
     // probability guidingBsdfProbability (α), the cache's GMM otherwise.
     const GuidingCache* guiding = nullptr;
     float guidingBsdfProbability = 0.5f;
-    // M of Eq. 11 for a cache without a cover grid (GuidingCache::lookupCovering
-    // is used otherwise); the paper does not give M. pt's parameter
+    // M of Eq. 11 for the nearest query (guidingCovering false, or a cache
+    // without a cover grid); the paper does not give M. pt's parameter
     // guiding_candidates sets it.
     std::uint32_t guidingCandidates = 2;
     // Query of the radiance cache: true = the records covering the vertex

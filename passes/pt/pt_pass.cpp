@@ -379,8 +379,8 @@ PassRegistration pathTracerPass() {
         {"guiding_bsdf_probability", ParamType::Float, 0.5, 0.01, 1.0, {},
          "alpha: probability of BSDF sampling at a guided vertex (the GMM otherwise)"},
         {"guiding_candidates", ParamType::Int, std::int64_t{2}, 1, 64, {},
-         "M of Eq. 11 for a cache without a cover grid (one whose grid would be too large): nearest records "
-         "compared per guided vertex"},
+         "M of Eq. 11 for guiding_query = nearest (and for a cache whose cover grid would be too large): "
+         "nearest records compared per guided vertex"},
         {"guiding_query", ParamType::String, std::string("covering"), 0, 0, {"covering", "nearest"},
          "covering: the best by Eq. 11 of the records whose validity radius holds the vertex (a grid lookup); "
          "nearest: the best of the guiding_candidates nearest records, if its radius holds the vertex (a kd-tree search)"},
