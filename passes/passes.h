@@ -32,6 +32,7 @@ PassRegistration rayBandwidthPass();
 PassRegistration splatIndexPass();
 PassRegistration raySplatPass();
 PassRegistration cacheUpdatePass();
+PassRegistration importonPass();
 PassRegistration radianceIntegratePass();
 PassRegistration radianceCachePass();
 PassRegistration finalGatherSplatPass();

@@ -19,7 +19,7 @@ const Registry& builtinRegistry() {
             emStatsPass(),     emFitPass(),  pemFitPass(),       gmmPyramidPass(),   gmmBbhPass(),   gmmRenderPass(),
             filmNoisePass(),   compositePass(),
             rayBandwidthPass(), splatIndexPass(), raySplatPass(), radianceIntegratePass(), radianceCachePass(),
-            cacheUpdatePass(),
+            cacheUpdatePass(), importonPass(),
             finalGatherSplatPass(), finalGatherPass(),
             bdptPass(),
         };

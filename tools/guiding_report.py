@@ -80,7 +80,8 @@ def main():
     parser.add_argument("--training-particles", type=int, default=256)
     parser.add_argument("--max-sweeps", type=int, default=12, help="cache_update max_sweeps")
     parser.add_argument("--spacing", type=float, default=1.0, help="cache_update new_record_spacing")
-    parser.add_argument("--candidates", type=int, default=2, help="pt guiding_candidates (M of Eq. 11)")
+    parser.add_argument("--candidates", type=int, default=2, help="pt and importon guiding_candidates (M of Eq. 11)")
+    parser.add_argument("--importon-spp", type=int, default=1, help="importon paths per pixel per training pass")
     parser.add_argument("--spp", type=int, default=512, help="guided pt samples per pixel")
     parser.add_argument("--reference-spp", type=int, default=4096)
     parser.add_argument("--threads", type=int, default=2)
@@ -97,7 +98,8 @@ def main():
         if not os.path.exists(reference):
             body = f"[passes.pt]\nspp = {args.reference_spp}\nmax_depth = 16\n"
             image, _, _ = run(args.binary, job(scene, width, height, body, "pt", seed=2), os.path.join(work, "reference.toml"), work, args.threads)
-        guided_body = (f"[passes.photon]\nphotons = {args.photons}\nstore = \"global\"\ndifferentials = false\n"
+        guided_body = (f"[passes.importon]\nspp = {args.importon_spp}\nmax_depth = 16\nguiding_candidates = {args.candidates}\n"
+                       f"[passes.photon]\nphotons = {args.photons}\nstore = \"global\"\ndifferentials = false\n"
                        f"[passes.radiance_update]\ntraining_particles = {args.training_particles}\n"
                        f"max_sweeps = {args.max_sweeps}\nnew_record_spacing = {args.spacing}\n"
                        f"[passes.pt]\nspp = {args.spp}\nmax_depth = 16\nguiding_candidates = {args.candidates}\n\n" + pipeline_text(args.training_passes))

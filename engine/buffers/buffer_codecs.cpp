@@ -13,6 +13,7 @@
 #include "engine/buffers/radiance_cache_buffers.h"
 #include "engine/core/codec.h"
 #include "engine/guiding/guiding_cache.h"
+#include "engine/guiding/importons.h"
 #include "engine/image/film.h"
 
 #include <cmath>
@@ -250,6 +251,21 @@ bool validMixture(const DirectionalGmm& gmm) {
     return true;
 }
 
+BufferCodec importonMapCodec() {
+    return codecFor<ImportonMap>(
+        [](const ImportonMap& map, CodecWriter& writer) {
+            writer.setItemCount(map.importons.size());
+            writer.write<std::uint64_t>(map.paths);
+            writer.writeSoa("importons", map.importons);
+        },
+        [](CodecReader& reader) {
+            ImportonMap map;
+            map.paths = reader.read<std::uint64_t>();
+            reader.readSoa("importons", map.importons);
+            return map;
+        });
+}
+
 BufferCodec guidingCacheCodec() {
     return codecFor<GuidingCache>(
         [](const GuidingCache& cache, CodecWriter& writer) {
@@ -288,6 +304,7 @@ BufferCodec guidingCacheCodec() {
                     !validMixture(gmms[i]))
                     reader.fail("corrupt buffer: guiding record " + std::to_string(i));
             }
+            cache.buildCoverGrid();
             return cache;
         });
 }
@@ -306,6 +323,7 @@ std::vector<BufferCodec> builtinCodecs() {
     codecs.push_back(pointIndexCodec());
     codecs.push_back(photonBvhCodec());
     codecs.push_back(guidingCacheCodec());
+    codecs.push_back(importonMapCodec());
     codecs.push_back(photonRaysCodec());
     codecs.push_back(splatIndexCodec());
     codecs.push_back(radianceMapCodec());

@@ -43,6 +43,134 @@ std::optional<std::uint32_t> GuidingCache::lookup(const Vec3& x, const Vec3& n, 
     return chosen;
 }
 
+namespace {
+// Cells per axis at most: 64³ cells of 4 bytes is 1 MiB of offsets.
+constexpr int kMaxCoverResolution = 64;
+// A grid whose lists would exceed this many entries is not built (lookups
+// fall back to lookup()).
+constexpr std::size_t kMaxCoverEntries = std::size_t{1} << 26;
+// Covering candidates compared per lookup; more (in record order) are ignored.
+constexpr std::size_t kMaxCovering = 64;
+}  // namespace
+
+void GuidingCache::buildCoverGrid() {
+    coverOffsets_.clear();
+    coverRecords_.clear();
+    cover_.clear();
+    const std::size_t count = records.size();
+    if (count == 0) return;
+    const auto positions = records.column<GuidePosition>();
+    const auto radii = records.column<GuideValidityRadius>();
+    Vec3 lo(kInfinity), hi(-kInfinity);
+    std::vector<float> sorted(radii.begin(), radii.end());
+    for (std::size_t i = 0; i < count; ++i) {
+        lo = glm::min(lo, positions[i] - Vec3(radii[i]));
+        hi = glm::max(hi, positions[i] + Vec3(radii[i]));
+    }
+    std::nth_element(sorted.begin(), sorted.begin() + static_cast<std::ptrdiff_t>(count / 2), sorted.end());
+    const Vec3 extent = hi - lo;
+    const float widest = std::max({extent.x, extent.y, extent.z});
+    // Cells about as wide as a typical record's cover: a cell then lists few
+    // records, and a record few cells, except the large ones.
+    const float cell = std::max({sorted[count / 2], widest / kMaxCoverResolution, 1e-6f});
+    std::size_t cells = 1;
+    for (int a = 0; a < 3; ++a) {
+        resolution_[a] = std::clamp(static_cast<int>(std::ceil(extent[a] / cell)), 1, kMaxCoverResolution);
+        cells *= static_cast<std::size_t>(resolution_[a]);
+    }
+    gridLo_ = lo;
+    cellInverse_ = 1.0f / cell;
+    const auto cellRange = [&](std::size_t i, int a) {
+        const float c = positions[i][a], r = radii[i];
+        return std::pair<int, int>(std::clamp(static_cast<int>(std::floor((c - r - lo[a]) * cellInverse_)), 0, resolution_[a] - 1),
+                                   std::clamp(static_cast<int>(std::floor((c + r - lo[a]) * cellInverse_)), 0, resolution_[a] - 1));
+    };
+    // Whether record i's sphere reaches cell (x, y, z): distance from its
+    // centre to the cell's box at most its radius.
+    const auto reaches = [&](std::size_t i, int x, int y, int z) {
+        const int cellIndex[3] = {x, y, z};
+        float d2 = 0.0f;
+        for (int a = 0; a < 3; ++a) {
+            const float boxLo = lo[a] + static_cast<float>(cellIndex[a]) * cell, boxHi = boxLo + cell;
+            const float c = positions[i][a];
+            const float d = c < boxLo ? boxLo - c : (c > boxHi ? c - boxHi : 0.0f);
+            d2 += d * d;
+        }
+        return d2 <= radii[i] * radii[i];
+    };
+    const auto forCells = [&](std::size_t i, auto&& f) {
+        const auto [x0, x1] = cellRange(i, 0);
+        const auto [y0, y1] = cellRange(i, 1);
+        const auto [z0, z1] = cellRange(i, 2);
+        for (int z = z0; z <= z1; ++z)
+            for (int y = y0; y <= y1; ++y)
+                for (int x = x0; x <= x1; ++x)
+                    if (reaches(i, x, y, z))
+                        f((static_cast<std::size_t>(z) * resolution_[1] + y) * resolution_[0] + x);
+    };
+    std::vector<std::uint32_t> offsets(cells + 1, 0);
+    std::size_t entries = 0;
+    for (std::size_t i = 0; i < count; ++i)
+        forCells(i, [&](std::size_t c) {
+            ++offsets[c + 1];
+            ++entries;
+        });
+    if (entries > kMaxCoverEntries) return;
+    for (std::size_t c = 0; c < cells; ++c) offsets[c + 1] += offsets[c];
+    std::vector<std::uint32_t> cursor(offsets.begin(), offsets.end() - 1);
+    coverRecords_.resize(entries);
+    for (std::size_t i = 0; i < count; ++i)
+        forCells(i, [&](std::size_t c) { coverRecords_[cursor[c]++] = static_cast<std::uint32_t>(i); });
+    coverOffsets_ = std::move(offsets);
+    const auto normals = records.column<GuideNormal>();
+    const auto gmms = records.column<GuideMixture>();
+    cover_.resize(count);
+    for (std::size_t i = 0; i < count; ++i)
+        cover_[i] = {positions[i], radii[i] * radii[i], normals[i], gmms[i].usable() ? 1u : 0u};
+}
+
+std::optional<std::uint32_t> GuidingCache::lookupCovering(const Vec3& x, const Vec3& n) const {
+    if (!hasCoverGrid()) return std::nullopt;
+    int cellIndex[3];
+    for (int a = 0; a < 3; ++a) {
+        const float f = std::floor((x[a] - gridLo_[a]) * cellInverse_);
+        if (!(f >= 0.0f && f < static_cast<float>(resolution_[a]))) return std::nullopt;  // no record reaches x
+        cellIndex[a] = static_cast<int>(f);
+    }
+    const std::size_t cell =
+        (static_cast<std::size_t>(cellIndex[2]) * resolution_[1] + cellIndex[1]) * resolution_[0] + cellIndex[0];
+    std::uint32_t ids[kMaxCovering];
+    float dist2[kMaxCovering], angular[kMaxCovering];
+    std::size_t found = 0;
+    float h2 = 0.0f;
+    for (std::uint32_t k = coverOffsets_[cell]; k != coverOffsets_[cell + 1] && found < kMaxCovering; ++k) {
+        const std::uint32_t i = coverRecords_[k];
+        const CoverRecord& record = cover_[i];
+        const float d2 = KdTree::distance2(x, record.position);
+        if (d2 > record.radius2) continue;
+        const float cosine = glm::dot(n, record.normal);
+        if (!(cosine > 0.0f)) continue;
+        ids[found] = i;
+        dist2[found] = d2;
+        angular[found] = 2.0f * std::sqrt(std::max(0.0f, 1.0f - cosine));
+        h2 = std::max(h2, d2);
+        ++found;
+    }
+    if (found == 0) return std::nullopt;
+    const float h = std::max(std::sqrt(h2), 1e-12f);
+    // Lists are in record order, so a strict comparison keeps the lower index on ties.
+    std::size_t best = 0;
+    float bestScore = kInfinity;
+    for (std::size_t k = 0; k < found; ++k) {
+        const float score = dist2[k] / h + angular[k];
+        if (score < bestScore) {
+            bestScore = score;
+            best = k;
+        }
+    }
+    return ids[best];
+}
+
 // The supplement with the paper's derivation is not available; this follows
 // Fig. 5. A lobe j points at a highlight at distance d; moving the record by Δx
 // across the lobe's axis turns that direction by about Δx / d radians, which

@@ -13,6 +13,7 @@
 #include <cstdint>
 #include <optional>
 #include <utility>
+#include <vector>
 
 namespace fg {
 
@@ -49,10 +50,44 @@ public:
     // The selected record if x lies inside its validity radius, else nothing.
     std::optional<std::uint32_t> lookup(const Vec3& x, const Vec3& n, const GuidingCacheQuery& query = {}) const;
 
-    std::size_t bytes() const { return records.bytes() + tree_.bytes(); }
+    // The query guided paths use once the radii are final: among the records
+    // whose validity sphere holds x and that face n, the one minimising Eq. 11
+    // (h: distance to the furthest of them), ties to the lower index. Eq. 11's
+    // M nearby records are here the records that cover x, as in the lazy
+    // lookup of irradiance caching that §4.3 follows, found in a uniform grid
+    // instead of a kd-tree search per vertex: the M = 2 search was about half
+    // of guiding's cost in pt. Needs buildCoverGrid() after the last change to
+    // positions or radii.
+    std::optional<std::uint32_t> lookupCovering(const Vec3& x, const Vec3& n) const;
+    // Lists, per cell of a uniform grid over the records' spheres, the records
+    // whose validity sphere reaches into it, in record order. Serial and a
+    // function of the records only, so the same for any thread count.
+    void buildCoverGrid();
+    bool hasCoverGrid() const { return !coverOffsets_.empty(); }
+    // Whether record i's mixture can guide (DirectionalGmm::usable), cached by buildCoverGrid.
+    bool usable(std::uint32_t i) const { return cover_[i].usable != 0; }
+
+    std::size_t bytes() const {
+        return records.bytes() + tree_.bytes() + (coverOffsets_.size() + coverRecords_.size()) * sizeof(std::uint32_t) +
+               cover_.size() * sizeof(CoverRecord);
+    }
 
 private:
     KdTree tree_;
+    Vec3 gridLo_{0.0f};
+    float cellInverse_ = 1.0f;
+    int resolution_[3] = {0, 0, 0};
+    std::vector<std::uint32_t> coverOffsets_;  // cells + 1 prefix sums into coverRecords_
+    std::vector<std::uint32_t> coverRecords_;
+    // What a lookup reads of each record, in one cache line instead of three
+    // columns: the scan of a cell's records is the lookup's cost.
+    struct CoverRecord {
+        Vec3 position;
+        float radius2;
+        Vec3 normal;
+        std::uint32_t usable;
+    };
+    std::vector<CoverRecord> cover_;
 };
 
 template <>

@@ -75,17 +75,26 @@ struct VertexGuide {
     float bsdfProbability = 1.0f;
 };
 
+// Specular and transmissive lobes and null events are never guided.
+bool guidableBsdf(const Bsdf& bsdf) {
+    constexpr std::uint32_t kUnguided = BsdfLobe::Specular | BsdfLobe::Transmission | BsdfLobe::Null;
+    return (bsdf.lobes() & kUnguided) == 0 && bsdf.hasSmoothLobe();
+}
+
+Vec3 facingNormal(const SurfacePoint& sp, const Vec3& toViewer) {
+    return glm::dot(sp.ns, toViewer) >= 0.0f ? sp.ns : -sp.ns;
+}
+
 VertexGuide findGuide(const PathTracerScene& pts, const Bsdf& bsdf, const SurfacePoint& sp, const Vec3& toViewer) {
     VertexGuide guide;
-    if (!pts.guiding) return guide;
-    // Specular and transmissive lobes and null events are never guided.
-    constexpr std::uint32_t kUnguided = BsdfLobe::Specular | BsdfLobe::Transmission | BsdfLobe::Null;
-    if ((bsdf.lobes() & kUnguided) != 0 || !bsdf.hasSmoothLobe()) return guide;
-    const Vec3 facing = glm::dot(sp.ns, toViewer) >= 0.0f ? sp.ns : -sp.ns;
-    const std::optional<std::uint32_t> record = pts.guiding->lookup(sp.p, facing, GuidingCacheQuery{pts.guidingCandidates});
+    if (!pts.guiding || !guidableBsdf(bsdf)) return guide;
+    const Vec3 facing = facingNormal(sp, toViewer);
+    const std::optional<std::uint32_t> record = pts.guidingCovering && pts.guiding->hasCoverGrid()
+                                                     ? pts.guiding->lookupCovering(sp.p, facing)
+                                                     : pts.guiding->lookup(sp.p, facing, GuidingCacheQuery{pts.guidingCandidates});
     if (!record) return guide;
     const DirectionalGmm& gmm = pts.guiding->records.column<GuideMixture>()[*record];
-    if (!gmm.usable()) return guide;
+    if (!(pts.guiding->hasCoverGrid() ? pts.guiding->usable(*record) : gmm.usable())) return guide;
     guide.gmm = &gmm;
     guide.frame = Frame(pts.guiding->records.column<GuideNormal>()[*record]);
     guide.bsdfProbability = pts.guidingBsdfProbability;
@@ -228,6 +237,12 @@ bool advancePathAtSurface(const PathTracerScene& pts, const PathLimits& limits, 
     }
 
     if (++h.depth > limits.maxDepth) return false;
+
+    if (s.guidable && !chosen && guidableBsdf(*bsdf)) {
+        const Rgb& b = beta;
+        s.guidable->push_back({sp.p, facingNormal(sp, -s.ray.direction), -s.ray.direction, (b.x + b.y + b.z) / 3.0f,
+                               h.depth - 1});
+    }
 
     const VertexGuide guide = chosen ? VertexGuide{} : findGuide(pts, *bsdf, sp, -s.ray.direction);
     const GuidedBsdfSampler guided{bsdf, frame, wo, sp.texturePoint(), guide.gmm, guide.frame, guide.bsdfProbability};

@@ -31,10 +31,14 @@ struct PathTracerScene {
     // probability guidingBsdfProbability (α), the cache's GMM otherwise.
     const GuidingCache* guiding = nullptr;
     float guidingBsdfProbability = 0.5f;
-    // M of Eq. 11: records compared per guided vertex. The query is most of
-    // guiding's cost in pt (§6: 26 % of the time in the paper); the paper does
-    // not give M. pt's parameter guiding_candidates sets it.
+    // M of Eq. 11 for the nearest query (guidingCovering false, or a cache
+    // without a cover grid); the paper does not give M. pt's parameter
+    // guiding_candidates sets it.
     std::uint32_t guidingCandidates = 2;
+    // Query of the radiance cache: true = the records covering the vertex
+    // (GuidingCache::lookupCovering), false = the M nearest (Eq. 11 with
+    // GuidingCache::lookup). pt's parameter guiding_query sets it.
+    bool guidingCovering = true;
 };
 
 struct PathLimits {
@@ -68,12 +72,27 @@ struct ShadowRequest {
     bool pending = false;
 };
 
+// A vertex at which a camera path could be guided (a surface event of a BSDF
+// with smooth, non-transmissive lobes only): where the radiance cache is
+// looked up when there is one. The importon pass stores these (Vorba et al.
+// 2014 §4.1: records are created where guided paths query the cache).
+struct GuidableVertex {
+    Vec3 position;
+    Vec3 normal;    // shading normal on the side the path arrived from
+    Vec3 incident;  // unit direction back along the arriving ray
+    float weight;   // mean of the path throughput on arrival
+    int bounces;    // scattering events before this one
+};
+
 struct PathVertexState {
     Ray& ray;
     Rgb& throughput;
     Rgb& radiance;
     PathHistory& history;
     jobs::Rng& rng;
+    // Receives the guidable vertices the path passes, if set. Recording them
+    // draws no random number, so the path is the same with or without it.
+    std::vector<GuidableVertex>* guidable = nullptr;
 };
 
 // Consumes the hit of state.ray; returns false when the path ends. May fill `shadow`.

@@ -258,6 +258,7 @@ public:
             pts.guiding = &ctx.input<GuidingCache>("radiance_cache");
             pts.guidingBsdfProbability = static_cast<float>(params.getFloat("guiding_bsdf_probability"));
             pts.guidingCandidates = static_cast<std::uint32_t>(params.getInt("guiding_candidates"));
+            pts.guidingCovering = params.getString("guiding_query") == "covering";
         }
 
         // Progressive rendering: the samples add to an earlier film's sums, so the
@@ -378,7 +379,11 @@ PassRegistration pathTracerPass() {
         {"guiding_bsdf_probability", ParamType::Float, 0.5, 0.01, 1.0, {},
          "alpha: probability of BSDF sampling at a guided vertex (the GMM otherwise)"},
         {"guiding_candidates", ParamType::Int, std::int64_t{2}, 1, 64, {},
-         "M of Eq. 11: nearest cache records compared per guided vertex (fewer: a cheaper query)"},
+         "M of Eq. 11 for guiding_query = nearest (and for a cache whose cover grid would be too large): "
+         "nearest records compared per guided vertex"},
+        {"guiding_query", ParamType::String, std::string("covering"), 0, 0, {"covering", "nearest"},
+         "covering: the best by Eq. 11 of the records whose validity radius holds the vertex (a grid lookup); "
+         "nearest: the best of the guiding_candidates nearest records, if its radius holds the vertex (a kd-tree search)"},
     };
     return {spec, [] { return std::make_unique<PathTracerPass>(); }, {}, pathTracerMemory};
 }

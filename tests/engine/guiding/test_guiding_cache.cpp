@@ -80,6 +80,57 @@ TEST(GuidingCache, Eq11SelectionMatchesBruteForce) {
     EXPECT_FALSE(GuidingCache{}.select(Vec3(0.0f), Vec3(0, 0, 1)).has_value());
 }
 
+// The records covering x that face n, best by Eq. 11 with h the distance to
+// the furthest of them, ties to the lower index.
+std::optional<std::uint32_t> bruteForceCovering(const GuidingCache& cache, const Vec3& x, const Vec3& n) {
+    const auto positions = cache.records.column<GuidePosition>();
+    const auto normals = cache.records.column<GuideNormal>();
+    const auto radii = cache.records.column<GuideValidityRadius>();
+    std::vector<std::uint32_t> covering;
+    float h2 = 0.0f;
+    for (std::uint32_t i = 0; i < positions.size(); ++i) {
+        const float d2 = KdTree::distance2(x, positions[i]);
+        if (d2 <= radii[i] * radii[i] && glm::dot(n, normals[i]) > 0.0f) {
+            covering.push_back(i);
+            h2 = std::max(h2, d2);
+        }
+    }
+    const float h = std::max(std::sqrt(h2), 1e-12f);
+    std::optional<std::uint32_t> best;
+    float bestScore = kInfinity;
+    for (std::uint32_t i : covering) {
+        const float score = KdTree::distance2(x, positions[i]) / h +
+                            2.0f * std::sqrt(std::max(0.0f, 1.0f - glm::dot(n, normals[i])));
+        if (score < bestScore) {
+            bestScore = score;
+            best = i;
+        }
+    }
+    return best;
+}
+
+// The cover grid finds what a scan of all records finds, for radii from far
+// below to far above its cell size (a few large records among small ones).
+TEST(GuidingCache, CoverGridLookupMatchesBruteForce) {
+    GuidingCache cache = randomCache(2000, 2);
+    auto radii = cache.records.column<GuideValidityRadius>();
+    for (std::size_t i = 0; i < radii.size(); i += 97) radii[i] = 0.4f;
+    EXPECT_FALSE(cache.lookupCovering(Vec3(0.5f), Vec3(0, 0, 1)).has_value());  // no grid yet
+    cache.buildCoverGrid();
+    ASSERT_TRUE(cache.hasCoverGrid());
+    jobs::Rng rng(5, jobs::streamKey("cover-queries"), 0);
+    int found = 0;
+    for (int q = 0; q < 3000; ++q) {
+        const Vec3 x(-0.2f + 1.4f * rng.uniform(), -0.2f + 1.4f * rng.uniform(), -0.2f + 1.4f * rng.uniform());
+        const Vec3 n = randomUnit(rng);
+        const auto expected = bruteForceCovering(cache, x, n);
+        ASSERT_EQ(cache.lookupCovering(x, n), expected) << q;
+        found += expected ? 1 : 0;
+    }
+    EXPECT_GT(found, 1000);
+    EXPECT_LT(found, 3000);
+}
+
 TEST(GuidingCache, ValidityRadiusStaysWithinClamps) {
     jobs::Rng rng(5, jobs::streamKey("cache-radius"), 0);
     int atLower = 0, atUpper = 0, between = 0;
