@@ -154,7 +154,8 @@ std::int64_t traceStream(const PathTracerScene& pts, const Camera& camera, std::
         pts.rays.intersect(rays.first(live), hits.first(live));
         for (std::size_t k = 0; k < live; ++k) {
             PathVertexState vertex{rays[k], throughput[k], radiance[k], history[k], rngs[k]};
-            shadows[k] = ShadowRequest{};
+            // advancePath sets every field of a request it makes pending.
+            shadows[k].pending = false;
             alive[k] = advancePath(pts, settings.limits, hits[k], vertex, shadows[k]) ? 1 : 0;
         }
         resolveShadowRays(pts, std::span<const std::uint32_t>(kStreamSlots.data(), live), shadows, radiance);
