@@ -409,6 +409,35 @@ void RayQuery::occluded(std::span<const Ray> rays, std::span<std::uint8_t> occlu
 
 namespace {
 
+// interpolatedSurface for a mesh in world space, the case of nearly every hit:
+// the same arithmetic as the general path through cornersOf, without copying
+// all three corners' attributes or the instance and orientation checks.
+void meshSurface(const TriangleMesh& mesh, const Hit& hit, SurfacePoint& sp) {
+    sp.mesh = &mesh;
+    sp.triangle = hit.primitive;
+    sp.barycentric = hit.barycentric;
+    const std::uint32_t* corner = mesh.indices.data() + 3 * static_cast<std::size_t>(hit.primitive);
+    const std::uint32_t i0 = corner[0], i1 = corner[1], i2 = corner[2];
+    const float b1 = hit.barycentric.x, b2 = hit.barycentric.y, b0 = 1.0f - b1 - b2;
+    const Vec3& p0 = mesh.positions[i0];
+    const Vec3& p1 = mesh.positions[i1];
+    const Vec3& p2 = mesh.positions[i2];
+    sp.p = b0 * p0 + b1 * p1 + b2 * p2;
+    const Vec3 cross = glm::cross(p1 - p0, p2 - p0);
+    const float crossLength = glm::length(cross);
+    sp.ng = crossLength > 0.0f ? cross / crossLength : Vec3(0.0f, 0.0f, 1.0f);
+    sp.ns = sp.ng;
+    if (!mesh.normals.empty()) {
+        const Vec3 interpolated = b0 * mesh.normals[i0] + b1 * mesh.normals[i1] + b2 * mesh.normals[i2];
+        const float nLength = glm::length(interpolated);
+        if (nLength > 0.0f && std::isfinite(nLength)) {
+            sp.ns = interpolated / nLength;
+            if (glm::dot(sp.ns, sp.ng) < 0.0f) sp.ns = -sp.ns;
+        }
+    }
+    sp.uv = !mesh.uvs.empty() ? b0 * mesh.uvs[i0] + b1 * mesh.uvs[i1] + b2 * mesh.uvs[i2] : Vec2(b1, b2);
+}
+
 SurfacePoint interpolatedSurface(const Scene& scene, const Ray& ray, const Hit& hit) {
     SurfacePoint sp;
     if (!hit.valid()) return sp;
@@ -434,6 +463,11 @@ SurfacePoint interpolatedSurface(const Scene& scene, const Ray& ray, const Hit& 
         float phi = std::atan2(local.y, local.x);
         if (phi < 0.0f) phi += 2.0f * kPi;
         sp.uv = Vec2(phi * kInv2Pi, std::acos(std::clamp(local.z, -1.0f, 1.0f)) * kInvPi);
+        return sp;
+    }
+
+    if (const auto* mesh = std::get_if<TriangleMesh>(&shape.geometry)) {
+        meshSurface(*mesh, hit, sp);
         return sp;
     }
 

@@ -34,10 +34,32 @@ CameraFrame cameraFrame(const Camera& camera) {
     return frame;
 }
 
+// cameraFrame of the last camera this thread generated rays for. A render asks
+// for one ray per sample from the same camera; the frame's normalisations and
+// tangent cost about as much as the rest of the ray.
+const CameraFrame& cachedCameraFrame(const Camera& camera) {
+    struct Cache {
+        Vec3 eye{0.0f}, target{0.0f}, up{0.0f};
+        float fovYDegrees = 0.0f;
+        int width = 0, height = 0;
+        bool mirrored = false;
+        bool valid = false;
+        CameraFrame frame{};
+    };
+    thread_local Cache cache;
+    if (!cache.valid || cache.eye != camera.eye || cache.target != camera.target || cache.up != camera.up ||
+        cache.fovYDegrees != camera.fovYDegrees || cache.width != camera.width || cache.height != camera.height ||
+        cache.mirrored != camera.mirrored) {
+        cache = {camera.eye, camera.target, camera.up, camera.fovYDegrees, camera.width, camera.height,
+                 camera.mirrored, true, cameraFrame(camera)};
+    }
+    return cache.frame;
+}
+
 }  // namespace
 
 Ray Camera::generateRay(const Vec2& raster) const {
-    const CameraFrame frame = cameraFrame(*this);
+    const CameraFrame& frame = cachedCameraFrame(*this);
     if (orthographic) {
         const float x = (2.0f * raster.x / static_cast<float>(width) - 1.0f) * orthoHalfHeight * frame.aspect;
         const float y = (1.0f - 2.0f * raster.y / static_cast<float>(height)) * orthoHalfHeight;

@@ -74,13 +74,18 @@ public:
 
     std::optional<BsdfSample> sample(const Vec3& wo, const TexturePoint& at, float, const Vec2& u,
                                      TransportMode) const override {
-        if (wo.z <= 0.0f) return std::nullopt;
-        BsdfSample s;
-        s.wi = sampleCosineHemisphere(u);
-        if (s.wi.z <= 0.0f) return std::nullopt;
-        s.pdf = cosineHemispherePdf(s.wi.z);
-        s.weight = reflectance_->evalAt(at);
-        s.lobe = BsdfLobe::Reflection | BsdfLobe::Diffuse;
+        // Every return names `s`, so that it is built in the caller's slot: a
+        // local copied there at the end is reloaded in wider pieces than it
+        // was stored in, which stalls store forwarding on every diffuse bounce.
+        std::optional<BsdfSample> s;
+        if (wo.z <= 0.0f) return s;
+        const Vec3 wi = sampleCosineHemisphere(u);
+        if (wi.z <= 0.0f) return s;
+        s.emplace();
+        s->wi = wi;
+        s->pdf = cosineHemispherePdf(wi.z);
+        s->weight = reflectance_->evalAt(at);
+        s->lobe = BsdfLobe::Reflection | BsdfLobe::Diffuse;
         return s;
     }
 

@@ -27,6 +27,16 @@ Distribution1D::Distribution1D(std::span<const float> weights) : weights_(weight
 }
 
 std::size_t Distribution1D::sampleDiscrete(float u, float* pmf, float* uRemapped) const {
+    // One cell (a scene's single light, chosen at every path vertex): the search
+    // below would land on it anyway.
+    if (weights_.size() == 1) {
+        if (pmf) *pmf = discretePmf(0);
+        if (uRemapped) {
+            const double width = cdf_[1] - cdf_[0];
+            *uRemapped = width > 0 ? std::min(static_cast<float>((u - cdf_[0]) / width), 0x1.fffffep-1f) : 0.0f;
+        }
+        return 0;
+    }
     const auto it = std::upper_bound(cdf_.begin(), cdf_.end(), static_cast<double>(u));
     std::size_t i = static_cast<std::size_t>(std::max<std::ptrdiff_t>(0, it - cdf_.begin() - 1));
     i = std::min(i, weights_.size() - 1);

@@ -81,15 +81,17 @@ public:
     bool isInfinite() const override { return false; }
 
     std::optional<LightSample> sampleLi(const Vec3& ref, const Vec2&) const override {
+        // One named result for every return, built in the caller's slot (see DiffuseBsdf::sample).
+        std::optional<LightSample> s;
         const Vec3 toLight = position_ - ref;
         const float distance2 = glm::dot(toLight, toLight);
-        if (!(distance2 > 0.0f) || isBlack(intensity_)) return std::nullopt;
-        LightSample s;
-        s.distance = std::sqrt(distance2);
-        s.wi = toLight / s.distance;
-        s.value = intensity_ / distance2;
-        s.pdf = 1.0f;
-        s.p = position_;
+        if (!(distance2 > 0.0f) || isBlack(intensity_)) return s;
+        s.emplace();
+        s->distance = std::sqrt(distance2);
+        s->wi = toLight / s->distance;
+        s->value = intensity_ / distance2;
+        s->pdf = 1.0f;
+        s->p = position_;
         return s;
     }
     float pdfLi(const Vec3&, const Vec3&, const Vec3&, const Vec3&) const override { return 0.0f; }

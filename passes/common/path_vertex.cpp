@@ -279,12 +279,15 @@ bool advancePathAtSurface(const PathTracerScene& pts, const PathLimits& limits, 
         return russianRoulette(limits, s);
     }
 
-    if (!chosen) {
+    // Initialised by the call, not assigned from it: copying the fresh result
+    // into `chosen` reloads it in wider pieces than the BSDF stored it, which
+    // stalls store forwarding at every vertex.
+    const std::optional<BsdfSample> drawn = chosen ? std::optional<BsdfSample>() : [&] {
         const float uLobe = s.rng.uniform();
         const Vec2 uDir = s.rng.uniform2();
-        chosen = bsdf->sample(wo, sp.texturePoint(), uLobe, uDir, TransportMode::Radiance);
-    }
-    const std::optional<BsdfSample>& bs = chosen;
+        return bsdf->sample(wo, sp.texturePoint(), uLobe, uDir, TransportMode::Radiance);
+    }();
+    const std::optional<BsdfSample>& bs = chosen ? chosen : drawn;
     if (!bs || bs->pdf <= 0.0f || isBlack(bs->weight)) return false;
     const Vec3 wi = frame.toWorld(bs->wi);
     if (glm::dot(wi, sp.ng) * bs->wi.z <= 0.0f) return false;
