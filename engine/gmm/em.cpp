@@ -142,6 +142,11 @@ struct ComponentTree {
 struct CellTerms {
     std::vector<std::uint32_t> component;
     std::vector<double> logit;  // log w_s + <log g_s>_A
+    // exp(logit - reference), kept from the walk's running sum so that the
+    // responsibilities need no second exponential per term: q = scaled *
+    // exp(reference - log Z_A). Empty when the terms came from allTerms.
+    std::vector<double> scaled;
+    double reference = 0.0;
     std::uint64_t pruned = 0;
     double prunedShare = 0.0;
 };
@@ -159,6 +164,7 @@ void sparseTerms(const ComponentTree& tree, const std::vector<EmComponent>& comp
                  const Sym3& covariance, double tau, CellTerms& terms) {
     const double spread = covariance.trace();
     const double reference = tree.logBound(0, mean, spread);
+    terms.reference = reference;
     using Entry = std::pair<double, std::uint32_t>;  // (log bound, node); ties by the larger node index first
     std::priority_queue<Entry> open;
     const auto mass = [&](std::uint32_t n, double logBound) {
@@ -177,9 +183,11 @@ void sparseTerms(const ComponentTree& tree, const std::vector<EmComponent>& comp
             for (std::uint32_t i = node.begin; i < node.end; ++i) {
                 const std::uint32_t s = tree.order[i];
                 const double logit = tree.logWeight[s] + components[s].gaussian.expectedLogDensity(mean, covariance);
+                const double scaled = std::exp(logit - reference);
                 terms.component.push_back(s);
                 terms.logit.push_back(logit);
-                found += std::exp(logit - reference);
+                terms.scaled.push_back(scaled);
+                found += scaled;
             }
             continue;
         }
@@ -210,6 +218,7 @@ double eStep(const EmCells& cells, const std::vector<EmComponent>& components, d
         std::vector<std::uint32_t> component;
         std::vector<double> q;
         std::vector<double> logZ;
+        std::vector<std::uint32_t> prunedPerCell;
         std::uint64_t pruned = 0;
         double maxPrunedShare = 0.0;
     };
@@ -221,22 +230,42 @@ double eStep(const EmCells& cells, const std::vector<EmComponent>& components, d
         for (std::size_t a = range.begin; a != range.end; ++a) {
             terms.component.clear();
             terms.logit.clear();
+            terms.scaled.clear();
             terms.pruned = 0;
             terms.prunedShare = 0.0;
             if (tau > 0.0) sparseTerms(tree, components, cells.mean[a], cells.covariance[a], tau, terms);
             if (terms.component.empty()) allTerms(components, tree.logWeight, cells.mean[a], cells.covariance[a], terms);
             double top = -std::numeric_limits<double>::infinity();
             for (const double l : terms.logit) top = std::max(top, l);
-            double sum = 0.0;
-            for (const double l : terms.logit) sum += std::exp(l - top);
-            const double logZ = top + std::log(sum);
-            block.logZ.push_back(logZ);
             block.cellEntries.push_back(static_cast<std::uint32_t>(terms.component.size()));
-            for (std::size_t t = 0; t < terms.component.size(); ++t) {
-                block.component.push_back(terms.component[t]);
-                block.q.push_back(std::exp(terms.logit[t] - logZ));
+            // The walk's terms are relative to the root's bound, which is at
+            // least the largest term; they may underflow only where the
+            // largest itself is below exp(-400) of the bound (then the
+            // terms are summed again relative to the largest; above it, terms
+            // that lose precision are below exp(-300) of Z_A).
+            const bool walked = !terms.scaled.empty() && top - terms.reference > -400.0;
+            if (walked) {
+                double sum = 0.0;
+                for (const double e : terms.scaled) sum += e;
+                const double logZ = terms.reference + std::log(sum);
+                const double toQ = std::exp(terms.reference - logZ);
+                block.logZ.push_back(logZ);
+                for (std::size_t t = 0; t < terms.component.size(); ++t) {
+                    block.component.push_back(terms.component[t]);
+                    block.q.push_back(terms.scaled[t] * toQ);
+                }
+            } else {
+                double sum = 0.0;
+                for (const double l : terms.logit) sum += std::exp(l - top);
+                const double logZ = top + std::log(sum);
+                block.logZ.push_back(logZ);
+                for (std::size_t t = 0; t < terms.component.size(); ++t) {
+                    block.component.push_back(terms.component[t]);
+                    block.q.push_back(std::exp(terms.logit[t] - logZ));
+                }
             }
             block.pruned += terms.pruned;
+            block.prunedPerCell.push_back(static_cast<std::uint32_t>(terms.pruned));
             block.maxPrunedShare = std::max(block.maxPrunedShare, terms.prunedShare);
         }
     });
@@ -245,6 +274,7 @@ double eStep(const EmCells& cells, const std::vector<EmComponent>& components, d
     out.component.clear();
     out.q.clear();
     out.logZ.clear();
+    out.prunedPerCell.clear();
     out.pairsPruned = 0;
     out.maxPrunedShare = 0.0;
     for (const Block& block : parts) {
@@ -252,13 +282,37 @@ double eStep(const EmCells& cells, const std::vector<EmComponent>& components, d
         out.component.insert(out.component.end(), block.component.begin(), block.component.end());
         out.q.insert(out.q.end(), block.q.begin(), block.q.end());
         out.logZ.insert(out.logZ.end(), block.logZ.begin(), block.logZ.end());
+        out.prunedPerCell.insert(out.prunedPerCell.end(), block.prunedPerCell.begin(), block.prunedPerCell.end());
         out.pairsPruned += block.pruned;
         out.maxPrunedShare = std::max(out.maxPrunedShare, block.maxPrunedShare);
     }
     out.pairsKept = out.component.size();
+    return boundOf(cells, out);
+}
+
+double boundOf(const EmCells& cells, const Responsibilities& q) {
     double bound = 0.0;
-    for (std::size_t a = 0; a < cellCount; ++a) bound += cells.count[a] * out.logZ[a];
+    for (std::size_t a = 0; a < cells.size(); ++a) bound += cells.count[a] * q.logZ[a];
     return bound;
+}
+
+Responsibilities selectCells(const Responsibilities& from, const std::vector<std::size_t>& rows) {
+    Responsibilities out;
+    out.offset.reserve(rows.size() + 1);
+    out.offset.push_back(0);
+    for (const std::size_t row : rows) {
+        for (std::uint64_t e = from.offset[row]; e < from.offset[row + 1]; ++e) {
+            out.component.push_back(from.component[e]);
+            out.q.push_back(from.q[e]);
+        }
+        out.offset.push_back(out.component.size());
+        out.logZ.push_back(from.logZ[row]);
+        out.prunedPerCell.push_back(from.prunedPerCell[row]);
+        out.pairsPruned += from.prunedPerCell[row];
+    }
+    out.pairsKept = out.component.size();
+    out.maxPrunedShare = from.maxPrunedShare;
+    return out;
 }
 
 void mStep(const EmCells& cells, const Responsibilities& q, double regCovar, std::vector<EmComponent>& components,
@@ -328,10 +382,17 @@ std::size_t dropWeakComponents(std::vector<EmComponent>& components, double minE
     return before - components.size();
 }
 
-EmRun runEm(const EmCells& cells, std::vector<EmComponent>& components, const EmOptions& options) {
+EmRun runEm(const EmCells& cells, std::vector<EmComponent>& components, const EmOptions& options,
+            Responsibilities* initial) {
     EmRun run;
     const double n = cells.totalCount();
-    double bound = eStep(cells, components, options.tau, run.responsibilities);
+    double bound = 0.0;
+    if (initial != nullptr) {
+        run.responsibilities = std::move(*initial);
+        bound = boundOf(cells, run.responsibilities);
+    } else {
+        bound = eStep(cells, components, options.tau, run.responsibilities);
+    }
     run.bounds.push_back(bound);
     while (run.iterations < options.maxIterations) {
         mStep(cells, run.responsibilities, options.regCovar, components);
