@@ -15,7 +15,7 @@ namespace {
 // Fixed block counts: reductions merge in block order, independent of threads.
 constexpr std::size_t kEStepBlocks = 64;
 constexpr std::size_t kMStepBlocks = 32;
-constexpr std::uint32_t kComponentLeafSize = 4;
+constexpr std::uint32_t kComponentLeafSize = 8;
 
 // A hierarchy over the components' means for the sparse E-step. For a cell
 // (mean m, covariance C) and a component s whose mean lies in a node's box,
@@ -153,7 +153,10 @@ struct ComponentTree {
         const double x = glm::dot(gap, gap) + spread;
         const Line* first = lines.data() + node.lineBegin;
         const Line* last = lines.data() + node.lineEnd;
-        const Line* line = std::upper_bound(first + 1, last, x, [](double v, const Line& l) { return v < l.from; }) - 1;
+        // Linear from the steepest line: most bounds are asked of nodes near
+        // the cell (small x), where the first lines hold.
+        const Line* line = first;
+        while (line + 1 != last && line[1].from <= x) ++line;
         return line->a - line->b * x;
     }
 };
