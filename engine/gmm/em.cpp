@@ -325,6 +325,21 @@ double boundOf(const EmCells& cells, const Responsibilities& q) {
     return bound;
 }
 
+Responsibilities concatenate(const Responsibilities& a, const Responsibilities& b) {
+    Responsibilities out = a;
+    const std::uint64_t base = out.offset.empty() ? 0 : out.offset.back();
+    if (out.offset.empty()) out.offset.push_back(0);
+    for (std::size_t i = 1; i < b.offset.size(); ++i) out.offset.push_back(base + b.offset[i]);
+    out.component.insert(out.component.end(), b.component.begin(), b.component.end());
+    out.q.insert(out.q.end(), b.q.begin(), b.q.end());
+    out.logZ.insert(out.logZ.end(), b.logZ.begin(), b.logZ.end());
+    out.prunedPerCell.insert(out.prunedPerCell.end(), b.prunedPerCell.begin(), b.prunedPerCell.end());
+    out.pairsKept += b.pairsKept;
+    out.pairsPruned += b.pairsPruned;
+    out.maxPrunedShare = std::max(a.maxPrunedShare, b.maxPrunedShare);
+    return out;
+}
+
 Responsibilities selectCells(const Responsibilities& from, const std::vector<std::size_t>& rows) {
     Responsibilities out;
     out.offset.reserve(rows.size() + 1);

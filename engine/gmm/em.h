@@ -73,6 +73,8 @@ struct Responsibilities {
 // terms depend on that cell and the components only. maxPrunedShare is
 // `from`'s, an upper bound.
 Responsibilities selectCells(const Responsibilities& from, const std::vector<std::size_t>& rows);
+// The cells of `b` after those of `a`, as one E-step over both would give them.
+Responsibilities concatenate(const Responsibilities& a, const Responsibilities& b);
 // F = sum_A n_A log Z_A of responsibilities computed for these cells.
 double boundOf(const EmCells& cells, const Responsibilities& q);
 

@@ -60,7 +60,9 @@
 // expandable nodes (both sides of every ΔF); a cell's responsibilities depend
 // only on that cell and the components, so its rows for the expanded cut are
 // exactly the first E-step of the next inner loop (or of finish()), which is
-// therefore not recomputed.
+// therefore not recomputed. Likewise the cut's part of that E-step is the last
+// inner loop's final one when no map has been blended in since (counted:
+// expansions_reusing_inner_estep).
 // Components with n_eff < min_n_eff are dropped (counted). After the last
 // expansion one E-step on the final cut gives n_eff and the powers.
 //
@@ -115,6 +117,7 @@ public:
         } else if (!map.photons.empty() && !done_) {
             const double scale = static_cast<double>(map.emitted) / static_cast<double>(firstEmitted_);
             tree_.update(map.photons.column<PhotonPosition>(), map.photons.column<PhotonPower>(), scale);
+            lastInnerCurrent_ = false;
             photons_ += map.photons.size();
             lastEmitted_ = map.emitted;
             ++batches_;
@@ -149,6 +152,7 @@ public:
         ctx.addCounter("short_components", shortOnes.reachable + shortOnes.sparse);
         ctx.addCounter("sparse_components", shortOnes.sparse);
         ctx.addCounter("fit_us", fitNs_ / 1000);
+        ctx.addCounter("expansions_reusing_inner_estep", reusedExpansions_);
         // The last expansion's gain in F/n, in millionths of a nat (counters are integers).
         ctx.addCounter("expansion_gain_e6", static_cast<std::int64_t>(std::llround(lastGain_ * 1e6)));
         gmm::EmRun summary;
@@ -199,6 +203,8 @@ private:
                 if (outer_ > 0) innerOptions.maxIterations = maxRefitIterations_;
                 gmm::EmRun inner = gmm::runEm(cells_, components_, innerOptions, haveWarm_ ? &warm_ : nullptr);
                 haveWarm_ = false;
+                lastInner_ = std::move(inner.responsibilities);
+                lastInnerCurrent_ = true;
                 inner_ += inner.iterations;
                 ++outer_;
                 dropped_ += inner.dropped;
@@ -264,18 +270,32 @@ private:
         // One E-step over the cut and the children of its expandable nodes
         // gives both sides of every ΔF and, since each cell's terms depend on
         // that cell and the components only, also the first E-step of the
-        // next inner loop on the expanded cut (and of finish()).
+        // next inner loop on the expanded cut (and of finish()). The cut's
+        // part is the last inner loop's final E-step unless a map has changed
+        // the statistics since.
         std::vector<std::uint32_t> evaluated;
         for (const std::uint32_t node : cut_)
             if (tree_.statistics(node).count > 0) evaluated.push_back(node);
+        const std::size_t cutRows = evaluated.size();
         for (const std::uint32_t node : children)
             if (tree_.statistics(node).count > 0) evaluated.push_back(node);
-        std::sort(evaluated.begin(), evaluated.end());
-        gmm::Responsibilities r;
-        gmm::eStep(cellsOf(tree_, evaluated), components_, options_.tau, r);
+        gmm::Responsibilities cutPart, childPart;
+        if (lastInnerCurrent_ && lastInner_.logZ.size() == cutRows) {
+            cutPart = std::move(lastInner_);
+            ++reusedExpansions_;
+        } else {
+            const std::vector<std::uint32_t> cutNodes(evaluated.begin(), evaluated.begin() + cutRows);
+            gmm::eStep(cellsOf(tree_, cutNodes), components_, options_.tau, cutPart);
+        }
+        lastInnerCurrent_ = false;
+        const std::vector<std::uint32_t> childNodes(evaluated.begin() + cutRows, evaluated.end());
+        gmm::eStep(cellsOf(tree_, childNodes), components_, options_.tau, childPart);
+        const gmm::Responsibilities r = gmm::concatenate(cutPart, childPart);
+        std::vector<std::pair<std::uint32_t, std::size_t>> rowByNode(evaluated.size());
+        for (std::size_t i = 0; i < evaluated.size(); ++i) rowByNode[i] = {evaluated[i], i};
+        std::sort(rowByNode.begin(), rowByNode.end());
         const auto rowOf = [&](std::uint32_t node) {
-            return static_cast<std::size_t>(std::lower_bound(evaluated.begin(), evaluated.end(), node) -
-                                            evaluated.begin());
+            return std::lower_bound(rowByNode.begin(), rowByNode.end(), std::make_pair(node, std::size_t{0}))->second;
         };
         // log Z of an empty node is not needed (n = 0).
         const auto logZOf = [&](const std::vector<std::uint32_t>& nodes) {
@@ -335,6 +355,10 @@ private:
             responsibilities_ = std::move(warm_);
             haveWarm_ = false;
             boundPerPhoton_ = gmm::boundOf(cells_, responsibilities_) / cells_.totalCount();
+        } else if (lastInnerCurrent_ && lastInner_.logZ.size() == cells_.size()) {
+            responsibilities_ = std::move(lastInner_);
+            lastInnerCurrent_ = false;
+            boundPerPhoton_ = gmm::boundOf(cells_, responsibilities_) / cells_.totalCount();
         } else {
             boundPerPhoton_ = gmm::eStep(cells_, components_, options_.tau, responsibilities_) / cells_.totalCount();
         }
@@ -351,11 +375,13 @@ private:
     gmm::EmCells cells_;
     gmm::Responsibilities responsibilities_;
     gmm::Responsibilities warm_;  // the expansion's E-step on the new cut (see expandCut)
+    gmm::Responsibilities lastInner_;  // the last inner loop's final E-step on cut_
+    bool lastInnerCurrent_ = false;    // ... and no map has been blended in since
     bool haveWarm_ = false;
     bool started_ = false, done_ = false, needPhotons_ = false, expandNext_ = false;
     double boundPerPhoton_ = 0.0, lastGain_ = 0.0;
     std::uint64_t photons_ = 0, maxPhotons_ = 0, firstEmitted_ = 1, lastEmitted_ = 1;
-    std::int64_t batches_ = 0, inner_ = 0, outer_ = 0, treeLeaves_ = 0, fitNs_ = 0;
+    std::int64_t batches_ = 0, reusedExpansions_ = 0, inner_ = 0, outer_ = 0, treeLeaves_ = 0, fitNs_ = 0;
     std::size_t dropped_ = 0;
 };
 

@@ -255,8 +255,9 @@ TEST(GmmEm, SparseEStepPrunesWithinTolerance) {
 // reused as the first E-step on the expanded cut (pem_fit). That is exact
 // only if a cell's responsibilities do not depend on which other cells are
 // evaluated with it: the selected rows must equal an E-step on those cells
-// alone, bit for bit, and a run started from them must equal a cold run.
-TEST(GmmEm, SelectedCellsEqualAnEStepOnThoseCellsAlone) {
+// alone, bit for bit, E-steps on two sets joined must equal one on both, and
+// a run started from selected rows must equal a cold run.
+TEST(GmmEm, SelectedAndJoinedCellsEqualAnEStepOnThoseCells) {
     const Sample sample = mixtureSample(20000, 12, 31, 0.3);
     EmTree tree;
     tree.build(sample.positions, sample.power);
@@ -293,6 +294,17 @@ TEST(GmmEm, SelectedCellsEqualAnEStepOnThoseCellsAlone) {
         if (tau > 0.0) {
             EXPECT_GT(alone.pairsPruned, 0u);
         }
+        // Two E-steps, on the coarse cut and on the rest, joined: the E-step on both.
+        const std::vector<std::uint32_t> rest(both.begin() + static_cast<std::ptrdiff_t>(coarse.size()), both.end());
+        Responsibilities first, second;
+        eStep(cellsOf(tree, coarse), components, tau, first);
+        eStep(cellsOf(tree, rest), components, tau, second);
+        const Responsibilities joined = concatenate(first, second);
+        EXPECT_EQ(joined.offset, all.offset);
+        EXPECT_EQ(joined.component, all.component);
+        EXPECT_EQ(joined.q, all.q);
+        EXPECT_EQ(joined.logZ, all.logZ);
+        EXPECT_EQ(joined.pairsPruned, all.pairsPruned);
 
         EmOptions options;
         options.tau = tau;
