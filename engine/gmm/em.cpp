@@ -232,7 +232,35 @@ void sparseTerms(const ComponentTree& tree, const Vec3d& mean, const Sym3& covar
         }
     }
     for (const OpenNode& left : open) terms.pruned += tree.nodes[left.node].end - tree.nodes[left.node].begin;
-    terms.prunedShare = found > 0.0 ? std::max(0.0, queued) / found : 0.0;
+    // The walk stops with queued <= tau found, and what is left of that
+    // budget is spent on the kept terms themselves (§5.3: pairs are dropped
+    // while the error stays within tau): terms each at most
+    // (tau found - queued) / ((1 + tau) kept) are dropped, so that the
+    // dropped and queued mass together stay within tau of the Z_A that
+    // remains, and the M-step and the lists carry only terms that matter.
+    // The largest term always stays (the kept terms sum to found).
+    queued = std::max(0.0, queued);
+    double dropped = 0.0;
+    const double budget = (tau * found - queued) / (1.0 + tau);
+    if (found > 0.0 && budget > 0.0 && !terms.scaled.empty()) {
+        const double each = budget / static_cast<double>(terms.scaled.size());
+        std::size_t kept = 0;
+        for (std::size_t t = 0; t < terms.scaled.size(); ++t) {
+            if (terms.scaled[t] <= each) {
+                dropped += terms.scaled[t];
+                ++terms.pruned;
+                continue;
+            }
+            terms.component[kept] = terms.component[t];
+            terms.logit[kept] = terms.logit[t];
+            terms.scaled[kept] = terms.scaled[t];
+            ++kept;
+        }
+        terms.component.resize(kept);
+        terms.logit.resize(kept);
+        terms.scaled.resize(kept);
+    }
+    terms.prunedShare = found > 0.0 ? (queued + dropped) / (found - dropped) : 0.0;
 }
 
 }  // namespace

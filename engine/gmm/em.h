@@ -19,7 +19,9 @@
 // upper envelope over its components of w_s N_s exp(-(|m_A - box of means|^2 +
 // tr C_A) / 2 lambda_max(Sigma_s)) (see em.cpp), and the walk stops
 // once the bound on what is left is at most tau times the Z_A found so far;
-// the pruned terms are dropped (their mass <= tau Z_A). tau = 0 visits all pairs.
+// the pruned terms are dropped. What remains of the budget drops the kept
+// terms that are each at most an equal share of it, so that pruned and
+// dropped mass together stay <= tau Z_A. tau = 0 visits all pairs.
 //
 // Cells are processed in fixed blocks and the M-step's sums merged in block
 // order, so a fit is bit-identical for any thread count.

@@ -249,6 +249,21 @@ TEST(GmmEm, SparseEStepPrunesWithinTolerance) {
     const double sparseKept = static_cast<double>(sparseRun.responsibilities.pairsKept);
     std::printf("pairs kept: dense %.0f, tau = 1e-4 %.0f (%.1fx fewer)\n", denseKept, sparseKept, denseKept / sparseKept);
     EXPECT_LT(sparseKept * 2.0, denseKept);
+
+    // Per cell, for the same components: what the sparse E-step leaves out
+    // (pruned nodes and dropped kept terms) is at most tau of the Z_A it
+    // keeps, so 0 <= log Z_dense - log Z_sparse <= log(1 + tau).
+    Responsibilities all, some;
+    eStep(cells, sparse, 0.0, all);
+    eStep(cells, sparse, 1e-4, some);
+    double largest = 0.0;
+    for (std::size_t a = 0; a < cells.size(); ++a) {
+        const double missing = all.logZ[a] - some.logZ[a];
+        ASSERT_GE(missing, -1e-12) << a;
+        largest = std::max(largest, missing);
+    }
+    EXPECT_LE(largest, std::log1p(1e-4) + 1e-12);
+    EXPECT_GT(largest, 0.0);  // something was left out
 }
 
 // A cut expansion's E-step over the old cut and the children of its nodes is
