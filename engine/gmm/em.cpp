@@ -206,29 +206,51 @@ void sparseTerms(const ComponentTree& tree, const Vec3d& mean, const Sym3& covar
     open.push_back(entry(0, reference));
     double queued = open.front().mass;
     double found = 0.0;
-    while (!open.empty()) {
+    const auto push = [&](const OpenNode& n) {
+        open.push_back(n);
+        std::push_heap(open.begin(), open.end());
+    };
+    bool stopped = false;
+    while (!open.empty() && !stopped) {
         if (found > 0.0 && queued <= tau * found) break;
         std::pop_heap(open.begin(), open.end());
-        const OpenNode top = open.back();
+        OpenNode current = open.back();
         open.pop_back();
-        queued -= top.mass;
-        const ComponentTree::Node& node = tree.nodes[top.node];
-        if (node.leaf) {
-            for (std::uint32_t i = node.begin; i < node.end; ++i) {
-                const double logit = tree.logit(i, mean, covariance);
-                const double scaled = std::exp(logit - reference);
-                terms.component.push_back(tree.order[i]);
-                terms.logit.push_back(logit);
-                terms.scaled.push_back(scaled);
-                found += scaled;
+        // Descends while the better child would be the next node popped
+        // anyway (its bound at least the heap's largest), without queueing
+        // it: the same order of visits and the same stop as push and pop.
+        for (;;) {
+            queued -= current.mass;
+            const ComponentTree::Node& node = tree.nodes[current.node];
+            if (node.leaf) {
+                for (std::uint32_t i = node.begin; i < node.end; ++i) {
+                    const double logit = tree.logit(i, mean, covariance);
+                    const double scaled = std::exp(logit - reference);
+                    terms.component.push_back(tree.order[i]);
+                    terms.logit.push_back(logit);
+                    terms.scaled.push_back(scaled);
+                    found += scaled;
+                }
+                break;
             }
-            continue;
-        }
-        for (const std::uint32_t child : {node.left, node.right}) {
-            const OpenNode next = entry(child, tree.logBound(child, mean, spread));
-            queued += next.mass;
-            open.push_back(next);
-            std::push_heap(open.begin(), open.end());
+            const OpenNode left = entry(node.left, tree.logBound(node.left, mean, spread));
+            const OpenNode right = entry(node.right, tree.logBound(node.right, mean, spread));
+            queued += left.mass;
+            queued += right.mass;
+            const bool leftBetter = right < left;
+            const OpenNode& better = leftBetter ? left : right;
+            push(leftBetter ? right : left);
+            if (open.front() < better) {
+                if (found > 0.0 && queued <= tau * found) {
+                    push(better);
+                    stopped = true;
+                    break;
+                }
+                current = better;
+                continue;
+            }
+            push(better);
+            break;
         }
     }
     for (const OpenNode& left : open) terms.pruned += tree.nodes[left.node].end - tree.nodes[left.node].begin;
