@@ -223,8 +223,19 @@ void sparseTerms(const ComponentTree& tree, const Vec3d& mean, const Sym3& covar
             queued -= current.mass;
             const ComponentTree::Node& node = tree.nodes[current.node];
             if (node.leaf) {
+                // A term below tau found / (10 k) is not exponentiated: it is
+                // counted as pruned and that bound added to the queued mass,
+                // so the terms skipped over the whole walk add at most tau / 10
+                // of Z_A to the budget the stop and the drop below respect.
+                const double skipMass = tau * found / (10.0 * static_cast<double>(tree.order.size()));
+                const double skipBelow = found > 0.0 ? std::log(skipMass) : -std::numeric_limits<double>::infinity();
                 for (std::uint32_t i = node.begin; i < node.end; ++i) {
                     const double logit = tree.logit(i, mean, covariance);
+                    if (logit - reference < skipBelow) {
+                        queued += skipMass;
+                        ++terms.pruned;
+                        continue;
+                    }
                     const double scaled = std::exp(logit - reference);
                     terms.component.push_back(tree.order[i]);
                     terms.logit.push_back(logit);
