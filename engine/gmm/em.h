@@ -21,7 +21,9 @@
 // once the bound on what is left is at most tau times the Z_A found so far;
 // the pruned terms are dropped. What remains of the budget drops the kept
 // terms that are each at most an equal share of it, so that pruned and
-// dropped mass together stay <= tau Z_A. tau = 0 visits all pairs.
+// dropped mass together stay <= tau Z_A (terms of a leaf below
+// tau Z / (10 k) are counted into that mass unevaluated). tau = 0 visits
+// all pairs.
 //
 // Cells are processed in fixed blocks and the M-step's sums merged in block
 // order, so a fit is bit-identical for any thread count.
