@@ -7,7 +7,6 @@
 #include <cmath>
 #include <limits>
 #include <numeric>
-#include <queue>
 
 namespace fg::gmm {
 
@@ -16,7 +15,7 @@ namespace {
 // Fixed block counts: reductions merge in block order, independent of threads.
 constexpr std::size_t kEStepBlocks = 64;
 constexpr std::size_t kMStepBlocks = 32;
-constexpr std::uint32_t kComponentLeafSize = 4;
+constexpr std::uint32_t kComponentLeafSize = 16;
 
 // A hierarchy over the components' means for the sparse E-step. For a cell
 // (mean m, covariance C) and a component s whose mean lies in a node's box,
@@ -40,10 +39,20 @@ struct ComponentTree {
     struct Line {
         double a = 0.0, b = 0.0, from = 0.0;
     };
+    // What a cell's term reads of a component, in leaf order so that a leaf's
+    // components are adjacent (80 bytes instead of EmComponent's 224):
+    // log w_s + <log g_s>_A = offset - 1/2 tr(P_s (C_A + d d^T)), d = m_A - mu_s,
+    // offset = log w_s + log N_s, P_s = Sigma_s^-1.
+    struct Packed {
+        Vec3d mean;
+        Sym3 precision;
+        double offset = 0.0;
+    };
     std::vector<Node> nodes;
     std::vector<Line> lines;
     std::vector<std::uint32_t> order;
     std::vector<double> logWeight;
+    std::vector<Packed> packed;  // by position in `order`
 
     explicit ComponentTree(const std::vector<EmComponent>& components) {
         const std::size_t k = components.size();
@@ -59,6 +68,16 @@ struct ComponentTree {
         if (k == 0) return;
         nodes.reserve(2 * k / kComponentLeafSize + 2);
         build(0, static_cast<std::uint32_t>(k), components, own);
+        packed.resize(k);
+        for (std::size_t i = 0; i < k; ++i) {
+            const EmComponent& c = components[order[i]];
+            packed[i] = {c.gaussian.mean, c.gaussian.factors.precision, own[order[i]].a};
+        }
+    }
+
+    double logit(std::uint32_t position, const Vec3d& mean, const Sym3& covariance) const {
+        const Packed& p = packed[position];
+        return p.offset - 0.5 * p.precision.traceProduct(covariance + Sym3::outer(mean - p.mean));
     }
 
     // Upper envelope over x >= 0 of the lines a - b x of components [begin, end).
@@ -134,14 +153,32 @@ struct ComponentTree {
         const double x = glm::dot(gap, gap) + spread;
         const Line* first = lines.data() + node.lineBegin;
         const Line* last = lines.data() + node.lineEnd;
-        const Line* line = std::upper_bound(first + 1, last, x, [](double v, const Line& l) { return v < l.from; }) - 1;
+        // Linear from the steepest line: most bounds are asked of nodes near
+        // the cell (small x), where the first lines hold.
+        const Line* line = first;
+        while (line + 1 != last && line[1].from <= x) ++line;
         return line->a - line->b * x;
     }
 };
 
+// An open node of the walk: its bound, that bound times its component count
+// relative to the root's (its share of the queued mass), and its index.
+struct OpenNode {
+    double logBound = 0.0, mass = 0.0;
+    std::uint32_t node = 0;
+    // Best first; ties by the larger node index first.
+    bool operator<(const OpenNode& o) const { return logBound < o.logBound || (logBound == o.logBound && node < o.node); }
+};
+
 struct CellTerms {
+    std::vector<OpenNode> open;  // the walk's heap, kept between cells
     std::vector<std::uint32_t> component;
     std::vector<double> logit;  // log w_s + <log g_s>_A
+    // exp(logit - reference), kept from the walk's running sum so that the
+    // responsibilities need no second exponential per term: q = scaled *
+    // exp(reference - log Z_A). Empty when the terms came from allTerms.
+    std::vector<double> scaled;
+    double reference = 0.0;
     std::uint64_t pruned = 0;
     double prunedShare = 0.0;
 };
@@ -155,47 +192,108 @@ void allTerms(const std::vector<EmComponent>& components, const std::vector<doub
 }
 
 // Best-first walk of the component tree for one cell (§5.3).
-void sparseTerms(const ComponentTree& tree, const std::vector<EmComponent>& components, const Vec3d& mean,
-                 const Sym3& covariance, double tau, CellTerms& terms) {
+void sparseTerms(const ComponentTree& tree, const Vec3d& mean, const Sym3& covariance, double tau,
+                 CellTerms& terms) {
     const double spread = covariance.trace();
     const double reference = tree.logBound(0, mean, spread);
-    using Entry = std::pair<double, std::uint32_t>;  // (log bound, node); ties by the larger node index first
-    std::priority_queue<Entry> open;
-    const auto mass = [&](std::uint32_t n, double logBound) {
-        return static_cast<double>(tree.nodes[n].end - tree.nodes[n].begin) * std::exp(logBound - reference);
+    terms.reference = reference;
+    std::vector<OpenNode>& open = terms.open;
+    open.clear();
+    const auto entry = [&](std::uint32_t n, double logBound) {
+        return OpenNode{logBound,
+                        static_cast<double>(tree.nodes[n].end - tree.nodes[n].begin) * std::exp(logBound - reference), n};
     };
-    open.push({reference, 0});
-    double queued = mass(0, reference);
+    open.push_back(entry(0, reference));
+    double queued = open.front().mass;
     double found = 0.0;
-    while (!open.empty()) {
+    const auto push = [&](const OpenNode& n) {
+        open.push_back(n);
+        std::push_heap(open.begin(), open.end());
+    };
+    bool stopped = false;
+    while (!open.empty() && !stopped) {
         if (found > 0.0 && queued <= tau * found) break;
-        const auto [logBound, n] = open.top();
-        open.pop();
-        queued -= mass(n, logBound);
-        const ComponentTree::Node& node = tree.nodes[n];
-        if (node.leaf) {
-            for (std::uint32_t i = node.begin; i < node.end; ++i) {
-                const std::uint32_t s = tree.order[i];
-                const double logit = tree.logWeight[s] + components[s].gaussian.expectedLogDensity(mean, covariance);
-                terms.component.push_back(s);
-                terms.logit.push_back(logit);
-                found += std::exp(logit - reference);
+        std::pop_heap(open.begin(), open.end());
+        OpenNode current = open.back();
+        open.pop_back();
+        // Descends while the better child would be the next node popped
+        // anyway (its bound at least the heap's largest), without queueing
+        // it: the same order of visits and the same stop as push and pop.
+        for (;;) {
+            queued -= current.mass;
+            const ComponentTree::Node& node = tree.nodes[current.node];
+            if (node.leaf) {
+                // A term below tau found / (10 k) is not exponentiated: it is
+                // counted as pruned and that bound added to the queued mass,
+                // so the terms skipped over the whole walk add at most tau / 10
+                // of Z_A to the budget the stop and the drop below respect.
+                const double skipMass = tau * found / (10.0 * static_cast<double>(tree.order.size()));
+                const double skipBelow = found > 0.0 ? std::log(skipMass) : -std::numeric_limits<double>::infinity();
+                for (std::uint32_t i = node.begin; i < node.end; ++i) {
+                    const double logit = tree.logit(i, mean, covariance);
+                    if (logit - reference < skipBelow) {
+                        queued += skipMass;
+                        ++terms.pruned;
+                        continue;
+                    }
+                    const double scaled = std::exp(logit - reference);
+                    terms.component.push_back(tree.order[i]);
+                    terms.logit.push_back(logit);
+                    terms.scaled.push_back(scaled);
+                    found += scaled;
+                }
+                break;
             }
-            continue;
-        }
-        for (const std::uint32_t child : {node.left, node.right}) {
-            const double childBound = tree.logBound(child, mean, spread);
-            open.push({childBound, child});
-            queued += mass(child, childBound);
+            const OpenNode left = entry(node.left, tree.logBound(node.left, mean, spread));
+            const OpenNode right = entry(node.right, tree.logBound(node.right, mean, spread));
+            queued += left.mass;
+            queued += right.mass;
+            const bool leftBetter = right < left;
+            const OpenNode& better = leftBetter ? left : right;
+            push(leftBetter ? right : left);
+            if (open.front() < better) {
+                if (found > 0.0 && queued <= tau * found) {
+                    push(better);
+                    stopped = true;
+                    break;
+                }
+                current = better;
+                continue;
+            }
+            push(better);
+            break;
         }
     }
-    while (!open.empty()) {
-        const auto [logBound, n] = open.top();
-        open.pop();
-        terms.pruned += tree.nodes[n].end - tree.nodes[n].begin;
-        (void)logBound;
+    for (const OpenNode& left : open) terms.pruned += tree.nodes[left.node].end - tree.nodes[left.node].begin;
+    // The walk stops with queued <= tau found, and what is left of that
+    // budget is spent on the kept terms themselves (§5.3: pairs are dropped
+    // while the error stays within tau): terms each at most
+    // (tau found - queued) / ((1 + tau) kept) are dropped, so that the
+    // dropped and queued mass together stay within tau of the Z_A that
+    // remains, and the M-step and the lists carry only terms that matter.
+    // The largest term always stays (the kept terms sum to found).
+    queued = std::max(0.0, queued);
+    double dropped = 0.0;
+    const double budget = (tau * found - queued) / (1.0 + tau);
+    if (found > 0.0 && budget > 0.0 && !terms.scaled.empty()) {
+        const double each = budget / static_cast<double>(terms.scaled.size());
+        std::size_t kept = 0;
+        for (std::size_t t = 0; t < terms.scaled.size(); ++t) {
+            if (terms.scaled[t] <= each) {
+                dropped += terms.scaled[t];
+                ++terms.pruned;
+                continue;
+            }
+            terms.component[kept] = terms.component[t];
+            terms.logit[kept] = terms.logit[t];
+            terms.scaled[kept] = terms.scaled[t];
+            ++kept;
+        }
+        terms.component.resize(kept);
+        terms.logit.resize(kept);
+        terms.scaled.resize(kept);
     }
-    terms.prunedShare = found > 0.0 ? std::max(0.0, queued) / found : 0.0;
+    terms.prunedShare = found > 0.0 ? (queued + dropped) / (found - dropped) : 0.0;
 }
 
 }  // namespace
@@ -210,6 +308,7 @@ double eStep(const EmCells& cells, const std::vector<EmComponent>& components, d
         std::vector<std::uint32_t> component;
         std::vector<double> q;
         std::vector<double> logZ;
+        std::vector<std::uint32_t> prunedPerCell;
         std::uint64_t pruned = 0;
         double maxPrunedShare = 0.0;
     };
@@ -221,22 +320,42 @@ double eStep(const EmCells& cells, const std::vector<EmComponent>& components, d
         for (std::size_t a = range.begin; a != range.end; ++a) {
             terms.component.clear();
             terms.logit.clear();
+            terms.scaled.clear();
             terms.pruned = 0;
             terms.prunedShare = 0.0;
-            if (tau > 0.0) sparseTerms(tree, components, cells.mean[a], cells.covariance[a], tau, terms);
+            if (tau > 0.0) sparseTerms(tree, cells.mean[a], cells.covariance[a], tau, terms);
             if (terms.component.empty()) allTerms(components, tree.logWeight, cells.mean[a], cells.covariance[a], terms);
             double top = -std::numeric_limits<double>::infinity();
             for (const double l : terms.logit) top = std::max(top, l);
-            double sum = 0.0;
-            for (const double l : terms.logit) sum += std::exp(l - top);
-            const double logZ = top + std::log(sum);
-            block.logZ.push_back(logZ);
             block.cellEntries.push_back(static_cast<std::uint32_t>(terms.component.size()));
-            for (std::size_t t = 0; t < terms.component.size(); ++t) {
-                block.component.push_back(terms.component[t]);
-                block.q.push_back(std::exp(terms.logit[t] - logZ));
+            // The walk's terms are relative to the root's bound, which is at
+            // least the largest term; they may underflow only where the
+            // largest itself is below exp(-400) of the bound (then the
+            // terms are summed again relative to the largest; above it, terms
+            // that lose precision are below exp(-300) of Z_A).
+            const bool walked = !terms.scaled.empty() && top - terms.reference > -400.0;
+            if (walked) {
+                double sum = 0.0;
+                for (const double e : terms.scaled) sum += e;
+                const double logZ = terms.reference + std::log(sum);
+                const double toQ = std::exp(terms.reference - logZ);
+                block.logZ.push_back(logZ);
+                for (std::size_t t = 0; t < terms.component.size(); ++t) {
+                    block.component.push_back(terms.component[t]);
+                    block.q.push_back(terms.scaled[t] * toQ);
+                }
+            } else {
+                double sum = 0.0;
+                for (const double l : terms.logit) sum += std::exp(l - top);
+                const double logZ = top + std::log(sum);
+                block.logZ.push_back(logZ);
+                for (std::size_t t = 0; t < terms.component.size(); ++t) {
+                    block.component.push_back(terms.component[t]);
+                    block.q.push_back(std::exp(terms.logit[t] - logZ));
+                }
             }
             block.pruned += terms.pruned;
+            block.prunedPerCell.push_back(static_cast<std::uint32_t>(terms.pruned));
             block.maxPrunedShare = std::max(block.maxPrunedShare, terms.prunedShare);
         }
     });
@@ -245,6 +364,7 @@ double eStep(const EmCells& cells, const std::vector<EmComponent>& components, d
     out.component.clear();
     out.q.clear();
     out.logZ.clear();
+    out.prunedPerCell.clear();
     out.pairsPruned = 0;
     out.maxPrunedShare = 0.0;
     for (const Block& block : parts) {
@@ -252,13 +372,52 @@ double eStep(const EmCells& cells, const std::vector<EmComponent>& components, d
         out.component.insert(out.component.end(), block.component.begin(), block.component.end());
         out.q.insert(out.q.end(), block.q.begin(), block.q.end());
         out.logZ.insert(out.logZ.end(), block.logZ.begin(), block.logZ.end());
+        out.prunedPerCell.insert(out.prunedPerCell.end(), block.prunedPerCell.begin(), block.prunedPerCell.end());
         out.pairsPruned += block.pruned;
         out.maxPrunedShare = std::max(out.maxPrunedShare, block.maxPrunedShare);
     }
     out.pairsKept = out.component.size();
+    return boundOf(cells, out);
+}
+
+double boundOf(const EmCells& cells, const Responsibilities& q) {
     double bound = 0.0;
-    for (std::size_t a = 0; a < cellCount; ++a) bound += cells.count[a] * out.logZ[a];
+    for (std::size_t a = 0; a < cells.size(); ++a) bound += cells.count[a] * q.logZ[a];
     return bound;
+}
+
+Responsibilities concatenate(const Responsibilities& a, const Responsibilities& b) {
+    Responsibilities out = a;
+    const std::uint64_t base = out.offset.empty() ? 0 : out.offset.back();
+    if (out.offset.empty()) out.offset.push_back(0);
+    for (std::size_t i = 1; i < b.offset.size(); ++i) out.offset.push_back(base + b.offset[i]);
+    out.component.insert(out.component.end(), b.component.begin(), b.component.end());
+    out.q.insert(out.q.end(), b.q.begin(), b.q.end());
+    out.logZ.insert(out.logZ.end(), b.logZ.begin(), b.logZ.end());
+    out.prunedPerCell.insert(out.prunedPerCell.end(), b.prunedPerCell.begin(), b.prunedPerCell.end());
+    out.pairsKept += b.pairsKept;
+    out.pairsPruned += b.pairsPruned;
+    out.maxPrunedShare = std::max(a.maxPrunedShare, b.maxPrunedShare);
+    return out;
+}
+
+Responsibilities selectCells(const Responsibilities& from, const std::vector<std::size_t>& rows) {
+    Responsibilities out;
+    out.offset.reserve(rows.size() + 1);
+    out.offset.push_back(0);
+    for (const std::size_t row : rows) {
+        for (std::uint64_t e = from.offset[row]; e < from.offset[row + 1]; ++e) {
+            out.component.push_back(from.component[e]);
+            out.q.push_back(from.q[e]);
+        }
+        out.offset.push_back(out.component.size());
+        out.logZ.push_back(from.logZ[row]);
+        out.prunedPerCell.push_back(from.prunedPerCell[row]);
+        out.pairsPruned += from.prunedPerCell[row];
+    }
+    out.pairsKept = out.component.size();
+    out.maxPrunedShare = from.maxPrunedShare;
+    return out;
 }
 
 void mStep(const EmCells& cells, const Responsibilities& q, double regCovar, std::vector<EmComponent>& components,
@@ -328,10 +487,17 @@ std::size_t dropWeakComponents(std::vector<EmComponent>& components, double minE
     return before - components.size();
 }
 
-EmRun runEm(const EmCells& cells, std::vector<EmComponent>& components, const EmOptions& options) {
+EmRun runEm(const EmCells& cells, std::vector<EmComponent>& components, const EmOptions& options,
+            Responsibilities* initial) {
     EmRun run;
     const double n = cells.totalCount();
-    double bound = eStep(cells, components, options.tau, run.responsibilities);
+    double bound = 0.0;
+    if (initial != nullptr) {
+        run.responsibilities = std::move(*initial);
+        bound = boundOf(cells, run.responsibilities);
+    } else {
+        bound = eStep(cells, components, options.tau, run.responsibilities);
+    }
     run.bounds.push_back(bound);
     while (run.iterations < options.maxIterations) {
         mStep(cells, run.responsibilities, options.regCovar, components);

@@ -19,7 +19,11 @@
 // upper envelope over its components of w_s N_s exp(-(|m_A - box of means|^2 +
 // tr C_A) / 2 lambda_max(Sigma_s)) (see em.cpp), and the walk stops
 // once the bound on what is left is at most tau times the Z_A found so far;
-// the pruned terms are dropped (their mass <= tau Z_A). tau = 0 visits all pairs.
+// the pruned terms are dropped. What remains of the budget drops the kept
+// terms that are each at most an equal share of it, so that pruned and
+// dropped mass together stay <= tau Z_A (terms of a leaf below
+// tau Z / (10 k) are counted into that mass unevaluated). tau = 0 visits
+// all pairs.
 //
 // Cells are processed in fixed blocks and the M-step's sums merged in block
 // order, so a fit is bit-identical for any thread count.
@@ -63,9 +67,20 @@ struct Responsibilities {
     std::vector<std::uint32_t> component;
     std::vector<double> q;
     std::vector<double> logZ;  // log Z_A per cell
+    std::vector<std::uint32_t> prunedPerCell;  // components pruned per cell
     std::uint64_t pairsKept = 0, pairsPruned = 0;
     double maxPrunedShare = 0.0;  // the largest pruned mass bound / Z_A over cells
 };
+
+// The responsibilities of some of the cells (rows of `from`, in the order
+// given), as an E-step over those cells alone would give them: each cell's
+// terms depend on that cell and the components only. maxPrunedShare is
+// `from`'s, an upper bound.
+Responsibilities selectCells(const Responsibilities& from, const std::vector<std::size_t>& rows);
+// The cells of `b` after those of `a`, as one E-step over both would give them.
+Responsibilities concatenate(const Responsibilities& a, const Responsibilities& b);
+// F = sum_A n_A log Z_A of responsibilities computed for these cells.
+double boundOf(const EmCells& cells, const Responsibilities& q);
 
 // E-step (Eq. 7) for all cells; returns F = sum_A n_A log Z_A.
 double eStep(const EmCells& cells, const std::vector<EmComponent>& components, double tau, Responsibilities& out);
@@ -86,7 +101,11 @@ struct EmRun {
 };
 // Alg. 1: E- and M-steps until F/n settles; components keep n_eff and powers
 // of the final E-step.
-EmRun runEm(const EmCells& cells, std::vector<EmComponent>& components, const EmOptions& options);
+// `initial`, when given, holds the E-step of the present components on these
+// cells (e.g. from a cut expansion) and replaces the first E-step; it is
+// moved from.
+EmRun runEm(const EmCells& cells, std::vector<EmComponent>& components, const EmOptions& options,
+            Responsibilities* initial = nullptr);
 
 // One Gaussian per cell: the cell's own mean and covariance (plus the ridge),
 // weight n_A / n (§5.4's initial guess from a cut).

@@ -249,6 +249,93 @@ TEST(GmmEm, SparseEStepPrunesWithinTolerance) {
     const double sparseKept = static_cast<double>(sparseRun.responsibilities.pairsKept);
     std::printf("pairs kept: dense %.0f, tau = 1e-4 %.0f (%.1fx fewer)\n", denseKept, sparseKept, denseKept / sparseKept);
     EXPECT_LT(sparseKept * 2.0, denseKept);
+
+    // Per cell, for the same components: what the sparse E-step leaves out
+    // (pruned nodes and dropped kept terms) is at most tau of the Z_A it
+    // keeps, so 0 <= log Z_dense - log Z_sparse <= log(1 + tau).
+    Responsibilities all, some;
+    eStep(cells, sparse, 0.0, all);
+    eStep(cells, sparse, 1e-4, some);
+    double largest = 0.0;
+    for (std::size_t a = 0; a < cells.size(); ++a) {
+        const double missing = all.logZ[a] - some.logZ[a];
+        ASSERT_GE(missing, -1e-12) << a;
+        largest = std::max(largest, missing);
+    }
+    EXPECT_LE(largest, std::log1p(1e-4) + 1e-12);
+    EXPECT_GT(largest, 0.0);  // something was left out
+}
+
+// A cut expansion's E-step over the old cut and the children of its nodes is
+// reused as the first E-step on the expanded cut (pem_fit). That is exact
+// only if a cell's responsibilities do not depend on which other cells are
+// evaluated with it: the selected rows must equal an E-step on those cells
+// alone, bit for bit, E-steps on two sets joined must equal one on both, and
+// a run started from selected rows must equal a cold run.
+TEST(GmmEm, SelectedAndJoinedCellsEqualAnEStepOnThoseCells) {
+    const Sample sample = mixtureSample(20000, 12, 31, 0.3);
+    EmTree tree;
+    tree.build(sample.positions, sample.power);
+    const std::vector<std::uint32_t> coarse = tree.cut(512);
+    std::vector<std::uint32_t> both = coarse;
+    for (const std::uint32_t node : coarse) {
+        if (tree.isLeaf(node)) continue;
+        both.push_back(tree.left(node));
+        both.push_back(tree.right(node));
+    }
+    std::vector<EmComponent> components = componentsFromCells(cellsOf(tree, tree.cut(64)), 1e-7);
+    for (const double tau : {0.0, 1e-4}) {
+        Responsibilities all;
+        eStep(cellsOf(tree, both), components, tau, all);
+        // Every other cell of the union, in reverse order.
+        std::vector<std::size_t> rows;
+        std::vector<std::uint32_t> subset;
+        for (std::size_t i = both.size(); i-- > 0;) {
+            if (i % 2 != 0) continue;
+            rows.push_back(i);
+            subset.push_back(both[i]);
+        }
+        const EmCells cells = cellsOf(tree, subset);
+        Responsibilities alone;
+        const double bound = eStep(cells, components, tau, alone);
+        Responsibilities selected = selectCells(all, rows);
+        EXPECT_EQ(selected.offset, alone.offset);
+        EXPECT_EQ(selected.component, alone.component);
+        EXPECT_EQ(selected.q, alone.q);
+        EXPECT_EQ(selected.logZ, alone.logZ);
+        EXPECT_EQ(selected.pairsKept, alone.pairsKept);
+        EXPECT_EQ(selected.pairsPruned, alone.pairsPruned);
+        EXPECT_EQ(boundOf(cells, selected), bound);
+        if (tau > 0.0) {
+            EXPECT_GT(alone.pairsPruned, 0u);
+        }
+        // Two E-steps, on the coarse cut and on the rest, joined: the E-step on both.
+        const std::vector<std::uint32_t> rest(both.begin() + static_cast<std::ptrdiff_t>(coarse.size()), both.end());
+        Responsibilities first, second;
+        eStep(cellsOf(tree, coarse), components, tau, first);
+        eStep(cellsOf(tree, rest), components, tau, second);
+        const Responsibilities joined = concatenate(first, second);
+        EXPECT_EQ(joined.offset, all.offset);
+        EXPECT_EQ(joined.component, all.component);
+        EXPECT_EQ(joined.q, all.q);
+        EXPECT_EQ(joined.logZ, all.logZ);
+        EXPECT_EQ(joined.pairsPruned, all.pairsPruned);
+
+        EmOptions options;
+        options.tau = tau;
+        options.regCovar = 1e-7;
+        options.maxIterations = 3;
+        std::vector<EmComponent> cold = components, warm = components;
+        const EmRun coldRun = runEm(cells, cold, options);
+        const EmRun warmRun = runEm(cells, warm, options, &selected);
+        EXPECT_EQ(coldRun.bounds, warmRun.bounds);
+        ASSERT_EQ(cold.size(), warm.size());
+        for (std::size_t c = 0; c < cold.size(); ++c) {
+            EXPECT_EQ(cold[c].gaussian.mean, warm[c].gaussian.mean);
+            EXPECT_EQ(cold[c].gaussian.covariance.v, warm[c].gaussian.covariance.v);
+            EXPECT_EQ(cold[c].effectiveCount, warm[c].effectiveCount);
+        }
+    }
 }
 
 }  // namespace

@@ -281,21 +281,34 @@ TEST(PemFit, TakesNoPhotonsForComponentsThatCannotReachTheThresholdWithinTheBudg
 }
 
 // Alg. 2 line 11: the outer loop ends when an expansion raises F/n by less
-// than epsilon, F on the expanded cut against F on the cut before, with the
-// same parameters and photons. Here the first expansions gain 0.07 and 0.04
-// nats per photon, so epsilon = 1 ends the fit after the first one; a test
-// against the F/n of the previous expansion would need two. With the default
-// epsilon the cut is refined further. Later inner loops are warm starts and
-// take at most max_refit_iterations.
+// than outer_epsilon nats per photon, F on the expanded cut against F on the
+// cut before, with the same parameters and photons. Here the first
+// expansions gain 0.07 and 0.04 nats per photon, so outer_epsilon = 1 ends
+// the fit after the first one; a test against the F/n of the previous
+// expansion would need two. The gain of the expansion that stopped the fit is
+// reported and must be below the threshold, and a smaller threshold refines
+// the cut further. Later inner loops are warm starts and take at most
+// max_refit_iterations.
 TEST(PemFit, OuterLoopStopsWhenAnExpansionGainsLessThanEpsilonAndRefitsAreCapped) {
     const Scene& scene = spotFog();
-    const PemRun coarse = runPem(scene, 2, 4096, {{"epsilon", 1.0}});
+    const PemRun coarse = runPem(scene, 2, 4096, {{"outer_epsilon", 1.0}});
     EXPECT_EQ(coarse.fit.at("outer_iterations"), 1);
-    const PemRun fine =
-        runPem(scene, 2, 4096, {{"max_iterations", std::int64_t{3}}, {"max_refit_iterations", std::int64_t{1}}});
+    EXPECT_LT(coarse.fit.at("expansion_gain_e6"), 1000000);
+    EXPECT_GT(coarse.fit.at("expansion_gain_e6"), 0);
+    const PemRun middle = runPem(scene, 2, 4096, {{"outer_epsilon", 0.02}});
+    EXPECT_LT(middle.fit.at("expansion_gain_e6"), 20000);
+    EXPECT_GE(middle.fit.at("outer_iterations"), 2);
+    EXPECT_GT(middle.fit.at("cells"), coarse.fit.at("cells"));
+    const PemRun fine = runPem(scene, 2, 4096,
+                               {{"max_iterations", std::int64_t{3}},
+                                {"max_refit_iterations", std::int64_t{1}},
+                                {"outer_epsilon", 1e-4}});
     EXPECT_GE(fine.fit.at("outer_iterations"), 3);
-    EXPECT_GT(fine.fit.at("cells"), coarse.fit.at("cells"));
+    EXPECT_GT(fine.fit.at("cells"), middle.fit.at("cells"));
     EXPECT_LE(fine.fit.at("inner_iterations"), 3 + (fine.fit.at("outer_iterations") - 1));
+    std::printf("|P| / leaves: outer_epsilon 1: %lld / %lld, 0.02: %lld, 1e-4: %lld\n",
+                static_cast<long long>(coarse.fit.at("cells")), static_cast<long long>(coarse.fit.at("tree_leaves")),
+                static_cast<long long>(middle.fit.at("cells")), static_cast<long long>(fine.fit.at("cells")));
 }
 
 // Single scattering only (max_depth 1): the mixture's image approaches the
