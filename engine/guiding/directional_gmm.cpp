@@ -6,6 +6,11 @@
 
 namespace fg {
 
+namespace {
+// Below this, std::exp(float) is +0 (the smallest denormal is 2^-149 ~ e^-103.28).
+constexpr float kExpUnderflow = -104.0f;
+}  // namespace
+
 Vec3 squareToHemisphere(const Vec2& s) {
     const Vec2 d = sampleConcentricDisk(s);
     const float r2 = d.x * d.x + d.y * d.y;
@@ -82,7 +87,13 @@ float DirectionalGmm::pdfSquare(const Vec2& s) const {
         if (c.weight <= 0.0f) continue;
         const float dx = s.x - c.mean.x, dy = s.y - c.mean.y;
         const float q = c.invXX * dx * dx + 2.0f * c.invXY * dx * dy + c.invYY * dy * dy;
-        sum += c.weight * c.normalisation * std::exp(-0.5f * q);
+        // expf rounds to +0 below ln(2^-150) ~ -103.97, so a far component adds
+        // exactly nothing: skipping its exp
+        // leaves the sum bit for bit the same (a NaN fails the test and still
+        // reaches the sum).
+        const float exponent = -0.5f * q;
+        if (exponent < kExpUnderflow) continue;
+        sum += c.weight * c.normalisation * std::exp(exponent);
     }
     return sum;
 }
