@@ -6,6 +6,28 @@
 
 namespace fg {
 
+namespace {
+// Below this, std::exp(float) is +0 (the smallest denormal is 2^-149 ~ e^-103.28).
+constexpr float kExpUnderflow = -104.0f;
+
+// atan(t) / (π/4) for |t| <= 1: the odd minimax polynomial of Abramowitz and
+// Stegun 4.4.49 (absolute error of atan <= 2e-8, below float's half ulp at
+// π/4), scaled by 4/π so that the wedge's ±1 edges come out as ±1.
+inline float atanUnitOverQuarterPi(float t) {
+    const float t2 = t * t;
+    float p = 0.0028662257f;
+    p = p * t2 - 0.0161657367f;
+    p = p * t2 + 0.0429096138f;
+    p = p * t2 - 0.0752896400f;
+    p = p * t2 + 0.1065626393f;
+    p = p * t2 - 0.1420889944f;
+    p = p * t2 + 0.1999355085f;
+    p = p * t2 - 0.3333314528f;
+    p = p * t2 + 1.0f;
+    return t * p * (4.0f / kPi);
+}
+}  // namespace
+
 Vec3 squareToHemisphere(const Vec2& s) {
     const Vec2 d = sampleConcentricDisk(s);
     const float r2 = d.x * d.x + d.y * d.y;
@@ -20,24 +42,17 @@ std::optional<Vec2> hemisphereToSquare(const Vec3& w) {
     const float r = std::sqrt(std::max(0.0f, 1.0f - w.z));
     const float planar = std::sqrt(w.x * w.x + w.y * w.y);
     if (planar <= 0.0f || r <= 0.0f) return Vec2(0.5f);
-    // Inverse of the concentric map: polar angle phi in [-π/4, 7π/4) picks the
-    // square's quadrant-wedge, then the forward formulas are solved for (a, b).
-    float phi = std::atan2(w.y, w.x);
-    if (phi < -0.25f * kPi) phi += 2.0f * kPi;
-    float a, b;
-    if (phi < 0.25f * kPi) {
-        a = r;
-        b = phi * a / (0.25f * kPi);
-    } else if (phi < 0.75f * kPi) {
-        b = r;
-        a = -(phi - 0.5f * kPi) * b / (0.25f * kPi);
-    } else if (phi < 1.25f * kPi) {
-        a = -r;
-        b = (phi - kPi) * a / (0.25f * kPi);
-    } else {
-        b = -r;
-        a = -(phi - 1.5f * kPi) * b / (0.25f * kPi);
-    }
+    // Inverse of the concentric map. In the wedge where |x| >= |y| the square
+    // point is (a, b) = (±r, ±r·φ'/(π/4)), φ' = atan(y/x) the angle from the
+    // wedge's axis, and symmetrically with x and y swapped in the other wedge.
+    // The ratio lies in [-1, 1], where an odd polynomial gives atan without
+    // atan2's quadrant handling (the pdf's most expensive step after exp).
+    const bool xWedge = std::abs(w.x) >= std::abs(w.y);
+    const float t = xWedge ? w.y / w.x : w.x / w.y;
+    const float side = std::copysign(r, xWedge ? w.x : w.y);
+    const float across = side * atanUnitOverQuarterPi(t);
+    const float a = xWedge ? side : across;
+    const float b = xWedge ? across : side;
     return Vec2(std::clamp(0.5f * (a + 1.0f), 0.0f, 1.0f), std::clamp(0.5f * (b + 1.0f), 0.0f, 1.0f));
 }
 
@@ -82,7 +97,12 @@ float DirectionalGmm::pdfSquare(const Vec2& s) const {
         if (c.weight <= 0.0f) continue;
         const float dx = s.x - c.mean.x, dy = s.y - c.mean.y;
         const float q = c.invXX * dx * dx + 2.0f * c.invXY * dx * dy + c.invYY * dy * dy;
-        sum += c.weight * c.normalisation * std::exp(-0.5f * q);
+        // expf rounds to +0 below ln(2^-150) ~ -103.97, so a far component adds
+        // exactly nothing: skipping its exp leaves the sum bit for bit the same
+        // (a NaN fails the test and still reaches the sum).
+        const float exponent = -0.5f * q;
+        if (exponent < kExpUnderflow) continue;
+        sum += c.weight * c.normalisation * std::exp(exponent);
     }
     return sum;
 }
