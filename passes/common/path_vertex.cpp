@@ -381,4 +381,24 @@ void resolveShadowRays(const PathTracerScene& pts, std::span<const std::uint32_t
     if (n > 0) flush();
 }
 
+std::vector<ParamSpec> guidedSamplingParams() {
+    return {
+        {"guiding_bsdf_probability", ParamType::Float, 0.5, 0.01, 1.0, {},
+         "alpha: probability of BSDF sampling at a guided vertex (the GMM otherwise)"},
+        {"guiding_candidates", ParamType::Int, std::int64_t{2}, 1, 64, {},
+         "M of Eq. 11 for guiding_query = nearest (and for a cache whose cover grid would be too large): "
+         "nearest records compared per guided vertex"},
+        {"guiding_query", ParamType::String, std::string("covering"), 0, 0, {"covering", "nearest"},
+         "covering: the best by Eq. 11 of the records whose validity radius holds the vertex (a grid lookup); "
+         "nearest: the best of the guiding_candidates nearest records, if its radius holds the vertex (a kd-tree search)"},
+    };
+}
+
+void guideByRadianceCache(PathTracerScene& pts, const GuidingCache& cache, const PassParams& params) {
+    pts.guiding = &cache;
+    pts.guidingBsdfProbability = static_cast<float>(params.getFloat("guiding_bsdf_probability"));
+    pts.guidingCandidates = static_cast<std::uint32_t>(params.getInt("guiding_candidates"));
+    pts.guidingCovering = params.getString("guiding_query") == "covering";
+}
+
 }  // namespace fg

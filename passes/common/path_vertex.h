@@ -6,6 +6,7 @@
 
 #include "engine/core/math.h"
 #include "engine/accel/ray_query.h"
+#include "engine/core/pass.h"
 #include "engine/scene/scene.h"
 #include "jobs/random.h"
 
@@ -40,6 +41,13 @@ struct PathTracerScene {
     // GuidingCache::lookup). pt's parameter guiding_query sets it.
     bool guidingCovering = true;
 };
+
+// The guided-sampling parameters of the passes whose camera paths may read a
+// radiance cache (pt, importon), declared once so that their defaults and
+// documentation agree.
+std::vector<ParamSpec> guidedSamplingParams();
+// Guides pts's paths by `cache` with the parameters above.
+void guideByRadianceCache(PathTracerScene& pts, const GuidingCache& cache, const PassParams& params);
 
 struct PathLimits {
     int maxDepth = 16;

@@ -55,10 +55,7 @@ public:
         camera.height = ctx.filmSettings().height;
         PathTracerScene pts(scene, ctx.rays());
         if (ctx.hasInput("radiance_cache")) {
-            pts.guiding = &ctx.input<GuidingCache>("radiance_cache");
-            pts.guidingBsdfProbability = static_cast<float>(params.getFloat("guiding_bsdf_probability"));
-            pts.guidingCandidates = static_cast<std::uint32_t>(params.getInt("guiding_candidates"));
-            pts.guidingCovering = params.getString("guiding_query") == "covering";
+            guideByRadianceCache(pts, ctx.input<GuidingCache>("radiance_cache"), params);
         }
 
         const std::uint64_t pixels = static_cast<std::uint64_t>(camera.width) * static_cast<std::uint64_t>(camera.height);
@@ -140,15 +137,9 @@ PassRegistration importonPass() {
          "maximum number of scattering events per path (as pt's)"},
         {"rr_depth", ParamType::Int, std::int64_t{5}, 1, 4096, {},
          "scattering events before Russian roulette may end a path (as pt's)"},
-        {"guiding_bsdf_probability", ParamType::Float, 0.5, 0.01, 1.0, {},
-         "alpha: probability of BSDF sampling at a guided vertex (as pt's)"},
-        {"guiding_candidates", ParamType::Int, std::int64_t{2}, 1, 64, {},
-         "M of Eq. 11 for guiding_query = nearest (and for a cache whose cover grid would be too large): "
-         "nearest records compared per guided vertex"},
-        {"guiding_query", ParamType::String, std::string("covering"), 0, 0, {"covering", "nearest"},
-         "covering: the best by Eq. 11 of the records whose validity radius holds the vertex (a grid lookup); "
-         "nearest: the best of the guiding_candidates nearest records, if its radius holds the vertex (a kd-tree search)"},
     };
+    const std::vector<ParamSpec> guided = guidedSamplingParams();
+    spec.params.insert(spec.params.end(), guided.begin(), guided.end());
     return {spec, [] { return std::make_unique<ImportonPass>(); }, {}, {}};
 }
 

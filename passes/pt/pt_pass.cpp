@@ -264,10 +264,7 @@ public:
         if (guiding == "gmm" || (guiding == "auto" && ctx.hasInput("radiance_cache"))) {
             if (!ctx.hasInput("radiance_cache"))
                 throw InputError("pass '" + ctx.instanceName() + "': guiding = \"gmm\" needs a radiance_cache input");
-            pts.guiding = &ctx.input<GuidingCache>("radiance_cache");
-            pts.guidingBsdfProbability = static_cast<float>(params.getFloat("guiding_bsdf_probability"));
-            pts.guidingCandidates = static_cast<std::uint32_t>(params.getInt("guiding_candidates"));
-            pts.guidingCovering = params.getString("guiding_query") == "covering";
+            guideByRadianceCache(pts, ctx.input<GuidingCache>("radiance_cache"), params);
         }
 
         // Progressive rendering: the samples add to an earlier film's sums, so the
@@ -385,15 +382,9 @@ PassRegistration pathTracerPass() {
         {"guiding", ParamType::String, std::string("auto"), 0, 0, {"auto", "none", "gmm"},
          "none: BSDF sampling; gmm: guided by the radiance_cache input (Vorba et al. 2014); auto: gmm when "
          "that input is bound"},
-        {"guiding_bsdf_probability", ParamType::Float, 0.5, 0.01, 1.0, {},
-         "alpha: probability of BSDF sampling at a guided vertex (the GMM otherwise)"},
-        {"guiding_candidates", ParamType::Int, std::int64_t{2}, 1, 64, {},
-         "M of Eq. 11 for guiding_query = nearest (and for a cache whose cover grid would be too large): "
-         "nearest records compared per guided vertex"},
-        {"guiding_query", ParamType::String, std::string("covering"), 0, 0, {"covering", "nearest"},
-         "covering: the best by Eq. 11 of the records whose validity radius holds the vertex (a grid lookup); "
-         "nearest: the best of the guiding_candidates nearest records, if its radius holds the vertex (a kd-tree search)"},
     };
+    const std::vector<ParamSpec> guided = guidedSamplingParams();
+    spec.params.insert(spec.params.end(), guided.begin(), guided.end());
     return {spec, [] { return std::make_unique<PathTracerPass>(); }, {}, pathTracerMemory};
 }
 
