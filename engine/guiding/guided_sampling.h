@@ -9,6 +9,10 @@
 // mass but not its density anywhere else, so dividing by p(ω) stays unbiased,
 // and p(ω) is also the pdf the strategy has in MIS against next-event
 // estimation. Both are computed here, so that the two cannot drift apart.
+// sample() returns p(ω) with the direction: the strategy that drew it already
+// holds half of it (the BSDF's pdf, or the GMM's square point, whose density
+// needs no return trip through the frames and the inverse map), so the path
+// does not evaluate the mixture a second time.
 #pragma once
 
 #include "engine/core/math.h"
@@ -18,6 +22,11 @@
 #include <optional>
 
 namespace fg {
+
+struct GuidedSample {
+    Vec3 wi{0.0f};   // local to the shading frame
+    float pdf = 0.0f;  // mixture density of wi
+};
 
 struct GuidedBsdfSampler {
     const Bsdf* bsdf = nullptr;
@@ -30,9 +39,10 @@ struct GuidedBsdfSampler {
 
     // Mixture density of a direction local to the shading frame.
     float pdf(const Vec3& wiLocal) const;
-    // A direction local to the shading frame, or nothing when the chosen strategy
-    // fails (the BSDF gives no sample, the GMM point falls outside its square).
-    std::optional<Vec3> sample(float uStrategy, float uLobe, const Vec2& uDir) const;
+    // A direction local to the shading frame and its mixture density, or nothing
+    // when the chosen strategy fails (the BSDF gives no sample, the GMM point
+    // falls outside its square). The density agrees with pdf() up to rounding.
+    std::optional<GuidedSample> sample(float uStrategy, float uLobe, const Vec2& uDir) const;
 };
 
 }  // namespace fg

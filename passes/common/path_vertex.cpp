@@ -263,12 +263,12 @@ bool advancePathAtSurface(const PathTracerScene& pts, const PathLimits& limits, 
         const float uStrategy = s.rng.uniform();
         const float uLobe = s.rng.uniform();
         const Vec2 uDir = s.rng.uniform2();
-        const std::optional<Vec3> sampled = guided.sample(uStrategy, uLobe, uDir);
+        const std::optional<GuidedSample> sampled = guided.sample(uStrategy, uLobe, uDir);
         if (!sampled) return false;
-        const Vec3 wiLocal = *sampled;
+        const Vec3 wiLocal = sampled->wi;
         const Vec3 wi = frame.toWorld(wiLocal);
         if (glm::dot(wi, sp.ng) * wiLocal.z <= 0.0f) return false;
-        const float pdf = guided.pdf(wiLocal);
+        const float pdf = sampled->pdf;
         const Rgb f = bsdf->eval(wo, wiLocal, sp.texturePoint(), TransportMode::Radiance);
         if (!(pdf > 0.0f) || isBlack(f)) return false;
         beta *= f / pdf;
