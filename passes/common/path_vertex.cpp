@@ -19,6 +19,7 @@
 
 #include <algorithm>
 #include <array>
+#include <optional>
 
 namespace fg {
 
@@ -244,8 +245,10 @@ bool advancePathAtSurface(const PathTracerScene& pts, const PathLimits& limits, 
                                h.depth - 1});
     }
 
+    // Only a guided vertex pays for the sampler's copies of the frames and the texture point.
     const VertexGuide guide = chosen ? VertexGuide{} : findGuide(pts, *bsdf, sp, -s.ray.direction);
-    const GuidedBsdfSampler guided{bsdf, frame, wo, sp.texturePoint(), guide.gmm, guide.frame, guide.bsdfProbability};
+    std::optional<GuidedBsdfSampler> guided;
+    if (guide.gmm) guided.emplace(GuidedBsdfSampler{bsdf, frame, wo, sp.texturePoint(), guide.gmm, guide.frame, guide.bsdfProbability});
 
     if (bsdf->hasSmoothLobe()) {
         queueLightSample(pts, sp.p, sp.ng, &shape, h.medium, beta, s.rng,
@@ -253,17 +256,17 @@ bool advancePathAtSurface(const PathTracerScene& pts, const PathLimits& limits, 
                              const Vec3 wiLocal = frame.toLocal(wi);
                              // Shading normals must not let light through the geometric surface.
                              if (glm::dot(wi, sp.ng) * wiLocal.z <= 0.0f) return std::pair<Rgb, float>(Rgb(0.0f), 0.0f);
-                             const float pdf = guide.gmm ? guided.pdf(wiLocal) : bsdf->pdf(wo, wiLocal, sp.texturePoint());
+                             const float pdf = guided ? guided->pdf(wiLocal) : bsdf->pdf(wo, wiLocal, sp.texturePoint());
                              return std::pair<Rgb, float>(bsdf->eval(wo, wiLocal, sp.texturePoint(), TransportMode::Radiance), pdf);
                          },
                          shadow);
     }
 
-    if (guide.gmm) {
+    if (guided) {
         const float uStrategy = s.rng.uniform();
         const float uLobe = s.rng.uniform();
         const Vec2 uDir = s.rng.uniform2();
-        const std::optional<GuidedSample> sampled = guided.sample(uStrategy, uLobe, uDir);
+        const std::optional<GuidedSample> sampled = guided->sample(uStrategy, uLobe, uDir);
         if (!sampled) return false;
         const Vec3 wiLocal = sampled->wi;
         const Vec3 wi = frame.toWorld(wiLocal);
