@@ -9,7 +9,21 @@
 #include <mutex>
 #include <thread>
 
+#if defined(__SSE__) || defined(_M_X64)
+#include <xmmintrin.h>
+#endif
+
 namespace fg::jobs {
+
+void useDeterministicFloatMode() {
+#if defined(__SSE__) || defined(_M_X64)
+    // Bit 15 flushes subnormal results to zero (FTZ), bit 6 reads subnormal
+    // operands as zero (DAZ); rounding and exception masks are left alone.
+    constexpr unsigned kFlushAndDenormalsAreZero = (1u << 15) | (1u << 6);
+    const unsigned mode = _mm_getcsr();
+    if ((mode & kFlushAndDenormalsAreZero) != kFlushAndDenormalsAreZero) _mm_setcsr(mode | kFlushAndDenormalsAreZero);
+#endif
+}
 
 int maxThreads() {
     return static_cast<int>(
@@ -47,6 +61,7 @@ int TaskGraph::addTask(std::function<void()> task) {
     Impl* impl = impl_.get();
     auto body = [impl, task = std::move(task)](const tbb::flow::continue_msg&) {
         if (impl->failed.load()) return;
+        useDeterministicFloatMode();
         try {
             task();
         } catch (...) {

@@ -8,6 +8,7 @@
 //  - ThreadLimit: caps the worker count for a scope (the --threads option);
 //  - TaskGraph: a dependency graph of tasks (the pass scheduler's flow graph).
 // Chunks are booked to the calling pass's WorkContext for the profiler.
+// Every chunk and task runs in one floating-point mode (useDeterministicFloatMode).
 #pragma once
 
 #include "jobs/work_context.h"
@@ -22,6 +23,14 @@
 #include <vector>
 
 namespace fg::jobs {
+
+// Sets the calling thread's SSE floating-point mode to flush subnormal results
+// and read subnormal inputs as zero (FTZ and DAZ). A thread's mode is whatever
+// the code it last ran left behind (libraries set it in the threads they run
+// on), so without this a result that passes through a subnormal could differ
+// between runs, processes and thread counts. Every chunk and task body sets it
+// first; it costs one control-register write.
+void useDeterministicFloatMode();
 
 struct IndexRange {
     std::size_t begin = 0;
@@ -40,6 +49,7 @@ void parallelForChunks(std::size_t n, std::size_t grain, Body&& body) {
     tbb::parallel_for(
         tbb::blocked_range<std::size_t>(0, chunks, 1),
         [&](const tbb::blocked_range<std::size_t>& r) {
+            useDeterministicFloatMode();
             for (std::size_t c = r.begin(); c != r.end(); ++c) {
                 const IndexRange chunk{c * grain, std::min(n, (c + 1) * grain)};
                 ChunkTimer timer(owner, static_cast<std::int64_t>(chunk.size()));

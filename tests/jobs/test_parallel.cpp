@@ -16,6 +16,10 @@
 #include <utility>
 #include <vector>
 
+#if defined(__SSE__)
+#include <xmmintrin.h>
+#endif
+
 namespace fg::jobs {
 namespace {
 
@@ -86,6 +90,34 @@ float blockedSum(const std::vector<float>& values, std::size_t blocks) {
         },
         [](float& total, const float& part) { total += part; });
 }
+
+#if defined(__SSE__)
+// A product whose exact value is subnormal: 0 under flush-to-zero.
+float subnormalProduct() {
+    volatile float small = 1e-30f, factor = 1e-10f;
+    return small * factor;
+}
+
+TEST(FloatMode, ChunksAndTasksFlushSubnormalsWhateverTheThreadHadSet) {
+    // The calling thread (which also runs chunks) starts with IEEE gradual underflow.
+    const unsigned saved = _mm_getcsr();
+    _mm_setcsr(saved & ~((1u << 15) | (1u << 6)));
+    ASSERT_NE(subnormalProduct(), 0.0f);
+    std::vector<float> products(64, -1.0f);
+    {
+        const jobs::ThreadLimit limit(2);
+        jobs::parallelFor(products.size(), 1, [&](std::size_t i) { products[i] = subnormalProduct(); });
+    }
+    for (float p : products) EXPECT_EQ(p, 0.0f);
+    float inTask = -1.0f;
+    _mm_setcsr(saved & ~((1u << 15) | (1u << 6)));
+    jobs::TaskGraph graph;
+    graph.addTask([&] { inTask = subnormalProduct(); });
+    graph.run();
+    EXPECT_EQ(inTask, 0.0f);
+    _mm_setcsr(saved);
+}
+#endif
 
 TEST(DeterministicReduce, FloatSumIsBitIdenticalForAnyThreadCount) {
     const std::vector<float> values = variedValues(1 << 18);
