@@ -12,6 +12,7 @@
 #include "engine/shading/light.h"
 #include "passes/passes.h"
 #include "tests/support/cli_helpers.h"
+#include "tests/support/guiding_pipeline.h"
 #include "tests/support/pass_helpers.h"
 #include "tests/support/render_helpers.h"
 
@@ -26,55 +27,9 @@
 namespace fg {
 namespace {
 
-// Where cache_update makes new records: at the importons of the training pass
-// (as the built-in guided-pt does) or at the photons (without an importons input).
-enum class RecordsAt { Importons, Photons };
-
-// The guided-pt pipeline with a short training block; `tail` is appended after it.
-Pipeline guidedPipeline(int trainingPasses, const std::string& result, RecordsAt at = RecordsAt::Importons,
-                        const std::string& tail = "[[pipeline.pass]]\npass = \"pt\"\ninputs = { radiance_cache = \"radiance_cache\" }\n") {
-    const bool importons = at == RecordsAt::Importons;
-    const std::string text = "[pipeline]\nname = \"guided-pt-test\"\nresults = [\"" + result +
-                             "\"]\n[[pipeline.repeat]]\nname = \"train\"\ncount = " + std::to_string(trainingPasses) +
-                             "\ncarry = { radiance_cache = \"radiance_cache\" }\n" +
-                             (importons ? R"([[pipeline.repeat.pass]]
-pass = "importon"
-inputs = { radiance_cache = "radiance_cache" }
-outputs = { importons = "training_importons" }
-)"
-                                        : "") +
-                             R"([[pipeline.repeat.pass]]
-pass = "photon"
-outputs = { global_photons = "training_photons" }
-[[pipeline.repeat.pass]]
-pass = "photon_index"
-name = "training_index"
-inputs = { photons = "training_photons" }
-outputs = { index = "training_index" }
-[[pipeline.repeat.pass]]
-pass = "cache_update"
-name = "radiance_update"
-inputs = { photons = "training_photons", index = "training_index", previous = "radiance_cache")" +
-                             (importons ? ", importons = \"training_importons\"" : "") + " }\n" +
-                             "outputs = { cache = \"radiance_cache\" }\n" + tail;
-    return parsePipelineFile(text, "guided-pt-test.toml");
-}
-
-std::map<std::string, ParamValue> trainingParams(std::int64_t photons, std::int64_t spp) {
-    return {{"photon.photons", photons},       {"photon.store", std::string("global")},
-            {"photon.differentials", false},    {"pt.spp", spp},
-            {"pt.max_depth", std::int64_t{12}},
-            // Fewer training particles and a looser off-line EM than the paper's, to keep the tests short.
-            {"radiance_update.training_particles", std::int64_t{64}},
-            {"radiance_update.tolerance", 1e-3}};
-}
-
-FilmSettings film(int w, int h) {
-    FilmSettings f;
-    f.width = w;
-    f.height = h;
-    return f;
-}
+using test::guidedPipeline;
+using test::RecordsAt;
+using test::trainingParams;
 
 std::vector<Rgb> pixels(const Film& image) { return image.resolve(); }
 
@@ -83,7 +38,7 @@ TEST(GuidedPt, FurnaceSphereHasUnitRadiance) {
     auto params = trainingParams(4000, 32);
     params["pt.max_depth"] = std::int64_t{1000};
     const BufferHandle image =
-        test::runPipeline(scene, guidedPipeline(2, "image"), builtinRegistry().passes, params, film(16, 16), "image");
+        test::runPipeline(scene, guidedPipeline(2, "image"), builtinRegistry().passes, params, test::smallFilm(16, 16), "image");
     const std::vector<Rgb> px = pixels(test::bufferAs<Film>(image));
     double sum = 0.0;
     for (const Rgb& p : px) sum += p.y;
@@ -135,7 +90,7 @@ MeanComparison compareMeans(const Scene& scene, int size, int seeds, std::int64_
     constexpr int kBlock = 4;
     const int blocksPerSide = size / kBlock, blocks = blocksPerSide * blocksPerSide;
     const BufferHandle cache = test::runPipeline(scene, guidedPipeline(2, "radiance_cache"), builtinRegistry().passes,
-                                                 trainingParams(photons, spp), film(size, size), "radiance_cache", 99);
+                                                 trainingParams(photons, spp), test::smallFilm(size, size), "radiance_cache", 99);
     EXPECT_GT(test::bufferAs<GuidingCache>(cache).records.size(), 10u);
     const RayQuery rays(scene);
     const PassRegistration pt = pathTracerPass();
@@ -156,8 +111,8 @@ MeanComparison compareMeans(const Scene& scene, int size, int seeds, std::int64_
     std::vector<std::vector<double>> a, b;
     for (int seed = 1; seed <= seeds; ++seed) {
         const auto s = static_cast<std::uint64_t>(seed);
-        a.push_back(means(test::runPass(pt, scene, &rays, film(size, size), {{"radiance_cache", cache}}, params, s).at("image")));
-        b.push_back(means(test::runPass(pt, scene, &rays, film(size, size), {}, params, s + 1000).at("image")));
+        a.push_back(means(test::runPass(pt, scene, &rays, test::smallFilm(size, size), {{"radiance_cache", cache}}, params, s).at("image")));
+        b.push_back(means(test::runPass(pt, scene, &rays, test::smallFilm(size, size), {}, params, s + 1000).at("image")));
     }
     MeanComparison result;
     double varianceA = 0.0, varianceB = 0.0;
@@ -224,7 +179,7 @@ TEST(GuidedPt, NewRecordSpacingSetsRecordCount) {
         params["radiance_update.new_record_spacing"] = spacing;
         params["radiance_update.max_sweeps"] = maxSweeps;
         const auto cache = test::runPipeline(scene, guidedPipeline(1, "radiance_cache", RecordsAt::Photons),
-                                             builtinRegistry().passes, params, film(8, 8), "radiance_cache", 5);
+                                             builtinRegistry().passes, params, test::smallFilm(8, 8), "radiance_cache", 5);
         return test::bufferAs<GuidingCache>(cache).records.size();
     };
     const std::size_t dense = recordsWith(0.5, 12), sparse = recordsWith(1.0, 12);
@@ -239,9 +194,9 @@ TEST(GuidedPt, CacheAndImageIdenticalAtOneAndTwoThreads) {
     const std::filesystem::path dir = test::scratchDirectory("guided-pt");
     const auto params = trainingParams(4000, 4);
     const auto cache1 = test::runPipeline(scene, guidedPipeline(2, "radiance_cache"), builtinRegistry().passes, params,
-                                          film(16, 16), "radiance_cache", 3, 1);
+                                          test::smallFilm(16, 16), "radiance_cache", 3, 1);
     const auto cache2 = test::runPipeline(scene, guidedPipeline(2, "radiance_cache"), builtinRegistry().passes, params,
-                                          film(16, 16), "radiance_cache", 3, 2);
+                                          test::smallFilm(16, 16), "radiance_cache", 3, 2);
     ASSERT_GT(test::bufferAs<GuidingCache>(cache1).records.size(), 10u);
     const std::string bytes1 = cacheBytes(cache1, dir / "cache1.fgbuf");
     const std::string bytes2 = cacheBytes(cache2, dir / "cache2.fgbuf");
@@ -249,9 +204,9 @@ TEST(GuidedPt, CacheAndImageIdenticalAtOneAndTwoThreads) {
     EXPECT_TRUE(bytes1 == bytes2) << "the caches trained at 1 and 2 threads differ";
 
     const auto image1 = test::runPipeline(scene, guidedPipeline(2, "image"), builtinRegistry().passes, params,
-                                          film(16, 16), "image", 3, 1);
+                                          test::smallFilm(16, 16), "image", 3, 1);
     const auto image2 = test::runPipeline(scene, guidedPipeline(2, "image"), builtinRegistry().passes, params,
-                                          film(16, 16), "image", 3, 2);
+                                          test::smallFilm(16, 16), "image", 3, 2);
     const std::vector<Rgb> p1 = pixels(test::bufferAs<Film>(image1)), p2 = pixels(test::bufferAs<Film>(image2));
     ASSERT_EQ(p1.size(), p2.size());
     EXPECT_EQ(std::memcmp(p1.data(), p2.data(), p1.size() * sizeof(Rgb)), 0);
@@ -264,65 +219,22 @@ TEST(GuidedPt, SavedAndImportedCacheRendersSameImage) {
     const std::filesystem::path dir = test::scratchDirectory("guided-pt");
     const auto params = trainingParams(4000, 4);
     const auto trained = test::runPipeline(scene, guidedPipeline(2, "radiance_cache"), builtinRegistry().passes,
-                                           params, film(16, 16), "radiance_cache", 5);
+                                           params, test::smallFilm(16, 16), "radiance_cache", 5);
     const std::string saved = cacheBytes(trained, dir / "cache.fgbuf");
     const BufferHandle loaded = loadBuffer((dir / "cache.fgbuf").string(), "GuidingCache");
     EXPECT_TRUE(cacheBytes(loaded, dir / "again.fgbuf") == saved);
 
     const auto image = test::runPipeline(scene, guidedPipeline(2, "image"), builtinRegistry().passes, params,
-                                         film(16, 16), "image", 5);
+                                         test::smallFilm(16, 16), "image", 5);
     // pt alone on the loaded cache: same seed and instance name as in the pipeline, so the same random numbers.
     const RayQuery rays(scene);
-    const auto rendered = test::runPass(pathTracerPass(), scene, &rays, film(16, 16), {{"radiance_cache", loaded}},
+    const auto rendered = test::runPass(pathTracerPass(), scene, &rays, test::smallFilm(16, 16), {{"radiance_cache", loaded}},
                                         {{"spp", std::int64_t{4}}, {"max_depth", std::int64_t{12}}}, 5);
     const std::vector<Rgb> a = pixels(test::bufferAs<Film>(image)), b = pixels(test::bufferAs<Film>(rendered.at("image")));
     ASSERT_EQ(a.size(), b.size());
     EXPECT_EQ(std::memcmp(a.data(), b.data(), a.size() * sizeof(Rgb)), 0);
 }
 
-
-// Importons guided by a trained cache, then the cache: the same bytes at 1
-// and 2 threads (paths are gathered per fixed chunk and concatenated in path
-// order). The importons lie where a guided camera path could be guided: their
-// normals face the direction they came from, their weights are positive, and
-// both first hits (0 bounces) and later ones are there.
-TEST(ImportonPass, IdenticalAtOneAndTwoThreads) {
-    const Scene scene = loadScene(test::sourcePath("data/cornell-box/cornell-box.toml"));
-    const std::filesystem::path dir = test::scratchDirectory("guided-pt");
-    auto params = trainingParams(4000, 4);
-    params.erase("pt.spp");  // this pipeline ends with importons, not pt
-    params.erase("pt.max_depth");
-    const std::string tail = R"([[pipeline.pass]]
-pass = "importon"
-name = "final_importons"
-inputs = { radiance_cache = "radiance_cache" }
-outputs = { importons = "importons" }
-)";
-    const auto run = [&](int threads) {
-        return test::runPipeline(scene, guidedPipeline(2, "importons", RecordsAt::Importons, tail),
-                                 builtinRegistry().passes, params, film(16, 16), "importons", 7, threads);
-    };
-    const BufferHandle one = run(1), two = run(2);
-    const ImportonMap& map = test::bufferAs<ImportonMap>(one);
-    EXPECT_EQ(map.paths, 16u * 16u);
-    ASSERT_GT(map.importons.size(), map.paths);  // most paths make more than one guidable vertex
-    std::size_t first = 0;
-    const auto normals = map.importons.column<ImportonNormal>();
-    const auto incident = map.importons.column<ImportonIncident>();
-    const auto weights = map.importons.column<ImportonWeight>();
-    const auto bounces = map.importons.column<ImportonBounces>();
-    for (std::size_t i = 0; i < map.importons.size(); ++i) {
-        EXPECT_GE(glm::dot(normals[i], incident[i]), 0.0f) << i;
-        EXPECT_GT(weights[i], 0.0f) << i;
-        if (bounces[i] == 0) ++first;
-    }
-    EXPECT_GT(first, map.paths / 2);
-    EXPECT_LT(first, map.importons.size());
-    saveBuffer(one, (dir / "importons1.fgbuf").string(), "");
-    saveBuffer(two, (dir / "importons2.fgbuf").string(), "");
-    EXPECT_TRUE(test::readText(dir / "importons1.fgbuf") == test::readText(dir / "importons2.fgbuf"))
-        << "the importons traced at 1 and 2 threads differ";
-}
 
 // Records are made where camera paths query the cache (§4.1): in the occluded
 // room, whose light is behind the partition (x > 0.32) and whose camera looks
@@ -335,7 +247,7 @@ TEST(GuidedPt, RecordsFollowCameraPathsInOccludedRoom) {
     const Scene scene = loadScene((dir / "ajar-room.toml").string());
     const auto cameraSideShare = [&](RecordsAt at) {
         const auto cache = test::runPipeline(scene, guidedPipeline(2, "radiance_cache", at), builtinRegistry().passes,
-                                             trainingParams(20000, 1), film(16, 16), "radiance_cache", 11);
+                                             trainingParams(20000, 1), test::smallFilm(16, 16), "radiance_cache", 11);
         const GuidingRecordBuffer& records = test::bufferAs<GuidingCache>(cache).records;
         EXPECT_GT(records.size(), 5u);
         std::size_t cameraSide = 0;
