@@ -39,11 +39,11 @@ inline constexpr double kBandwidthSceneScaleFactor = 0.2;  // a of mu_C = a <sqr
 // floats, and on deep paths in scenes measured in millimetres they fall below
 // FLT_MIN (each bounce multiplies by about p_s / D ~ 1e-6): a subnormal then
 // reads as itself or as zero depending on the thread's floating-point mode
-// (denormals-are-zero). That mode is not the same for every run in one
-// process: passes ran with DAZ and FTZ set from the command line and in a
-// test run alone, without them in the same test after other tests, and w
-// came out 0.00111 or 0.000286 for the same rays. Every density below
-// FLT_MIN counts as zero, in either mode, as it did with DAZ.
+// (denormals-are-zero). Passes run with DAZ set (jobs/ sets it for every
+// chunk and task), but the model is also fitted by callers outside jobs/, and
+// before jobs/ fixed the mode w came out 0.00111 or 0.000286 for the same
+// rays depending on what other tests had left in the thread. Every density
+// below FLT_MIN counts as zero, in either mode, as under DAZ.
 inline double readDensity(float density) {
     return density >= std::numeric_limits<float>::min() ? static_cast<double>(density) : 0.0;
 }
