@@ -166,6 +166,14 @@ public:
         forEachColumnIndex([&]<std::size_t C>() { std::get<C>(columns_)[i] = std::get<C>(record.values); });
     }
 
+    // Copies item `from` to slot `to`, column by column: going through a Record
+    // (get, then set) builds it on the stack and reloads it in wider pieces
+    // than it was stored in, a store-forwarding stall per item on hot paths
+    // such as compacting a queue.
+    void copyItem(std::size_t to, std::size_t from) {
+        forEachColumnIndex([&]<std::size_t C>() { std::get<C>(columns_)[to] = std::get<C>(columns_)[from]; });
+    }
+
     // Appends one record; returns its index.
     std::size_t append(const Record& record) {
         const std::size_t i = size_;

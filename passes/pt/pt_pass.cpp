@@ -107,14 +107,6 @@ Vec2 jitteredRaster(const Camera& camera, std::uint32_t pixel, jobs::Rng& rng) {
                 static_cast<float>(pixel / static_cast<std::uint32_t>(camera.width))) + jitter;
 }
 
-// Moves path `from` to slot `to`, column by column: going through the whole
-// record (get / set) builds it on the stack and reloads it in wider pieces
-// than it was stored in, a store-forwarding stall per moved path and bounce.
-template <class... Columns>
-void movePath(SoaBuffer<Columns...>& paths, std::size_t to, std::size_t from) {
-    ((paths.template column<Columns>()[to] = paths.template column<Columns>()[from]), ...);
-}
-
 // A non-finite sample would poison every pixel its filter reaches.
 Rgb finiteOrBlack(const Rgb& L) { return isFinite(L) ? L : Rgb(0.0f); }
 
@@ -179,7 +171,7 @@ std::int64_t traceStream(const PathTracerScene& pts, const Camera& camera, std::
         for (std::size_t k = 0; k < live; ++k) {
             timeNs[k] += share;
             if (alive[k]) {
-                if (kept != k) movePath(paths, kept, k);
+                if (kept != k) paths.copyItem(kept, k);
                 ++kept;
             } else {
                 sampleRadiance[sampleOf[k]] = finiteOrBlack(radiance[k]);

@@ -202,6 +202,18 @@ TEST(SoaRecord, RoundTripsThroughTheColumns) {
     EXPECT_EQ(std::memcmp(&back.get<ItemPosition>(), &record.get<ItemPosition>(), sizeof(Triple)), 0);
 }
 
+TEST(SoaBuffer, CopyItemCopiesEveryColumnOfOneSlot) {
+    ItemBuffer buffer(3);
+    buffer.set(0, ItemBuffer::Record{7u, 1.5, Triple{1.0f, 2.0f, 3.0f}});
+    buffer.set(2, ItemBuffer::Record{9u, -2.0, Triple{4.0f, 5.0f, 6.0f}});
+    buffer.copyItem(1, 2);
+    EXPECT_EQ(buffer.column<ItemId>()[1], 9u);
+    EXPECT_EQ(buffer.column<ItemWeight>()[1], -2.0);
+    EXPECT_EQ(buffer.column<ItemPosition>()[1].z, 6.0f);
+    EXPECT_EQ(buffer.column<ItemId>()[0], 7u) << "other slots untouched";
+    EXPECT_EQ(buffer.column<ItemId>()[2], 9u) << "the source stays";
+}
+
 // What a producer keeps besides the columns; only the columns are stored.
 struct TaggedItem : ItemBuffer::Record {
     bool keep = false;
