@@ -176,42 +176,122 @@ double segmentIntegral(const Gaussian& g, const Vec3d& origin, const Vec3d& dire
     return scale * std::exp(logPeak) * (upperErf - std::erf(za));
 }
 
-Vec3d segmentIntegralRgb(const SegmentGaussian& g, const Vec3d& origin, const Vec3d& direction, const Vec3d& sigmaT,
-                         double a, double b) {
-    if (!(b > a)) return Vec3d(0.0);
+namespace {
+
+// glibc's erf rounds to exactly +-1 from |x| = 6 on (erfc(6) = 2e-17 is below
+// half an ulp of 1); answering those without the call changes no value. A
+// segment that ends well before or begins well after a Gaussian's chord is the
+// common case, so most integrals need no erf at all.
+constexpr double kErfIsOne = 6.0;
+double erfSaturated(double x) {
+    if (x >= kErfIsOne) return 1.0;
+    if (x <= -kErfIsOne) return -1.0;
+    return std::erf(x);
+}
+
+// The part of segmentIntegralRgb after the terms that do not depend on the
+// segment's ends: d = origin - mean, pw = Sigma^-1 w, c2 = w^T Sigma^-1 w / 2,
+// wPd = w^T Sigma^-1 d and halfDPd = d^T Sigma^-1 d / 2.
+Vec3d integralFromTerms(const SegmentGaussian& g, const Vec3d& d, const Vec3d& direction, double c2, double wPd,
+                        double halfDPd, const Vec3d& sigmaT, double a, double b) {
     const Sym3& precision = g.precision;
-    const Vec3d d = origin - g.mean;
-    const Vec3d pw = precision * direction;
-    const double c2 = 0.5 * glm::dot(direction, pw);
-    const double wPd = glm::dot(pw, d);
     const double rootC2 = std::sqrt(c2);
     const double scale = kSqrtPi / (2.0 * rootC2);
     const bool bInfinite = std::isinf(b);
     // The sigma_t-free parts of segmentIntegral's logIntegrand at a and b and
     // of its logPeak, in the same order of operations so that both give the
-    // same values.
-    const double quadraticA = g.logNormaliser - 0.5 * precision.quadratic(d + a * direction);
-    const double quadraticB = bInfinite ? 0.0 : g.logNormaliser - 0.5 * precision.quadratic(d + b * direction);
-    const double halfDPd = 0.5 * precision.quadratic(d);
+    // same values; the first two only where a tail needs them.
+    const auto quadraticA = [&] { return g.logNormaliser - 0.5 * precision.quadratic(d + a * direction); };
+    const auto quadraticB = [&] { return g.logNormaliser - 0.5 * precision.quadratic(d + b * direction); };
     const auto channel = [&](double sigma) {
         const double c3 = wPd + sigma;
         const double za = rootC2 * a + c3 / (2.0 * rootC2);
         const double zb = bInfinite ? std::numeric_limits<double>::infinity() : rootC2 * b + c3 / (2.0 * rootC2);
         if (za >= 0.0) {
-            const double lower = std::exp(quadraticA - sigma * a) * erfcx(za);
-            const double upper = bInfinite ? 0.0 : std::exp(quadraticB - sigma * b) * erfcx(zb);
+            const double lower = std::exp(quadraticA() - sigma * a) * erfcx(za);
+            const double upper = bInfinite ? 0.0 : std::exp(quadraticB() - sigma * b) * erfcx(zb);
             return scale * (lower - upper);
         }
         if (zb <= 0.0)
-            return scale * (std::exp(quadraticB - sigma * b) * erfcx(-zb) - std::exp(quadraticA - sigma * a) * erfcx(-za));
+            return scale *
+                   (std::exp(quadraticB() - sigma * b) * erfcx(-zb) - std::exp(quadraticA() - sigma * a) * erfcx(-za));
         const double logPeak = g.logNormaliser + c3 * c3 / (4.0 * c2) - halfDPd;
-        const double upperErf = bInfinite ? 1.0 : std::erf(zb);
-        return scale * std::exp(logPeak) * (upperErf - std::erf(za));
+        const double upperErf = bInfinite ? 1.0 : erfSaturated(zb);
+        return scale * std::exp(logPeak) * (upperErf - erfSaturated(za));
     };
     const double red = channel(sigmaT.x);
     const double green = sigmaT.y == sigmaT.x ? red : channel(sigmaT.y);
     const double blue = sigmaT.z == sigmaT.x ? red : sigmaT.z == sigmaT.y ? green : channel(sigmaT.z);
     return {red, green, blue};
+}
+
+}  // namespace
+
+Vec3d segmentIntegralRgb(const SegmentGaussian& g, const Vec3d& origin, const Vec3d& direction, const Vec3d& sigmaT,
+                         double a, double b) {
+    if (!(b > a)) return Vec3d(0.0);
+    const Vec3d d = origin - g.mean;
+    const Vec3d pw = g.precision * direction;
+    const double c2 = 0.5 * glm::dot(direction, pw);
+    const double wPd = glm::dot(pw, d);
+    return integralFromTerms(g, d, direction, c2, wPd, 0.5 * g.precision.quadratic(d), sigmaT, a, b);
+}
+
+bool truncatedSegmentIntegralRgb(const SegmentGaussian& g, double radiusSquared, const Vec3d& origin,
+                                 const Vec3d& direction, const Vec3d& sigmaT, double a, double b, Vec3d& integral) {
+    if (!(b > a)) return false;
+    const Sym3& precision = g.precision;
+    const Vec3d d = origin - g.mean;
+    const Vec3d pw = precision * direction;
+    const double c2 = 0.5 * glm::dot(direction, pw);
+    const double wPd = glm::dot(pw, d);
+    const double halfDPd = 0.5 * precision.quadratic(d);
+    // Half the Mahalanobis distance squared beyond the truncation,
+    // q(t) = (m(t) - r^2) / 2 = c2 t^2 + wPd t + q(0): the ellipsoid is where
+    // q <= 0. Decided without a division or a square root, which dominated
+    // this test's cost: the line misses when min q = q(0) - wPd^2 / 4 c2 > 0,
+    // and [a, b] misses the chord when the peak -wPd / 2 c2 lies outside it
+    // and q > 0 at the nearer end.
+    const double outside = halfDPd - 0.5 * radiusSquared;
+    if (!(4.0 * c2 * outside <= wPd * wPd)) return false;
+    const auto q = [&](double t) { return (c2 * t + wPd) * t + outside; };
+    if (-wPd < 2.0 * c2 * a) {
+        if (q(a) > 0.0) return false;
+    } else if (-wPd > 2.0 * c2 * b && q(b) > 0.0) {
+        return false;
+    }
+    // integralFromTerms with one division for the three quotients by
+    // sqrt(C2) (the same values up to rounding).
+    const double rootC2 = std::sqrt(c2);
+    const double halfInverseRoot = 0.5 / rootC2;
+    const double scale = kSqrtPi * halfInverseRoot;
+    const bool bInfinite = std::isinf(b);
+    const auto channel = [&](double sigma) {
+        const double shift = (wPd + sigma) * halfInverseRoot;  // C3 / 2 sqrt(C2)
+        const double za = rootC2 * a + shift;
+        const double zb = bInfinite ? std::numeric_limits<double>::infinity() : rootC2 * b + shift;
+        if (za >= 0.0) {
+            const double lower =
+                std::exp(g.logNormaliser - 0.5 * precision.quadratic(d + a * direction) - sigma * a) * erfcx(za);
+            const double upper =
+                bInfinite ? 0.0
+                          : std::exp(g.logNormaliser - 0.5 * precision.quadratic(d + b * direction) - sigma * b) *
+                                erfcx(zb);
+            return scale * (lower - upper);
+        }
+        if (zb <= 0.0)
+            return scale *
+                   (std::exp(g.logNormaliser - 0.5 * precision.quadratic(d + b * direction) - sigma * b) * erfcx(-zb) -
+                    std::exp(g.logNormaliser - 0.5 * precision.quadratic(d + a * direction) - sigma * a) * erfcx(-za));
+        const double logPeak = g.logNormaliser + shift * shift - halfDPd;
+        const double upperErf = bInfinite ? 1.0 : erfSaturated(zb);
+        return scale * std::exp(logPeak) * (upperErf - erfSaturated(za));
+    };
+    const double red = channel(sigmaT.x);
+    const double green = sigmaT.y == sigmaT.x ? red : channel(sigmaT.y);
+    const double blue = sigmaT.z == sigmaT.x ? red : sigmaT.z == sigmaT.y ? green : channel(sigmaT.z);
+    integral = {red, green, blue};
+    return true;
 }
 
 }  // namespace fg::gmm

@@ -124,4 +124,16 @@ struct SegmentGaussian {
 Vec3d segmentIntegralRgb(const SegmentGaussian& g, const Vec3d& origin, const Vec3d& direction, const Vec3d& sigmaT,
                          double a, double b);
 
+// segmentIntegralRgb for a Gaussian truncated to its ellipsoid
+// (x - mu)^T Sigma^-1 (x - mu) <= radiusSquared (§7.1). Along the line,
+// m(t) = d^T Sigma^-1 d + 2 t w^T Sigma^-1 d + t^2 w^T Sigma^-1 w has its
+// minimum d^T Sigma^-1 d - (w^T Sigma^-1 d)^2 / w^T Sigma^-1 w; the line meets
+// the ellipsoid on the chord where m(t) <= radiusSquared. Returns false, and
+// leaves `integral` alone, when the line misses the ellipsoid or [a, b] misses
+// the chord; otherwise sets it to segmentIntegralRgb's value up to rounding
+// (the untruncated integral over [a, b]: the truncation only decides which
+// Gaussians a segment sees, as the boxes of the bounding hierarchy do).
+bool truncatedSegmentIntegralRgb(const SegmentGaussian& g, double radiusSquared, const Vec3d& origin,
+                                 const Vec3d& direction, const Vec3d& sigmaT, double a, double b, Vec3d& integral);
+
 }  // namespace fg::gmm

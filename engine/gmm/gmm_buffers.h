@@ -67,7 +67,10 @@ struct BufferTypeName<GmmPyramid> {
 FG_SOA_COLUMN(BbhLo, Vec3, "lo");
 FG_SOA_COLUMN(BbhHi, Vec3, "hi");
 FG_SOA_COLUMN(BbhSphere, Vec4, "sphere");  // centre, radius
-using GmmBbhBuffer = SoaBuffer<BbhLo, BbhHi, BbhSphere>;
+// The truncation's Mahalanobis radius r_j: the node's Gaussian is cut to
+// (x - mu)^T Sigma^-1 (x - mu) <= r_j^2, the ellipsoid its box bounds.
+FG_SOA_COLUMN(BbhRadius, double, "radius");
+using GmmBbhBuffer = SoaBuffer<BbhLo, BbhHi, BbhSphere, BbhRadius>;
 
 struct GmmBbh {
     GmmBbhBuffer nodes;

@@ -7,6 +7,8 @@
 // ellipsoid's box has half extents r_j sqrt(Sigma_ii). A first sweep sets
 // every node's own box, a second (leaves up) unites each with its children's,
 // so a node's box holds its whole subtree; the bounding sphere is the box's.
+// r_j is kept per node, so that a renderer can test a ray against the
+// ellipsoid itself.
 #include "passes/passes.h"
 
 #include "passes/pem/pem_common.h"
@@ -49,9 +51,11 @@ public:
         const double allowed = delta * total / static_cast<double>(leaves);
         auto lo = bbh.nodes.column<BbhLo>();
         auto hi = bbh.nodes.column<BbhHi>();
+        auto radius = bbh.nodes.column<BbhRadius>();
         jobs::parallelFor(n, 256, [&](std::size_t j) {
             const double e = energy(nodes.column<GmmPower>()[j]);
             const double r = e > 0.0 ? truncationRadius(allowed / e) : 0.0;
+            radius[j] = r;
             const glm::dvec3 mean = nodes.column<GmmMean>()[j];
             const gmm::Sym3& sigma = nodes.column<GmmCovariance>()[j];
             const glm::dvec3 half(r * std::sqrt(sigma.v[0]), r * std::sqrt(sigma.v[3]), r * std::sqrt(sigma.v[5]));

@@ -8,6 +8,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <random>
@@ -164,6 +165,55 @@ TEST(GmmSegmentIntegral, RgbFormEqualsThreeScalarIntegralsExactly) {
             }
         }
     }
+}
+
+// The truncated form skips a Gaussian only where the segment stays outside
+// its ellipsoid m(x) <= r^2, and elsewhere gives the untruncated integral
+// (within 1e-5 of quadrature, as the plain form). The
+// closest approach of [a, b] to the mean, in Mahalanobis distance, is found
+// here from GLM's inverse of the covariance and the peak of m clamped to
+// [a, b], independent of the code under test.
+TEST(GmmSegmentIntegral, TruncatedFormSkipsExactlyTheSegmentsOutsideTheEllipsoid) {
+    std::mt19937_64 rng(14);
+    std::vector<SegmentCase> cases = segmentCases(rng, 0.01, 0.5);
+    for (const SegmentCase& c : segmentCases(rng, 1e-8, 0.2)) cases.push_back(c);
+    int skipped = 0, kept = 0;
+    for (const SegmentCase& c : cases) {
+        const SegmentGaussian compact(c.gaussian);
+        const Mat3d precision = glm::inverse(c.gaussian.covariance.toMat3());
+        const auto m = [&](double t) {
+            const Vec3d r = c.origin + t * c.direction - c.gaussian.mean;
+            return glm::dot(r, precision * r);
+        };
+        const double peak = -glm::dot(c.direction, precision * (c.origin - c.gaussian.mean)) /
+                            glm::dot(c.direction, precision * c.direction);
+        const double closest = m(std::clamp(peak, c.a, c.b));
+        for (const double radius : {0.3, 1.0, 2.0, 4.0}) {
+            const Vec3d sigmaT(0.0, 1.0, 10.0);
+            Vec3d truncated(-1.0);
+            const bool hit = truncatedSegmentIntegralRgb(compact, radius * radius, c.origin, c.direction, sigmaT, c.a,
+                                                         c.b, truncated);
+            if (std::abs(closest - radius * radius) < 1e-9 * radius * radius) continue;  // grazing
+            EXPECT_EQ(hit, closest < radius * radius) << "closest m " << closest << " r^2 " << radius * radius;
+            if (!hit) {
+                EXPECT_EQ(truncated, Vec3d(-1.0));
+                ++skipped;
+                continue;
+            }
+            ++kept;
+            // Rounding apart (the exponent C3^2 / 4 C2 - C1 cancels for needle-thin
+            // Gaussians, 1e-8 relative here), the untruncated integral.
+            const Vec3d full = segmentIntegralRgb(compact, c.origin, c.direction, sigmaT, c.a, c.b);
+            for (int channel = 0; channel < 3; ++channel) {
+                EXPECT_NEAR(truncated[channel], full[channel], 1e-6 * full[channel]);
+                const double reference = quadrature(c.gaussian, c.origin, c.direction, sigmaT[channel], c.a, c.b);
+                EXPECT_NEAR(truncated[channel] / reference, 1.0, 1e-5);
+            }
+        }
+    }
+    // Both outcomes occur, so neither branch goes untested.
+    EXPECT_GT(skipped, 10);
+    EXPECT_GT(kept, 10);
 }
 
 TEST(GmmGaussian, FactorsMatchDirectInverseAndDeterminant) {
