@@ -15,9 +15,17 @@
 // hierarchical with eps_Omega = eps_Tr = 0 equals it), `level` the nodes of
 // one pyramid level (those at or below it whose parent is above). Isotropic
 // media only (§9). Writes the `volume` layer and the cost AOVs of beam_query
-// (query_cost = nodes + Gaussians, query_nodes, query_gaussians,
-// query_time_ns); segments run in parallel and are summed into pixels in
-// segment order, so the image does not depend on the thread count.
+// (query_cost = box tests + Gaussians tested, query_nodes, query_gaussians =
+// Eq. 16 evaluations, query_time_ns); segments run in parallel and are summed
+// into pixels in segment order, so the image does not depend on the thread
+// count.
+// Departures that keep the flat image within the truncation (§7.1's delta):
+// the descent tests the boxes of a node's leaves' truncated ellipsoids rather
+// than the BBH's box, which also holds the node's own, wider ellipsoid; it
+// tests four boxes at a time, on the pyramid collapsed to four-wide nodes
+// (a segment whose transmittance test could fire takes the binary descent);
+// and a Gaussian whose truncated ellipsoid the segment misses is skipped
+// before Eq. 16 (`cull_ellipsoids`).
 #include "passes/passes.h"
 
 #include "passes/pem/pem_common.h"
@@ -27,42 +35,156 @@
 #include "jobs/parallel.h"
 #include "jobs/work_context.h"
 
+#include <array>
 #include <cmath>
 #include <limits>
+#include <span>
 #include <stdexcept>
+#include <vector>
+#include <xmmintrin.h>
 
 namespace fg {
 
 namespace {
 
 constexpr std::size_t kSegmentGrain = 64;
+constexpr std::size_t kWide = 4;
+constexpr std::uint32_t kNoWideNode = std::numeric_limits<std::uint32_t>::max();
 
 enum class Mode { Hierarchical, Flat, Level };
 
 struct SegmentResult {
     Rgb radiance{0.0f};
-    std::int64_t nodes = 0, gaussians = 0;
+    std::int64_t nodes = 0, gaussians = 0, culled = 0;
+    bool binary = false;
     float timeNs = 0.0f;
 };
 
-// Slab test of the ray x + t w (inverseW = 1 / w per axis) against a box,
-// clipped to [0, len]: the entry distance, or a negative value when missed.
-double boxEntry(const Vec3& lo, const Vec3& hi, const glm::dvec3& x, const glm::dvec3& inverseW, double len) {
-    double t0 = 0.0, t1 = len;
+// A segment x + t w, t in [0, length], prepared for slab tests against the
+// single-precision boxes. The inverse direction is kept finite (a zero
+// component gives +-1e30), so no product is 0 * inf and a box nested in
+// another never gets the larger interval: rounding is monotone, so the
+// interval of a box contained in another is contained in the other's. A
+// segment that meets a node's box therefore meets all its ancestors' boxes,
+// which is what lets the wide traversal below skip levels.
+struct SlabRay {
+    std::array<float, 3> origin{}, inverse{};
+    std::array<bool, 3> negative{};
+    float length = 0.0f;
+};
+
+SlabRay slabRay(const glm::dvec3& x, const glm::dvec3& w, double length) {
+    SlabRay ray;
     for (int a = 0; a < 3; ++a) {
-        const double inv = inverseW[a];
-        double ta = (lo[a] - x[a]) * inv, tb = (hi[a] - x[a]) * inv;
-        if (ta > tb) std::swap(ta, tb);
-        if (std::isnan(ta) || std::isnan(tb)) {  // parallel to the slab and on its boundary
-            if (x[a] < lo[a] || x[a] > hi[a]) return -1.0;
-            continue;
-        }
-        t0 = std::max(t0, ta);
-        t1 = std::min(t1, tb);
-        if (t0 > t1) return -1.0;
+        const auto i = static_cast<std::size_t>(a);
+        ray.origin[i] = static_cast<float>(x[a]);
+        const float direction = static_cast<float>(w[a]);
+        float inverse = 1.0f / direction;
+        if (!(std::abs(inverse) < 1e30f)) inverse = std::signbit(direction) ? -1e30f : 1e30f;
+        ray.inverse[i] = inverse;
+        ray.negative[i] = inverse < 0.0f;
     }
-    return t0;
+    ray.length = static_cast<float>(std::min(length, 1e30));
+    return ray;
 }
+
+// [entry, exit] of the segment in a box; entry > exit when it misses.
+struct SlabInterval {
+    float entry, exit;
+    bool hit() const { return entry <= exit; }
+};
+
+SlabInterval slabInterval(const SlabRay& ray, const Vec3& lo, const Vec3& hi) {
+    float t0 = 0.0f, t1 = ray.length;
+    for (int a = 0; a < 3; ++a) {
+        const auto i = static_cast<std::size_t>(a);
+        const float nearPlane = ray.negative[i] ? hi[a] : lo[a];
+        const float farPlane = ray.negative[i] ? lo[a] : hi[a];
+        t0 = std::max(t0, (nearPlane - ray.origin[i]) * ray.inverse[i]);
+        t1 = std::min(t1, (farPlane - ray.origin[i]) * ray.inverse[i]);
+    }
+    return {t0, t1};
+}
+
+// Up to kWide pyramid nodes whose boxes are tested together. The binary
+// pyramid is collapsed: a node that is descended into hands its entries'
+// places to its children, widest box first, until kWide are filled, except
+// that a node the level-of-detail test may stop stays an entry, so that its
+// test is made as in the binary descent. Entries keep the pyramid's depth-
+// first order, and so does the traversal, so the Gaussians are summed in the
+// same order as by the binary descent. Unused entries have empty boxes.
+static_assert(kWide == 4, "the wide traversal tests four boxes in one SSE register");
+struct WideNode {
+    std::array<std::array<float, kWide>, 3> lo{}, hi{};
+    std::array<std::uint32_t, kWide> node{};
+    std::array<std::uint32_t, kWide> children{};  // the wide node of the entry's children; kNoWideNode at leaves
+    std::uint32_t count = 0;
+    std::uint32_t mayStop = 0;  // bit per entry: the level-of-detail test can stop there
+};
+
+class WideTree {
+public:
+    WideTree(const std::vector<Vec3>& lo, const std::vector<Vec3>& hi, std::span<const std::uint32_t> right,
+             const std::vector<bool>& mayStop)
+        : lo_(lo), hi_(hi), right_(right), mayStop_(mayStop) {
+        if (!right.empty()) build({0});
+    }
+    const std::vector<WideNode>& nodes() const { return nodes_; }
+
+private:
+    bool isLeaf(std::uint32_t j) const { return right_[j] == kNoGmmNode; }
+    double area(std::uint32_t j) const {
+        const glm::dvec3 e = glm::max(glm::dvec3(hi_[j] - lo_[j]), glm::dvec3(0.0));
+        return e.x * e.y + e.y * e.z + e.z * e.x;
+    }
+
+    std::uint32_t build(std::vector<std::uint32_t> entries) {
+        while (entries.size() < kWide) {
+            std::size_t widest = entries.size();
+            for (std::size_t e = 0; e < entries.size(); ++e) {
+                const std::uint32_t j = entries[e];
+                if (isLeaf(j) || mayStop_[j]) continue;
+                if (widest == entries.size() || area(j) > area(entries[widest])) widest = e;
+            }
+            if (widest == entries.size()) break;
+            const std::uint32_t j = entries[widest];
+            entries[widest] = j + 1;
+            entries.insert(entries.begin() + static_cast<std::ptrdiff_t>(widest) + 1, right_[j]);
+        }
+        const auto index = static_cast<std::uint32_t>(nodes_.size());
+        nodes_.emplace_back();
+        WideNode wide;
+        wide.count = static_cast<std::uint32_t>(entries.size());
+        for (std::size_t e = 0; e < kWide; ++e) {
+            for (std::size_t a = 0; a < 3; ++a) {
+                wide.lo[a][e] = e < entries.size() ? lo_[entries[e]][static_cast<int>(a)] : kInfinity;
+                wide.hi[a][e] = e < entries.size() ? hi_[entries[e]][static_cast<int>(a)] : -kInfinity;
+            }
+            wide.node[e] = e < entries.size() ? entries[e] : kNoGmmNode;
+            wide.children[e] = kNoWideNode;
+        }
+        for (std::size_t e = 0; e < entries.size(); ++e) {
+            const std::uint32_t j = entries[e];
+            if (mayStop_[j]) wide.mayStop |= 1u << e;
+            if (!isLeaf(j)) wide.children[e] = build({j + 1, right_[j]});
+        }
+        nodes_[index] = wide;
+        return index;
+    }
+
+    const std::vector<Vec3>& lo_;
+    const std::vector<Vec3>& hi_;
+    std::span<const std::uint32_t> right_;
+    const std::vector<bool>& mayStop_;
+    std::vector<WideNode> nodes_;
+};
+
+// What Eq. 15 reads of a node.
+struct RenderGaussian {
+    gmm::SegmentGaussian gaussian;
+    double radiusSquared = 0.0;  // truncation, r_j^2 (gmm_bbh)
+    glm::dvec3 power{0.0};
+};
 
 class GmmRenderPass final : public Pass {
 public:
@@ -77,6 +199,7 @@ public:
         const auto level = static_cast<std::uint32_t>(params.getInt("level"));
         const double epsOmega = params.getFloat("eps_omega");
         const double epsTr = params.getFloat("eps_tr");
+        const bool cullEllipsoids = params.getBool("cull_ellipsoids");
         if (bbh.nodes.size() != pyramid.nodes.size())
             throw std::logic_error("gmm_render: the BBH and the pyramid differ in size");
         const FilmSettings& film = ctx.filmSettings();
@@ -93,14 +216,36 @@ public:
         const double sinSquaredLimit = omegaShare >= 1.0 ? 1.0 : 1.0 - (1.0 - omegaShare) * (1.0 - omegaShare);
 
         const std::size_t nodeCount = pyramid.nodes.size();
-        std::vector<gmm::SegmentGaussian> gaussians(nodeCount);
-        for (std::size_t j = 0; j < nodeCount; ++j) gaussians[j] = gmm::SegmentGaussian(gaussianAt(pyramid.nodes, j));
         const auto power = pyramid.nodes.column<GmmPower>();
         const auto right = pyramid.nodes.column<GmmRight>();
         const auto nodeLevel = pyramid.nodes.column<GmmLevel>();
-        const auto lo = bbh.nodes.column<BbhLo>();
-        const auto hi = bbh.nodes.column<BbhHi>();
         const auto sphere = bbh.nodes.column<BbhSphere>();
+        const auto truncation = bbh.nodes.column<BbhRadius>();
+        std::vector<RenderGaussian> gaussians(nodeCount);
+        for (std::size_t j = 0; j < nodeCount; ++j)
+            gaussians[j] = {gmm::SegmentGaussian(gaussianAt(pyramid.nodes, j)), truncation[j] * truncation[j], power[j]};
+
+        // The descent's boxes bound the truncated ellipsoids of a node's leaves,
+        // not the node's own: the BBH's box of an inner node also holds that
+        // node's ellipsoid, wider than its children's (a merged covariance, a
+        // larger power and so a larger r_j), and a descent that hardly ever
+        // stops above the leaves (the pixel is small against the nodes' spheres)
+        // tests mostly those loose boxes. A node the level-of-detail test stops
+        // is evaluated where its leaves' boxes are met.
+        std::vector<Vec3> lo(nodeCount), hi(nodeCount);
+        {
+            const auto bbhLo = bbh.nodes.column<BbhLo>();
+            const auto bbhHi = bbh.nodes.column<BbhHi>();
+            for (std::size_t j = nodeCount; j-- > 0;) {
+                if (right[j] == kNoGmmNode) {
+                    lo[j] = bbhLo[j];
+                    hi[j] = bbhHi[j];
+                } else {
+                    lo[j] = glm::min(lo[j + 1], lo[right[j]]);
+                    hi[j] = glm::max(hi[j + 1], hi[right[j]]);
+                }
+            }
+        }
 
         const SegmentBuffer& segments = eyeSegments.segments;
         const auto origin = segments.column<SegmentOrigin>();
@@ -111,8 +256,36 @@ public:
         const auto pixelOf = segments.column<SegmentPixel>();
         const auto throughput = segments.column<SegmentThroughput>();
         const std::size_t segmentCount = segments.size();
-        std::vector<SegmentResult> results(segmentCount);
 
+        // Alg. 4 line 3's solid-angle test, for an inner node, from the
+        // camera-path vertex farthest from its sphere (the test stops more the
+        // farther the vertex): where even that does not stop, no segment stops.
+        const auto solidAngleStops = [&](std::size_t j, const glm::dvec3& eye) {
+            const glm::dvec3 toCentre = glm::dvec3(sphere[j].x, sphere[j].y, sphere[j].z) - eye;
+            const double distanceSquared = glm::dot(toCentre, toCentre);
+            const double radiusSquared = static_cast<double>(sphere[j].w) * static_cast<double>(sphere[j].w);
+            return distanceSquared > radiusSquared && radiusSquared < sinSquaredLimit * distanceSquared;
+        };
+        std::vector<bool> mayStop(nodeCount, false);
+        if (mode == Mode::Hierarchical && segmentCount > 0) {
+            glm::dvec3 eyeLo(std::numeric_limits<double>::infinity()), eyeHi(-std::numeric_limits<double>::infinity());
+            for (const Vec3& o : origin) {
+                eyeLo = glm::min(eyeLo, glm::dvec3(o));
+                eyeHi = glm::max(eyeHi, glm::dvec3(o));
+            }
+            for (std::size_t j = 0; j < nodeCount; ++j) {
+                if (right[j] == kNoGmmNode) continue;
+                const glm::dvec3 centre(sphere[j].x, sphere[j].y, sphere[j].z);
+                const glm::dvec3 farthest(centre.x - eyeLo.x > eyeHi.x - centre.x ? eyeLo.x : eyeHi.x,
+                                          centre.y - eyeLo.y > eyeHi.y - centre.y ? eyeLo.y : eyeHi.y,
+                                          centre.z - eyeLo.z > eyeHi.z - centre.z ? eyeLo.z : eyeHi.z);
+                mayStop[j] = solidAngleStops(j, farthest);
+            }
+        }
+        const WideTree wide(lo, hi, right, mayStop);
+        const std::vector<WideNode>& wideNodes = wide.nodes();
+
+        std::vector<SegmentResult> results(segmentCount);
         jobs::parallelForChunks(segmentCount, kSegmentGrain, [&](jobs::IndexRange range) {
             std::vector<std::uint32_t> stack;
             for (std::size_t i = range.begin; i != range.end; ++i) {
@@ -125,52 +298,96 @@ public:
                 const double opaqueBeyond = minSigmaT > 0.0 ? -std::log(epsTr) / minSigmaT
                                                             : std::numeric_limits<double>::infinity();
                 const glm::dvec3 w(direction[i]);
-                const glm::dvec3 inverseW = 1.0 / w;
                 const glm::dvec3 eye(origin[i]);
                 const glm::dvec3 x = eye + static_cast<double>(tNear[i]) * w;
                 const double len = tFar[i] >= 0.5f * kInfinity ? std::numeric_limits<double>::infinity()
                                                                  : static_cast<double>(tFar[i] - tNear[i]);
-                const double boxLen = std::isinf(len) ? 1e300 : len;
+                const SlabRay ray = slabRay(x, w, len);
                 SegmentResult& result = results[i];
                 glm::dvec3 sum(0.0);
                 const auto evaluate = [&](std::uint32_t j) {
+                    const RenderGaussian& g = gaussians[j];
+                    if (cullEllipsoids) {
+                        glm::dvec3 integral;
+                        if (!gmm::truncatedSegmentIntegralRgb(g.gaussian, g.radiusSquared, x, w, sigmaT, 0.0, len,
+                                                              integral)) {
+                            ++result.culled;
+                            return;
+                        }
+                        ++result.gaussians;
+                        sum += g.power * integral;
+                        return;
+                    }
                     ++result.gaussians;
-                    sum += power[j] * gmm::segmentIntegralRgb(gaussians[j], x, w, sigmaT, 0.0, len);
+                    sum += g.power * gmm::segmentIntegralRgb(g.gaussian, x, w, sigmaT, 0.0, len);
                 };
                 if (mode == Mode::Flat) {
                     for (std::uint32_t j = 0; j < nodeCount; ++j) {
                         if (right[j] != kNoGmmNode) continue;
                         ++result.nodes;
-                        if (boxEntry(lo[j], hi[j], x, inverseW, boxLen) >= 0.0) evaluate(j);
+                        if (slabInterval(ray, lo[j], hi[j]).hit()) evaluate(j);
                     }
                 } else {
-                    stack.assign(1, 0);
-                    while (!stack.empty()) {
-                        const std::uint32_t j = stack.back();
-                        stack.pop_back();
-                        ++result.nodes;
-                        const double entry = boxEntry(lo[j], hi[j], x, inverseW, boxLen);
-                        if (entry < 0.0) continue;
-                        bool stop = right[j] == kNoGmmNode;
-                        if (!stop && mode == Mode::Level) stop = nodeLevel[j] <= level;
-                        if (!stop && mode == Mode::Hierarchical) {
+                    // Alg. 4's transmittance test can stop a node only if the
+                    // segment reaches past opaqueBeyond inside the root's box
+                    // (every node's box lies in it); such segments, and the
+                    // level mode, take the binary descent.
+                    const SlabInterval root = slabInterval(ray, lo[0], hi[0]);
+                    result.binary = mode == Mode::Level || (root.hit() && root.exit > opaqueBeyond);
+                    if (result.binary) {
+                        stack.assign(1, 0);
+                        while (!stack.empty()) {
+                            const std::uint32_t j = stack.back();
+                            stack.pop_back();
+                            ++result.nodes;
+                            const SlabInterval box = slabInterval(ray, lo[j], hi[j]);
+                            if (!box.hit()) continue;
+                            bool stop = right[j] == kNoGmmNode;
+                            if (!stop && mode == Mode::Level) stop = nodeLevel[j] <= level;
                             // Alg. 4 line 3: the bounding sphere's solid angle seen from the
                             // camera-path vertex, and the transmittance up to the box.
-                            const glm::dvec3 centre(sphere[j].x, sphere[j].y, sphere[j].z);
-                            const double radius = sphere[j].w;
-                            const glm::dvec3 toCentre = centre - eye;
-                            const double distanceSquared = glm::dot(toCentre, toCentre);
-                            const double radiusSquared = radius * radius;
-                            if (distanceSquared > radiusSquared)
-                                stop = radiusSquared < sinSquaredLimit * distanceSquared;
-                            if (!stop) stop = entry > opaqueBeyond;
+                            if (!stop && mode == Mode::Hierarchical)
+                                stop = solidAngleStops(j, eye) || box.entry > opaqueBeyond;
+                            if (stop) {
+                                evaluate(j);
+                                continue;
+                            }
+                            stack.push_back(right[j]);
+                            stack.push_back(j + 1);
                         }
-                        if (stop) {
-                            evaluate(j);
-                            continue;
+                    } else if (root.hit()) {
+                        // Items on the stack: a wide node to test (low bit 0) or a
+                        // pyramid node to evaluate (low bit 1), popped in the
+                        // pyramid's depth-first order.
+                        stack.assign(1, 0);
+                        while (!stack.empty()) {
+                            const std::uint32_t item = stack.back();
+                            stack.pop_back();
+                            if (item & 1u) {
+                                evaluate(item >> 1);
+                                continue;
+                            }
+                            const WideNode& node = wideNodes[item >> 1];
+                            // slabInterval on the kWide boxes at once.
+                            __m128 t0 = _mm_setzero_ps(), t1 = _mm_set1_ps(ray.length);
+                            for (std::size_t a = 0; a < 3; ++a) {
+                                const float* nearPlane = ray.negative[a] ? node.hi[a].data() : node.lo[a].data();
+                                const float* farPlane = ray.negative[a] ? node.lo[a].data() : node.hi[a].data();
+                                const __m128 o = _mm_set1_ps(ray.origin[a]), inverse = _mm_set1_ps(ray.inverse[a]);
+                                t0 = _mm_max_ps(t0, _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(nearPlane), o), inverse));
+                                t1 = _mm_min_ps(t1, _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(farPlane), o), inverse));
+                            }
+                            auto hits = static_cast<unsigned>(_mm_movemask_ps(_mm_cmple_ps(t0, t1)));
+                            result.nodes += node.count;
+                            while (hits != 0) {
+                                const auto e = static_cast<std::size_t>(31 - __builtin_clz(hits));
+                                hits &= ~(1u << e);
+                                const std::uint32_t j = node.node[e];
+                                const bool evaluateHere = node.children[e] == kNoWideNode ||
+                                                          ((node.mayStop >> e) & 1u && solidAngleStops(j, eye));
+                                stack.push_back(evaluateHere ? (j << 1) | 1u : node.children[e] << 1);
+                            }
                         }
-                        stack.push_back(right[j]);
-                        stack.push_back(j + 1);
                     }
                 }
                 const Rgb value = Rgb(sum * (1.0 / (4.0 * M_PI))) * throughput[i];
@@ -189,7 +406,7 @@ public:
         std::vector<float>& gaussiansAov = image.aov("query_gaussians");
         std::vector<float>& time = image.aov("query_time_ns");
         std::vector<Rgb> perPixel(image.pixelCount(), Rgb(0.0f));
-        std::int64_t totalNodes = 0, totalGaussians = 0;
+        std::int64_t totalNodes = 0, totalGaussians = 0, totalCulled = 0, binarySegments = 0;
         for (std::size_t i = 0; i < segmentCount; ++i) {
             const std::uint32_t p = pixelOf[i];
             if (p >= perPixel.size()) throw std::logic_error("gmm_render: segment outside the film");
@@ -197,16 +414,20 @@ public:
             perPixel[p] += r.radiance;
             nodesAov[p] += static_cast<float>(r.nodes);
             gaussiansAov[p] += static_cast<float>(r.gaussians);
-            cost[p] += static_cast<float>(r.nodes + r.gaussians);
+            cost[p] += static_cast<float>(r.nodes + r.gaussians + r.culled);
             time[p] += r.timeNs;
             totalNodes += r.nodes;
             totalGaussians += r.gaussians;
+            totalCulled += r.culled;
+            binarySegments += r.binary ? 1 : 0;
         }
         image.addToPixels(perPixel, 1.0f);
         ctx.addItems(static_cast<std::int64_t>(segmentCount));
         ctx.addCounter("segments", static_cast<std::int64_t>(segmentCount));
+        ctx.addCounter("binary_segments", binarySegments);
         ctx.addCounter("nodes_visited", totalNodes);
         ctx.addCounter("gaussians_evaluated", totalGaussians);
+        ctx.addCounter("gaussians_culled", totalCulled);
     }
 };
 
@@ -232,6 +453,8 @@ PassRegistration gmmRenderPass() {
          "evaluate a node whose bounding sphere subtends less than eps_omega pixels' solid angle"},
         {"eps_tr", ParamType::Float, 0.01, 0.0, 1.0, {},
          "evaluate a node whose box lies behind transmittance below eps_tr"},
+        {"cull_ellipsoids", ParamType::Bool, true, 0, 0, {},
+         "skip a Gaussian when the segment misses its truncated ellipsoid (gmm_bbh's r_j), not only its box"},
     };
     const auto memory = [](const PreflightContext& pf) {
         return MemoryEstimate{filmBytes(pf.film),

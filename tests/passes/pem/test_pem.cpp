@@ -177,6 +177,12 @@ TEST(PemRender, ZeroThresholdsEqualFlatAndLargerThresholdsTradeErrorForCost) {
     const std::vector<Rgb> flat = render(scene, c, segments, size, {{"mode", std::string("flat")}}, &flatCost);
     const std::vector<Rgb> exact = render(scene, c, segments, size, {{"eps_omega", 0.0}, {"eps_tr", 0.0}});
     EXPECT_LT(relativeRms(exact, flat), 1e-5);
+    // The wide descent (zero thresholds) and the binary one (level 0) meet the
+    // same leaves as the flat loop and sum them in the same order.
+    EXPECT_EQ(std::memcmp(exact.data(), flat.data(), flat.size() * sizeof(Rgb)), 0);
+    const std::vector<Rgb> leaves =
+        render(scene, c, segments, size, {{"mode", std::string("level")}, {"level", std::int64_t{0}}});
+    EXPECT_EQ(std::memcmp(leaves.data(), flat.data(), flat.size() * sizeof(Rgb)), 0);
     double previousError = -1.0, previousCost = 1e300;
     for (const double eps : {1.0, 30.0, 1000.0}) {
         double cost = 0.0;
@@ -189,6 +195,24 @@ TEST(PemRender, ZeroThresholdsEqualFlatAndLargerThresholdsTradeErrorForCost) {
         previousCost = cost;
     }
     EXPECT_GT(previousError, 0.0);
+}
+
+// Skipping the Gaussians whose truncated ellipsoid a segment misses drops
+// at most the energy the truncation already gives up (delta = 1e-3 of it),
+// and does skip some.
+TEST(PemRender, EllipsoidCullingChangesTheFlatImageByAtMostDelta) {
+    const Scene scene = mediumScene();
+    const Chain c = fitChain(scene, clusteredPhotons(40000, 4), 128);
+    const int size = 24;
+    const auto segments = pinholeSegments(scene, size);
+    const std::vector<Rgb> all =
+        render(scene, c, segments, size, {{"mode", std::string("flat")}, {"cull_ellipsoids", false}});
+    const std::vector<Rgb> culled = render(scene, c, segments, size, {{"mode", std::string("flat")}});
+    const double delta = test::bufferAs<GmmBbh>(c.bbh.at("bbh")).truncation;
+    const double error = relativeRms(culled, all);
+    std::printf("ellipsoid culling: relative RMS vs unculled %.3g (delta %g)\n", error, delta);
+    EXPECT_GT(error, 0.0);
+    EXPECT_LE(error, delta);
 }
 
 TEST(PemRender, OneAndTwoThreadsGiveIdenticalMixturesAndImages) {
