@@ -37,20 +37,49 @@ struct GmmComponent {
     float cholXX = 0.0f, cholYX = 0.0f, cholYY = 0.0f;
 };
 
+// The mixture as evaluation and sampling read it, one array per quantity and
+// one lane per component (set by finalize()): the density computes all K
+// terms together in vector code instead of walking the components one by one.
+// The arrays sampling reads come first and the block starts a cache line, so
+// that a guided vertex touches five lines of a record (the record is usually
+// not in cache: the vertex has just looked it up).
+struct alignas(64) GmmLanes {
+    using Lanes = std::array<float, kGmmComponents>;
+    // Running sum of the weights, +inf from the last non-empty component on:
+    // the component drawn by u in [0, 1) is the number of entries <= u.
+    Lanes cdf{};
+    Lanes meanX{}, meanY{};
+    // Lower Cholesky factor of Σ (as GmmComponent::chol*).
+    Lanes cholXX{}, cholYX{}, cholYY{};
+    // log2 of a component's Gaussian factor at offset (dx, dy) from its mean is
+    // quadXX dx² + quadXY dx dy + quadYY dy² = -½ log2(e) (dx, dy) Σ⁻¹ (dx, dy)ᵀ.
+    Lanes quadXX{}, quadXY{}, quadYY{};
+    // weight / (2π sqrt(det Σ)); zero for an empty component, whose factor is then 1.
+    Lanes scale{};
+};
+
 struct DirectionalGmm {
     std::array<GmmComponent, kGmmComponents> components{};
+    GmmLanes lanes{};
 
     // Recomputes the derived quantities; returns false (and leaves the mixture
     // unusable: all weights zero) if a covariance is not positive definite or a
     // value is not finite.
     bool finalize();
     bool usable() const;
+    // Asks the memory system for the lanes ahead of their use: a caller that
+    // has just found the record can do other work while they arrive.
+    void prefetch() const {
+        const char* bytes = reinterpret_cast<const char*>(&lanes);
+        for (std::size_t offset = 0; offset < sizeof(GmmLanes); offset += 64) __builtin_prefetch(bytes + offset);
+    }
 
     // Density on the plane R² (not truncated to the square).
     float pdfSquare(const Vec2& s) const;
     // Solid-angle density of a local direction (z = the record's normal); zero below the horizon.
     float pdfLocal(const Vec3& local) const;
-    // Draws a point of the plane: component by uComponent, Gaussian by Box-Muller from uGauss.
+    // Draws a point of the plane: component by uComponent, Gaussian by Box-Muller from uGauss
+    // (its logarithm, cosine and sine by polynomials accurate to float rounding).
     Vec2 samplePlane(float uComponent, const Vec2& uGauss) const;
     // A local direction, or nothing when the point falls outside the square.
     std::optional<Vec3> sampleLocal(float uComponent, const Vec2& uGauss) const;

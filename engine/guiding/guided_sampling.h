@@ -25,6 +25,7 @@ namespace fg {
 
 struct GuidedSample {
     Vec3 wi{0.0f};   // local to the shading frame
+    Vec3 wiWorld{0.0f};  // the same direction in world space
     float pdf = 0.0f;  // mixture density of wi
 };
 
@@ -39,6 +40,9 @@ struct GuidedBsdfSampler {
 
     // Mixture density of a direction local to the shading frame.
     float pdf(const Vec3& wiLocal) const;
+    // The same for a caller that holds the direction in both frames (next-event
+    // estimation draws it in world space): no round trip through the shading frame.
+    float pdf(const Vec3& wiLocal, const Vec3& wiWorld) const;
     // A direction local to the shading frame and its mixture density, or nothing
     // when the chosen strategy fails (the BSDF gives no sample, the GMM point
     // falls outside its square). The density agrees with pdf() up to rounding.

@@ -96,6 +96,8 @@ VertexGuide findGuide(const PathTracerScene& pts, const Bsdf& bsdf, const Surfac
     if (!record) return guide;
     const DirectionalGmm& gmm = pts.guiding->records.column<GuideMixture>()[*record];
     if (!(pts.guiding->hasCoverGrid() ? pts.guiding->usable(*record) : gmm.usable())) return guide;
+    // The record is rarely in cache; light sampling runs before the mixture is read.
+    gmm.prefetch();
     guide.gmm = &gmm;
     guide.frame = Frame(pts.guiding->records.column<GuideNormal>()[*record]);
     guide.bsdfProbability = pts.guidingBsdfProbability;
@@ -256,7 +258,7 @@ bool advancePathAtSurface(const PathTracerScene& pts, const PathLimits& limits, 
                              const Vec3 wiLocal = frame.toLocal(wi);
                              // Shading normals must not let light through the geometric surface.
                              if (glm::dot(wi, sp.ng) * wiLocal.z <= 0.0f) return std::pair<Rgb, float>(Rgb(0.0f), 0.0f);
-                             const float pdf = guided ? guided->pdf(wiLocal) : bsdf->pdf(wo, wiLocal, sp.texturePoint());
+                             const float pdf = guided ? guided->pdf(wiLocal, wi) : bsdf->pdf(wo, wiLocal, sp.texturePoint());
                              return std::pair<Rgb, float>(bsdf->eval(wo, wiLocal, sp.texturePoint(), TransportMode::Radiance), pdf);
                          },
                          shadow);
@@ -269,7 +271,7 @@ bool advancePathAtSurface(const PathTracerScene& pts, const PathLimits& limits, 
         const std::optional<GuidedSample> sampled = guided->sample(uStrategy, uLobe, uDir);
         if (!sampled) return false;
         const Vec3 wiLocal = sampled->wi;
-        const Vec3 wi = frame.toWorld(wiLocal);
+        const Vec3& wi = sampled->wiWorld;
         if (glm::dot(wi, sp.ng) * wiLocal.z <= 0.0f) return false;
         const float pdf = sampled->pdf;
         const Rgb f = bsdf->eval(wo, wiLocal, sp.texturePoint(), TransportMode::Radiance);

@@ -9,6 +9,7 @@
 
 #include <gtest/gtest.h>
 
+#include <array>
 #include <cmath>
 #include <vector>
 
@@ -110,6 +111,116 @@ TEST(GuidingMap, InverseMatchesDoublePrecisionAtan2) {
         worst = std::max({worst, std::abs(double(s->x) - expected.x), std::abs(double(s->y) - expected.y)});
     }
     EXPECT_LT(worst, 1e-6);
+}
+
+// The forward map's polynomial sine and cosine against the concentric map in
+// double precision with the library's cos and sin.
+TEST(GuidingMap, ForwardMatchesDoublePrecisionTrigonometry) {
+    const auto reference = [](const Vec2& s) {
+        const double pi = 3.14159265358979323846;
+        const double a = 2.0 * s.x - 1.0, b = 2.0 * s.y - 1.0;
+        if (a == 0.0 && b == 0.0) return std::array<double, 3>{0.0, 0.0, 1.0};
+        double r, phi;
+        if (std::abs(a) > std::abs(b)) {
+            r = a, phi = 0.25 * pi * (b / a);
+        } else {
+            r = b, phi = 0.5 * pi - 0.25 * pi * (a / b);
+        }
+        const double lift = std::sqrt(2.0 - r * r);
+        return std::array<double, 3>{r * std::cos(phi) * lift, r * std::sin(phi) * lift, 1.0 - r * r};
+    };
+    jobs::Rng rng(5, jobs::streamKey("map-forward-trig"), 0);
+    double worst = 0.0;
+    for (int k = 0; k < 20000; ++k) {
+        Vec2 s = rng.uniform2();
+        if (k % 4 == 0) s.y = (k % 8 == 0) ? s.x : 1.0f - s.x;  // on a wedge boundary
+        const Vec3 w = squareToHemisphere(s);
+        const std::array<double, 3> expected = reference(s);
+        for (int a = 0; a < 3; ++a) worst = std::max(worst, std::abs(double(w[a]) - expected[std::size_t(a)]));
+    }
+    EXPECT_LT(worst, 1e-6);
+}
+
+// The density of Eq. 1 from the covariances in double precision with the
+// library's exp: the lanes, the polynomial 2^x and the cutoff that makes far
+// components exactly zero change the density by float rounding only.
+TEST(DirectionalGmm, PdfMatchesDoublePrecisionDensity) {
+    for (std::uint64_t key = 1; key <= 4; ++key) {
+        const DirectionalGmm gmm = randomMixture(key);
+        const auto reference = [&](const Vec2& s) {
+            double sum = 0.0;
+            for (const GmmComponent& c : gmm.components) {
+                if (c.weight <= 0.0f) continue;
+                const double det = double(c.covXX) * c.covYY - double(c.covXY) * c.covXY;
+                const double dx = double(s.x) - c.mean.x, dy = double(s.y) - c.mean.y;
+                const double q = (c.covYY * dx * dx - 2.0 * c.covXY * dx * dy + c.covXX * dy * dy) / det;
+                sum += c.weight * std::exp(-0.5 * q) / (2.0 * M_PI * std::sqrt(det));
+            }
+            return sum;
+        };
+        jobs::Rng rng(9, jobs::streamKey("gmm-pdf-double"), key);
+        int compared = 0, farOut = 0;
+        for (int k = 0; k < 20000; ++k) {
+            // Points well outside the square too, where every term is tiny or zero.
+            const Vec2 s(6.0f * rng.uniform() - 2.5f, 6.0f * rng.uniform() - 2.5f);
+            const double expected = reference(s);
+            const double actual = gmm.pdfSquare(s);
+            if (expected < 1e-30) {
+                EXPECT_LT(actual, 1e-30) << s.x << ", " << s.y;
+                ++farOut;
+                continue;
+            }
+            // The float quadratic form's rounding, a few 1e-7 of the exponent,
+            // dominates away from the means, with the library's expf as here.
+            const double relative = 1e-6 * (2.0 + std::abs(std::log(expected)));
+            EXPECT_NEAR(actual, expected, relative * expected) << s.x << ", " << s.y;
+            ++compared;
+        }
+        EXPECT_GT(compared, 5000);
+        EXPECT_GT(farOut, 100);  // the cutoff is exercised
+    }
+}
+
+// Sampling draws the component whose running weight first exceeds u and maps
+// uGauss by Box-Muller through the Cholesky factor: the same point as that
+// recipe in double precision with the library's log, cos and sin.
+TEST(DirectionalGmm, SamplePlaneMatchesDoublePrecisionBoxMuller) {
+    const DirectionalGmm gmm = gmmMixture({gmmComponent(0.3f, Vec2(0.2f, 0.3f), 0.01f, 0.004f, 0.02f),
+                                           gmmComponent(0.0f, Vec2(0.5f, 0.5f), 0.01f, 0.0f, 0.01f),
+                                           gmmComponent(0.45f, Vec2(0.7f, 0.6f), 0.03f, -0.02f, 0.05f),
+                                           gmmComponent(0.25f, Vec2(0.5f, 0.9f), 0.002f, 0.0f, 0.0004f)});
+    jobs::Rng rng(13, jobs::streamKey("gmm-sample-double"), 0);
+    std::array<int, kGmmComponents> drawn{};
+    for (int k = 0; k < 50000; ++k) {
+        const float uComponent = rng.uniform();
+        Vec2 uGauss = rng.uniform2();
+        if (k % 16 == 0) uGauss.x = 1.0f - 0x1p-24f * float(1 + k % 7);  // the far tail
+        double cumulative = 0.0;
+        std::size_t chosen = 0;
+        bool nearBoundary = false;
+        for (std::size_t j = 0; j < kGmmComponents; ++j) {
+            if (gmm.components[j].weight <= 0.0f) continue;
+            chosen = j;
+            cumulative += gmm.components[j].weight;
+            nearBoundary = nearBoundary || std::abs(uComponent - cumulative) < 1e-6;
+            if (uComponent < cumulative) break;
+        }
+        if (nearBoundary) continue;
+        const GmmComponent& c = gmm.components[chosen];
+        const double radius = std::sqrt(-2.0 * std::log(double(1.0f - uGauss.x)));
+        const double angle = 2.0 * M_PI * uGauss.y;
+        const double z0 = radius * std::cos(angle), z1 = radius * std::sin(angle);
+        const double l00 = std::sqrt(double(c.covXX)), l10 = c.covXY / l00;
+        const double l11 = std::sqrt(c.covYY - l10 * l10);
+        const Vec2 s = gmm.samplePlane(uComponent, uGauss);
+        const double tolerance = 1e-6 * (1.0 + radius);
+        EXPECT_NEAR(s.x, c.mean.x + l00 * z0, tolerance) << uComponent << " " << uGauss.x << " " << uGauss.y;
+        EXPECT_NEAR(s.y, c.mean.y + l10 * z0 + l11 * z1, tolerance) << uComponent << " " << uGauss.x << " " << uGauss.y;
+        ++drawn[chosen];
+    }
+    EXPECT_EQ(drawn[1], 0);  // an empty component is never drawn
+    EXPECT_GT(drawn[0], 10000);
+    EXPECT_GT(drawn[3], 8000);
 }
 
 // ∫ pdf_ω over the hemisphere by midpoint quadrature in (cos θ, φ), against the
