@@ -248,7 +248,23 @@ bool validMixture(const DirectionalGmm& gmm) {
             if (!std::isfinite(v)) return false;
         if (c.weight < 0.0f || (c.weight > 0.0f && !(det > 0.0f && c.covXX > 0.0f))) return false;
     }
-    return true;
+    // The evaluation lanes are derived too, and sampling indexes components by
+    // the cdf lane: they must be what finalize() derives from these components
+    // (to rounding, since it renormalises the weights once more).
+    DirectionalGmm derived = gmm;
+    if (derived.finalize() != gmm.usable()) return false;
+    const auto close = [](const GmmLanes::Lanes& a, const GmmLanes::Lanes& b) {
+        for (int j = 0; j < kGmmComponents; ++j) {
+            if (a[j] == b[j]) continue;
+            if (!(std::abs(a[j] - b[j]) <= 1e-4f * std::max(std::abs(a[j]), std::abs(b[j])) + 1e-30f)) return false;
+        }
+        return true;
+    };
+    const GmmLanes& a = gmm.lanes;
+    const GmmLanes& b = derived.lanes;
+    return close(a.cdf, b.cdf) && close(a.meanX, b.meanX) && close(a.meanY, b.meanY) && close(a.cholXX, b.cholXX) &&
+           close(a.cholYX, b.cholYX) && close(a.cholYY, b.cholYY) && close(a.quadXX, b.quadXX) &&
+           close(a.quadXY, b.quadXY) && close(a.quadYY, b.quadYY) && close(a.scale, b.scale);
 }
 
 BufferCodec importonMapCodec() {

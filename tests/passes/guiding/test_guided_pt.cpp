@@ -3,6 +3,7 @@
 // on the Cornell box and an occluded room), the furnace sphere still gives radiance 1, and the
 // trained caches and the image are the same at 1 and 2 threads.
 #include "engine/core/codec.h"
+#include "engine/core/error.h"
 #include "engine/core/job.h"
 #include "engine/accel/ray_query.h"
 #include "engine/guiding/guiding_cache.h"
@@ -233,6 +234,34 @@ TEST(GuidedPt, SavedAndImportedCacheRendersSameImage) {
     const std::vector<Rgb> a = pixels(test::bufferAs<Film>(image)), b = pixels(test::bufferAs<Film>(rendered.at("image")));
     ASSERT_EQ(a.size(), b.size());
     EXPECT_EQ(std::memcmp(a.data(), b.data(), a.size() * sizeof(Rgb)), 0);
+}
+
+// Sampling picks a component by counting cdf lanes below u: a file whose lanes
+// do not follow from its components (here a cdf that never reaches u) is
+// refused on loading, not sampled out of bounds.
+TEST(GuidedPt, CacheWhoseLanesDisagreeWithItsComponentsIsRefused) {
+    const Scene scene = loadScene(test::sourcePath("data/cornell-box/cornell-box.toml"));
+    const std::filesystem::path dir = test::scratchDirectory("guided-pt");
+    const auto trained = test::runPipeline(scene, guidedPipeline(1, "radiance_cache"), builtinRegistry().passes,
+                                           trainingParams(4000, 4), test::smallFilm(8, 8), "radiance_cache", 5);
+    auto& cache = const_cast<GuidingCache&>(test::bufferAs<GuidingCache>(trained));
+    auto gmms = cache.records.column<GuideMixture>();
+    std::size_t usable = 0;
+    while (usable < gmms.size() && !gmms[usable].usable()) ++usable;
+    ASSERT_LT(usable, gmms.size());
+    const std::string path = (dir / "bad-lanes.fgbuf").string();
+    saveBuffer(trained, path, "");
+    EXPECT_NO_THROW(loadBuffer(path, "GuidingCache"));
+
+    gmms[usable].lanes.cdf.fill(0.25f);
+    saveBuffer(trained, path, "");
+    try {
+        loadBuffer(path, "GuidingCache");
+        ADD_FAILURE() << "a cache with inconsistent lanes was accepted";
+    } catch (const InputError& error) {
+        EXPECT_NE(std::string(error.what()).find("guiding record " + std::to_string(usable)), std::string::npos)
+            << error.what();
+    }
 }
 
 
