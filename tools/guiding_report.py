@@ -85,6 +85,7 @@ def main():
     parser.add_argument("--spp", type=int, default=512, help="guided pt samples per pixel")
     parser.add_argument("--reference-spp", type=int, default=4096)
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--seed", type=int, default=1, help="seed of the guided run (the reference uses 2, pt 1)")
     parser.add_argument("--pipeline", default=os.path.join(ROOT, "passes/pipelines/guided-pt.toml"),
                         help="the guided-pt pipeline file (another build's, to compare builds)")
     args = parser.parse_args()
@@ -108,7 +109,7 @@ def main():
                        f"[passes.importance_update]\ntraining_particles = {args.training_particles}\n"
                        f"max_sweeps = {args.max_sweeps}\nnew_record_spacing = {args.spacing}\n"
                        f"[passes.pt]\nspp = {args.spp}\nmax_depth = 16\nguiding_candidates = {args.candidates}\n\n" + pipeline_text(args.training_passes, args.pipeline))
-        guided, guided_time, rows = run(args.binary, job(scene, width, height, guided_body),
+        guided, guided_time, rows = run(args.binary, job(scene, width, height, guided_body, seed=args.seed),
                                         os.path.join(work, "guided-pt.toml"), work, args.threads)
         training = sum(v for k, v in rows.items() if k.startswith("train["))
         pt_share = rows.get("pt", 0.0)
