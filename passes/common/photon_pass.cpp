@@ -842,7 +842,7 @@ PassRegistration photonPass() {
     PassSpec spec;
     spec.name = "photon";
     spec.doc = "Photon tracing from all lights (by power) through surfaces and homogeneous media, with Russian "
-               "roulette and optional photon differentials";
+               "roulette, optional photon differentials and optional guiding by an importance cache (Vorba et al. 2014)";
     SlotSpec importanceCache{"importance_cache", "GuidingCache",
                              "importance cache trained on importons (Vorba et al. 2014): guides the directions "
                              "photons leave non-specular reflecting surfaces in (absent: BSDF sampling)"};
