@@ -30,8 +30,8 @@ SCENES = {
 }
 
 
-def pipeline_text(training_passes):
-    text = open(os.path.join(ROOT, "passes/pipelines/guided-pt.toml")).read()
+def pipeline_text(training_passes, path):
+    text = open(path).read()
     text = text[text.index("[pipeline]"):]
     text = text.replace('name = "guided-pt"', 'name = "guided-pt-report"').replace("count = 30", f"count = {training_passes}")
     return "\n".join(line for line in text.splitlines() if not line.startswith("doc =")) + "\n"
@@ -85,6 +85,9 @@ def main():
     parser.add_argument("--spp", type=int, default=512, help="guided pt samples per pixel")
     parser.add_argument("--reference-spp", type=int, default=4096)
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--seed", type=int, default=1, help="seed of the guided run (the reference uses 2, pt 1)")
+    parser.add_argument("--pipeline", default=os.path.join(ROOT, "passes/pipelines/guided-pt.toml"),
+                        help="the guided-pt pipeline file (another build's, to compare builds)")
     args = parser.parse_args()
     width, height = (int(v) for v in args.size.split("x"))
     os.makedirs(args.out, exist_ok=True)
@@ -100,10 +103,13 @@ def main():
             image, _, _ = run(args.binary, job(scene, width, height, body, "pt", seed=2), os.path.join(work, "reference.toml"), work, args.threads)
         guided_body = (f"[passes.importon]\nspp = {args.importon_spp}\nmax_depth = 16\nguiding_candidates = {args.candidates}\n"
                        f"[passes.photon]\nphotons = {args.photons}\nstore = \"global\"\ndifferentials = false\n"
+                       f"guiding_candidates = {args.candidates}\n"
                        f"[passes.radiance_update]\ntraining_particles = {args.training_particles}\n"
                        f"max_sweeps = {args.max_sweeps}\nnew_record_spacing = {args.spacing}\n"
-                       f"[passes.pt]\nspp = {args.spp}\nmax_depth = 16\nguiding_candidates = {args.candidates}\n\n" + pipeline_text(args.training_passes))
-        guided, guided_time, rows = run(args.binary, job(scene, width, height, guided_body),
+                       f"[passes.importance_update]\ntraining_particles = {args.training_particles}\n"
+                       f"max_sweeps = {args.max_sweeps}\nnew_record_spacing = {args.spacing}\n"
+                       f"[passes.pt]\nspp = {args.spp}\nmax_depth = 16\nguiding_candidates = {args.candidates}\n\n" + pipeline_text(args.training_passes, args.pipeline))
+        guided, guided_time, rows = run(args.binary, job(scene, width, height, guided_body, seed=args.seed),
                                         os.path.join(work, "guided-pt.toml"), work, args.threads)
         training = sum(v for k, v in rows.items() if k.startswith("train["))
         pt_share = rows.get("pt", 0.0)

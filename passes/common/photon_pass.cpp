@@ -71,6 +71,20 @@
 //
 // Surfaces without a BSDF or with a `null` one are crossed without an event.
 //
+// Guided photons (Vorba et al. 2014, §4.1 "Sampling from the distribution
+// model", applied to photons as in the paper's Fig. 1 loop, step 3). With an
+// `importance_cache` input (a GuidingCache trained on importons, which learns
+// where importance W_in comes from), a surface event whose BSDF has smooth,
+// non-transmissive lobes only looks the cache up on the side the photon
+// arrived from and, if a record holds the point, draws the next direction from
+// the one-sample mixture α p_bsdf + (1 - α) p_gmm (GuidedBsdfSampler, the
+// routine guided pt uses); the photon's power is multiplied by f |cos| / p_mix
+// (times the shading-normal correction below), so the expected photon density
+// is that of unguided tracing: only its spread over the scene changes. The
+// GMM's mass outside its square ends the path, as in guided pt (§4.1).
+// Specular, transmissive and null lobes are never guided, and without the
+// input every path draws exactly the numbers and values it drew before.
+//
 // Determinism: path i draws from the stream (seed, instance, i); a batch is
 // split into fixed chunks, each chunk collects its photons in path order, and
 // chunks are appended in order, so the maps do not depend on the thread count
@@ -82,6 +96,8 @@
 
 #include "engine/shading/differentials.h"
 #include "engine/core/error.h"
+#include "engine/guiding/guided_sampling.h"
+#include "engine/guiding/guiding_cache.h"
 #include "engine/buffers/photon_buffers.h"
 #include "engine/buffers/photon_ray_buffers.h"
 #include "engine/accel/ray_query.h"
@@ -128,6 +144,11 @@ struct Settings {
     float clampDistance2 = 0.0f;  // D~^2 of Eq. 7
     float specularPdf = 100.0f;   // stands in for p_s^perp at specular events, which have no density
     std::uint64_t volumeBatch = 0;  // later volume photons per streamed map; 0: none
+    // Guided photons: the importance cache (null: BSDF sampling only) and how it is read.
+    const GuidingCache* importanceCache = nullptr;
+    float guidingBsdfProbability = 0.5f;  // α
+    std::uint32_t guidingCandidates = 2;  // M of Eq. 11 without a cover grid
+    bool guidingCovering = true;
 };
 
 // A photon and the path that stored it, for stopping at a photon-count target.
@@ -147,6 +168,7 @@ struct ChunkResult {
     std::int64_t collapsedCaustic = 0;
     std::int64_t collapsedGlobal = 0;
     std::int64_t segments = 0;
+    std::int64_t guidedEvents = 0;
 };
 
 // The photon ray being traced (Herzog et al. 2007, Eq. 7): where it left, and
@@ -316,9 +338,15 @@ public:
             if (depth >= settings_.maxDepth) return;
 
             if (!chosen) {
-                const float uLobe = rng.uniform();
-                const Vec2 uBsdf = rng.uniform2();
-                chosen = bsdf->sample(wo, sp.texturePoint(), uLobe, uBsdf, TransportMode::Importance);
+                if (const std::optional<GuidedBsdfSampler> guided = importanceGuide(*bsdf, frame, wo, sp, -direction)) {
+                    chosen = sampleGuided(*guided, rng);
+                    if (!chosen) return;
+                    ++out.guidedEvents;
+                } else {
+                    const float uLobe = rng.uniform();
+                    const Vec2 uBsdf = rng.uniform2();
+                    chosen = bsdf->sample(wo, sp.texturePoint(), uLobe, uBsdf, TransportMode::Importance);
+                }
             }
             const std::optional<BsdfSample>& bs = chosen;
             if (!bs || bs->pdf <= 0.0f || isBlack(bs->weight)) return;
@@ -359,6 +387,48 @@ public:
     }
 
 private:
+    // The importance cache's record that guides the photon leaving a surface
+    // point, as a mixture sampler: only at BSDFs with smooth, non-transmissive
+    // lobes only, and only where a record with a usable mixture covers the
+    // point on the side the photon arrived from (`toSource`).
+    std::optional<GuidedBsdfSampler> importanceGuide(const Bsdf& bsdf, const Frame& frame, const Vec3& wo,
+                                                     const SurfacePoint& sp, const Vec3& toSource) const {
+        const GuidingCache* cache = settings_.importanceCache;
+        constexpr std::uint32_t kUnguided = BsdfLobe::Specular | BsdfLobe::Transmission | BsdfLobe::Null;
+        if (!cache || (bsdf.lobes() & kUnguided) != 0 || !bsdf.hasSmoothLobe()) return std::nullopt;
+        const Vec3 facing = glm::dot(sp.ns, toSource) >= 0.0f ? sp.ns : -sp.ns;
+        const bool covering = settings_.guidingCovering && cache->hasCoverGrid();
+        const std::optional<std::uint32_t> record =
+            covering ? cache->lookupCovering(sp.p, facing)
+                     : cache->lookup(sp.p, facing, GuidingCacheQuery{settings_.guidingCandidates});
+        if (!record) return std::nullopt;
+        const DirectionalGmm& gmm = cache->records.column<GuideMixture>()[*record];
+        if (!(cache->hasCoverGrid() ? cache->usable(*record) : gmm.usable())) return std::nullopt;
+        return GuidedBsdfSampler{&bsdf, frame, wo, sp.texturePoint(), &gmm,
+                                 Frame(cache->records.column<GuideNormal>()[*record]),
+                                 settings_.guidingBsdfProbability};
+    }
+
+    // A direction from the guided mixture as a BSDF sample of importance
+    // transport: weight f |cos| / p_mix, pdf p_mix (the photon rays' density).
+    // The sampler draws its BSDF half in radiance transport, which for
+    // reflection lobes (the only ones guided) samples the same directions.
+    static std::optional<BsdfSample> sampleGuided(const GuidedBsdfSampler& guided, jobs::Rng& rng) {
+        const float uStrategy = rng.uniform();
+        const float uLobe = rng.uniform();
+        const Vec2 uDirection = rng.uniform2();
+        const std::optional<GuidedSample> drawn = guided.sample(uStrategy, uLobe, uDirection);
+        if (!drawn || !(drawn->pdf > 0.0f)) return std::nullopt;
+        const Rgb f = guided.bsdf->eval(guided.wo, drawn->wi, guided.at, TransportMode::Importance);
+        if (isBlack(f)) return std::nullopt;
+        BsdfSample sample;
+        sample.wi = drawn->wi;
+        sample.weight = f / drawn->pdf;  // Bsdf::eval includes the cosine
+        sample.pdf = drawn->pdf;
+        sample.lobe = BsdfLobe::Reflection | BsdfLobe::Glossy;
+        return sample;
+    }
+
     // Eq. 7, i = 0: p_e = area pdf x projected-solid-angle pdf (times the
     // light's selection probability); point and spot lights have only the
     // solid-angle pdf, collimated and other infinite lights only the density
@@ -537,6 +607,13 @@ public:
         settings.clampDistance2 = clampDistance * clampDistance;
         settings.specularPdf = static_cast<float>(params.getFloat("specular_pdf"));
         settings.volumeBatch = static_cast<std::uint64_t>(params.getInt("volume_batch"));
+        const bool guided = ctx.hasInput("importance_cache");
+        if (guided) {
+            settings.importanceCache = &ctx.input<GuidingCache>("importance_cache");
+            settings.guidingBsdfProbability = static_cast<float>(params.getFloat("guiding_bsdf_probability"));
+            settings.guidingCandidates = static_cast<std::uint32_t>(params.getInt("guiding_candidates"));
+            settings.guidingCovering = params.getString("guiding_query") == "covering";
+        }
         // An own seed gives an independent photon set at the same eye vertices (the job's
         // seed keys the camera paths): what variance measurements and comparisons against a
         // reference rendered with the job's seed need.
@@ -599,7 +676,7 @@ public:
 
         const PhotonTracer tracer(scene, ctx.rays(), settings, seed, ctx.streamKey());
         std::int64_t storedCaustic = 0, storedGlobal = 0, storedDirect = 0, storedVolume = 0, singleScattering = 0;
-        std::int64_t segments = 0;
+        std::int64_t segments = 0, guidedEvents = 0;
         std::uint64_t collapsed = 0;
         std::uint64_t emitted = 0;
         bool targetReached = false;
@@ -673,6 +750,7 @@ public:
                 storedCaustic += static_cast<std::int64_t>(take.caustic);
                 storedVolume += static_cast<std::int64_t>(take.volume);
                 segments += chunk.segments;
+                guidedEvents += chunk.guidedEvents;
                 if (targetReached) {
                     if (laterVolume) {
                         laterRecords.assign(chunk.volume.begin() + static_cast<std::ptrdiff_t>(take.volume),
@@ -754,6 +832,7 @@ public:
         ctx.addCounter("emitted_paths", static_cast<std::int64_t>(emitted));
         ctx.addCounter("collapsed_footprints", static_cast<std::int64_t>(collapsed));
         ctx.addCounter("photon_segments", segments);
+        if (guided) ctx.addCounter("guided_events", guidedEvents);
     }
 };
 
@@ -763,7 +842,12 @@ PassRegistration photonPass() {
     PassSpec spec;
     spec.name = "photon";
     spec.doc = "Photon tracing from all lights (by power) through surfaces and homogeneous media, with Russian "
-               "roulette and optional photon differentials";
+               "roulette, optional photon differentials and optional guiding by an importance cache (Vorba et al. 2014)";
+    SlotSpec importanceCache{"importance_cache", "GuidingCache",
+                             "importance cache trained on importons (Vorba et al. 2014): guides the directions "
+                             "photons leave non-specular reflecting surfaces in (absent: BSDF sampling)"};
+    importanceCache.optional = true;
+    spec.inputs = {importanceCache};
     spec.outputs = {
         {"caustic_photons", "PhotonMap", "photons at smooth surfaces after only specular events (L S+ D), with footprints",
          true},
@@ -813,6 +897,8 @@ PassRegistration photonPass() {
          "seed of the photon paths' random streams (0 = the job's seed); another seed traces an independent "
          "photon set at the same eye vertices"},
     };
+    const std::vector<ParamSpec> guidedParams = guidedSamplingParams();
+    spec.params.insert(spec.params.end(), guidedParams.begin(), guidedParams.end());
     const auto preflight = [](const PreflightContext& pf) {
         const std::string& store = pf.params.getString("store");
         if (pf.params.getInt("volume_photons") > 0 && store != "volume" && store != "all") {

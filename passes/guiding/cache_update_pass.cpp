@@ -17,6 +17,16 @@
 // training radius). So creation never depends on scheduling, and paths that
 // miss the cache meanwhile use BSDF sampling alone, which stays unbiased.
 //
+// The same pass trains the importance cache (§4, Fig. 1 loop, step 2) when
+// given `importance_training`: the importons that scattered at least once
+// (those at the camera's first hit carry importance straight from the camera,
+// which no photon needs to be guided towards, as direct photons carry light
+// that next-event estimation finds) train it, through a neighbour index the
+// pass builds over them, and its records are made where photons query it: at
+// the photons of the `photons` input (the previous training pass's, all of
+// them, direct ones included: a photon is guided at its first bounce too), or
+// at the training importons when there are none yet.
+//
 // Records made at photons land where photons do, mostly next to the lights:
 // on veach-ajar 3203 of 3364 records lay in the lit room behind the door and
 // only 161 in the room the camera sees, each fitted to photons from metres
@@ -34,12 +44,14 @@
 
 #include "engine/accel/point_index.h"
 #include "engine/buffers/photon_buffers.h"
+#include "engine/core/error.h"
 #include "engine/guiding/guiding_cache.h"
 #include "engine/guiding/importons.h"
 #include "jobs/parallel.h"
 
 #include <algorithm>
 #include <cmath>
+#include <span>
 #include <unordered_map>
 #include <vector>
 
@@ -66,29 +78,68 @@ struct TrainingScratch {
     std::vector<float> dist2;
 };
 
+// What the cache learns from, photons or importons alike: per particle the
+// unit direction it arrived from and a scalar weight (a photon's mean power,
+// an importon's importance), and the neighbour index over those that train.
+struct TrainingParticles {
+    std::span<const Vec3> incident;
+    std::vector<float> weight;
+    const PointIndex* index = nullptr;
+};
+
 // The N nearest particles that arrived through the record's hemisphere, as
 // points of its square (in scratch.points). Returns the distance to the
 // furthest particle found.
-float trainingPoints(const PhotonMap& map, const PointIndex& index, const Vec3& position, const Vec3& normal,
+float trainingPoints(const TrainingParticles& particles, const Vec3& position, const Vec3& normal,
                      std::uint32_t count, TrainingScratch& scratch) {
     std::vector<std::uint32_t>& ids = scratch.ids;
     std::vector<float>& dist2 = scratch.dist2;
     std::vector<WeightedPoint>& points = scratch.points;
     ids.resize(count);
     dist2.resize(count);
-    const std::size_t found = index.nearest(position, count, kInfinity, ids, dist2);
-    const auto incident = map.photons.column<PhotonIncident>();
-    const auto power = map.photons.column<PhotonPower>();
+    const std::size_t found = particles.index->nearest(position, count, kInfinity, ids, dist2);
     const Frame frame(normal);
     points.clear();
     for (std::size_t k = 0; k < found; ++k) {
-        const std::optional<Vec2> s = hemisphereToSquare(frame.toLocal(incident[ids[k]]));
-        const Rgb& phi = power[ids[k]];
-        const float weight = (phi.x + phi.y + phi.z) / 3.0f;
+        const std::optional<Vec2> s = hemisphereToSquare(frame.toLocal(particles.incident[ids[k]]));
+        const float weight = particles.weight[ids[k]];
         if (!s || !(weight > 0.0f)) continue;
         points.push_back({*s, weight});
     }
     return found > 0 ? std::sqrt(dist2[found - 1]) : 0.0f;
+}
+
+// Where paths query the cache, so where records are made: positions and the
+// normal on the side the path arrived from.
+struct QueryPoints {
+    std::vector<Vec3> positions, normals;
+};
+
+QueryPoints photonQueryPoints(const PhotonMap& map, bool withDirect) {
+    QueryPoints q;
+    const auto positions = map.photons.column<PhotonPosition>();
+    const auto incident = map.photons.column<PhotonIncident>();
+    const auto normals = map.photons.column<PhotonNormal>();
+    const auto classes = map.photons.column<PhotonClassColumn>();
+    for (std::size_t i = 0; i < map.photons.size(); ++i) {
+        if (!withDirect && classes[i] == PhotonClass::Direct) continue;
+        q.positions.push_back(positions[i]);
+        q.normals.push_back(facingIncident(normals[i], incident[i]));
+    }
+    return q;
+}
+
+QueryPoints importonQueryPoints(const ImportonMap& map, bool withFirstHits) {
+    QueryPoints q;
+    const auto positions = map.importons.column<ImportonPosition>();
+    const auto normals = map.importons.column<ImportonNormal>();
+    const auto bounces = map.importons.column<ImportonBounces>();
+    for (std::size_t i = 0; i < map.importons.size(); ++i) {
+        if (!withFirstHits && bounces[i] == 0) continue;
+        q.positions.push_back(positions[i]);
+        q.normals.push_back(normals[i]);
+    }
+    return q;
 }
 
 // This pass's new records, to test later query points against them in item
@@ -156,8 +207,11 @@ public:
         settings.em.priorB = params.getFloat("prior_b");
         settings.em.priorNu = params.getFloat("prior_nu");
 
-        const PhotonMap& map = ctx.input<PhotonMap>("photons");
-        const PointIndex& index = ctx.input<PointIndex>("index");
+        const bool importance = ctx.hasInput("importance_training");
+        if (!importance && !(ctx.hasInput("photons") && ctx.hasInput("index")))
+            throw InputError("pass '" + ctx.instanceName() +
+                                 "': bind `photons` and `index` (a radiance cache), or `importance_training` "
+                                 "(an importance cache)");
         GuidingCache& cache = ctx.createOutput<GuidingCache>("cache");
         if (ctx.hasInput("previous")) {
             const GuidingCache& previous = ctx.input<GuidingCache>("previous");
@@ -167,13 +221,42 @@ public:
             cache.rebuildIndex();
         }
         ++cache.trainingPasses;
-        if (index.empty()) return;
-        update(cache, map, index, ctx.hasInput("importons") ? &ctx.input<ImportonMap>("importons") : nullptr, settings,
-               ctx);
+
+        TrainingParticles particles;
+        QueryPoints queries;
+        PointIndex importonIndex;
+        if (importance) {
+            const ImportonMap& importons = ctx.input<ImportonMap>("importance_training");
+            const auto bounces = importons.importons.column<ImportonBounces>();
+            std::vector<std::uint32_t> scattered;
+            for (std::size_t i = 0; i < bounces.size(); ++i)
+                if (bounces[i] > 0) scattered.push_back(static_cast<std::uint32_t>(i));
+            importonIndex.build(importons.importons.column<ImportonPosition>(), std::move(scattered));
+            particles.incident = importons.importons.column<ImportonIncident>();
+            const auto weights = importons.importons.column<ImportonWeight>();
+            particles.weight.assign(weights.begin(), weights.end());
+            particles.index = &importonIndex;
+            queries = ctx.hasInput("photons") ? photonQueryPoints(ctx.input<PhotonMap>("photons"), true)
+                                              : importonQueryPoints(importons, false);
+        } else {
+            const PhotonMap& map = ctx.input<PhotonMap>("photons");
+            particles.incident = map.photons.column<PhotonIncident>();
+            const auto power = map.photons.column<PhotonPower>();
+            particles.weight.resize(power.size());
+            for (std::size_t i = 0; i < power.size(); ++i)
+                particles.weight[i] = (power[i].x + power[i].y + power[i].z) / 3.0f;
+            particles.index = &ctx.input<PointIndex>("index");
+            queries = ctx.hasInput("importons") ? importonQueryPoints(ctx.input<ImportonMap>("importons"), true)
+                                                : photonQueryPoints(map, false);
+        }
+        ctx.addCounter("training_particles_indexed", static_cast<std::int64_t>(particles.index->size()));
+        if (particles.index->empty()) return;
+        update(cache, particles, queries, settings, ctx);
     }
 
-    static void update(GuidingCache& cache, const PhotonMap& map, const PointIndex& index, const ImportonMap* importons,
+    static void update(GuidingCache& cache, const TrainingParticles& particles, const QueryPoints& queries,
                        const UpdateSettings& settings, PassContext& ctx) {
+        const PointIndex& index = *particles.index;
         const std::size_t existing = cache.records.size();
         // On-line stepwise EM for the records that were there before this map.
         jobs::parallelForChunks(existing, 16, [&](jobs::IndexRange r) {
@@ -185,7 +268,7 @@ public:
             auto radii = cache.records.column<GuideValidityRadius>();
             const auto training = cache.records.column<GuideTrainingRadius>();
             for (std::size_t i = r.begin; i != r.end; ++i) {
-                trainingPoints(map, index, positions[i], normals[i], settings.trainingParticles, scratch);
+                trainingPoints(particles, positions[i], normals[i], settings.trainingParticles, scratch);
                 onlineStepwiseEm(gmms[i], stats[i], scratch.points, settings.em);
                 radii[i] = validityRadius(gmms[i], training[i], settings.klThreshold);
             }
@@ -197,25 +280,8 @@ public:
             cache.buildCoverGrid();
         }
 
-        // Query points: the importons when given (where guided camera paths
-        // look the cache up, §4.1), else the particles themselves.
-        std::vector<Vec3> queryPositions, queryNormals;
-        if (importons) {
-            const auto p = importons->importons.column<ImportonPosition>();
-            const auto n = importons->importons.column<ImportonNormal>();
-            queryPositions.assign(p.begin(), p.end());
-            queryNormals.assign(n.begin(), n.end());
-        } else {
-            const auto positions = map.photons.column<PhotonPosition>();
-            const auto incident = map.photons.column<PhotonIncident>();
-            const auto photonNormals = map.photons.column<PhotonNormal>();
-            const auto classes = map.photons.column<PhotonClassColumn>();
-            for (std::size_t q = 0; q < map.photons.size(); ++q) {
-                if (classes[q] == PhotonClass::Direct) continue;
-                queryPositions.push_back(positions[q]);
-                queryNormals.push_back(facingIncident(photonNormals[q], incident[q]));
-            }
-        }
+        const std::vector<Vec3>& queryPositions = queries.positions;
+        const std::vector<Vec3>& queryNormals = queries.normals;
 
         // Misses against the records as they stand, decided in parallel per query point.
         const std::size_t queryCount = queryPositions.size();
@@ -268,7 +334,7 @@ public:
                 GuidingRecordBuffer::Record record;
                 record.get<GuidePosition>() = fresh[k].position;
                 record.get<GuideNormal>() = fresh[k].normal;
-                const float radius = trainingPoints(map, index, fresh[k].position, fresh[k].normal,
+                const float radius = trainingPoints(particles, fresh[k].position, fresh[k].normal,
                                                     settings.trainingParticles, scratch);
                 record.get<GuideTrainingRadius>() = radius;
                 DirectionalGmm gmm = initialGmm(points, settings.em);
@@ -304,9 +370,19 @@ PassRegistration cacheUpdatePass() {
                           "where camera paths query the cache: new records are made at the importons no record covers "
                           "(absent: at the particles)"};
     importonSlot.optional = true;
-    spec.inputs = {{"photons", "PhotonMap", "the latest particle map (particles that scattered at least once)"},
-                   {"index", "PointIndex", "neighbour search over that map"},
-                   previous, importonSlot};
+    SlotSpec photonSlot{"photons", "PhotonMap",
+                        "the latest photon map: trains a radiance cache; with importance_training, where photons query "
+                        "the importance cache (new records are made at the photons no record covers)"};
+    photonSlot.optional = true;
+    SlotSpec indexSlot{"index", "PointIndex",
+                       "neighbour search over the training photons (those that scattered at least once); needed "
+                       "without importance_training"};
+    indexSlot.optional = true;
+    SlotSpec importanceTraining{"importance_training", "ImportonMap",
+                               "train an importance cache on these importons (those past the camera's first hit) "
+                               "instead of a radiance cache on photons"};
+    importanceTraining.optional = true;
+    spec.inputs = {photonSlot, indexSlot, previous, importonSlot, importanceTraining};
     spec.outputs = {{"cache", "GuidingCache", "the updated cache of directional GMMs"}};
     spec.params = {
         {"training_particles", ParamType::Int, std::int64_t{250}, 1, 4096, {}, "N: nearest particles per record (Fig. 7)"},

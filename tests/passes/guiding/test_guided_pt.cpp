@@ -16,6 +16,7 @@
 #include "tests/support/guiding_pipeline.h"
 #include "tests/support/pass_helpers.h"
 #include "tests/support/render_helpers.h"
+#include "tests/passes/guiding/ajar_room.h"
 
 #include <gtest/gtest.h>
 
@@ -46,33 +47,7 @@ TEST(GuidedPt, FurnaceSphereHasUnitRadiance) {
     EXPECT_NEAR(sum / px.size(), 1.0, 0.01);
 }
 
-// A room lit only through a gap beside a partition (a small "door ajar"): the
-// light sits behind the partition, the camera sees the near side, so nearly
-// all light arrives by indirect paths through the gap, where guiding changes
-// the sampled directions most.
-constexpr const char* kAjarRoom = R"(
-[camera]
-eye = [-0.9, -0.3, 0.6]
-target = [0.32, -0.3, 0.2]
-fov = 70
-[[material]]
-name = "wall"
-type = "diffuse"
-reflectance = 0.7
-[[shape]]
-type = "cube"
-flip_normals = true
-material = "wall"
-[[shape]]
-type = "cube"
-transform = [{ scale = [0.02, 1.0, 0.85] }, { translate = [0.32, 0.0, -0.15] }]
-material = "wall"
-[[shape]]
-type = "rectangle"
-transform = [{ scale = 0.15 }, { rotate = { axis = [1, 0, 0], angle = 90 } }, { translate = [0.75, 0.99, -0.6] }]
-material = "wall"
-emission = 60
-)";
+using test::kAjarRoom;
 
 struct MeanComparison {
     double worstBlockZ = 0.0;
@@ -280,7 +255,7 @@ TEST(GuidedPt, RecordsFollowCameraPathsInOccludedRoom) {
         const GuidingRecordBuffer& records = test::bufferAs<GuidingCache>(cache).records;
         EXPECT_GT(records.size(), 5u);
         std::size_t cameraSide = 0;
-        for (const Vec3& p : records.column<GuidePosition>()) cameraSide += p.x < 0.32f ? 1 : 0;
+        for (const Vec3& p : records.column<GuidePosition>()) cameraSide += p.x < test::kAjarPartitionX ? 1 : 0;
         const double share = static_cast<double>(cameraSide) / static_cast<double>(std::max<std::size_t>(1, records.size()));
         std::printf("records at %s: %zu, %.0f %% on the camera's side\n", at == RecordsAt::Importons ? "importons" : "photons",
                     records.size(), 100.0 * share);
