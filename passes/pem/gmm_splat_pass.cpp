@@ -18,7 +18,10 @@
 // neither on the thread count nor on the tile size. Writes the `volume` layer
 // (a film from black, as gmm_render) and the AOV query_gaussians; `frames`
 // repeats the whole frame (pixel rays, rectangles, tiles) for timing, and the
-// counter frame_ns is its mean wall time, so frames/s = 1e9 / frame_ns.
+// counter frame_ns is its mean wall time, so frames/s = 1e9 / frame_ns (the
+// level's nodes, Gaussians and radii, which do not depend on the view, are
+// prepared once). An orthographic camera's splats cover the whole film (the
+// ray test still picks the pixels).
 #include "passes/passes.h"
 
 #include "passes/common/path_vertex.h"
@@ -206,7 +209,50 @@ bool meetsEllipsoid(const gmm::SegmentGaussian& g, double radiusSquared, const P
 }
 
 struct FrameCounts {
-    std::int64_t splats = 0, pixelsTested = 0, gaussiansEvaluated = 0;
+    std::int64_t pixelsTested = 0, gaussiansEvaluated = 0;
+};
+
+// What does not depend on the view: the level's nodes in pyramid
+// (depth-first) order, their Gaussians as Eq. 16 reads them, their powers
+// and truncation radii.
+struct Level {
+    std::vector<Splat> splats;
+    std::vector<gmm::SegmentGaussian> gaussians;
+    std::vector<glm::dvec3> means, powers;
+    std::vector<gmm::Sym3> covariances;
+
+    Level(const GmmPyramidBuffer& nodes, std::uint32_t level, double delta) {
+        if (nodes.empty()) return;
+        const auto right = nodes.column<GmmRight>();
+        const auto nodeLevel = nodes.column<GmmLevel>();
+        std::vector<std::uint32_t> stack{0};
+        while (!stack.empty()) {
+            const std::uint32_t j = stack.back();
+            stack.pop_back();
+            if (right[j] == kNoGmmNode || nodeLevel[j] <= level) {
+                splats.push_back({j, 0.0, 0, 0, -1, -1});
+                continue;
+            }
+            stack.push_back(right[j]);
+            stack.push_back(j + 1);
+        }
+        const auto power = nodes.column<GmmPower>();
+        const double allowed = delta * energy(power[0]) / static_cast<double>((nodes.size() + 1) / 2);
+        gaussians.resize(splats.size());
+        means.resize(splats.size());
+        powers.resize(splats.size());
+        covariances.resize(splats.size());
+        jobs::parallelFor(splats.size(), kSplatGrain, [&](std::size_t s) {
+            const std::uint32_t j = splats[s].node;
+            gaussians[s] = gmm::SegmentGaussian(gaussianAt(nodes, j));
+            means[s] = nodes.column<GmmMean>()[j];
+            covariances[s] = nodes.column<GmmCovariance>()[j];
+            powers[s] = power[j];
+            const double e = energy(power[j]);
+            const double r = e > 0.0 ? truncationRadius(allowed / e) : 0.0;
+            splats[s].radiusSquared = r * r;
+        });
+    }
 };
 
 class GmmSplatPass final : public Pass {
@@ -215,16 +261,16 @@ public:
         const Scene& scene = ctx.scene();
         const GmmPyramid& pyramid = ctx.input<GmmPyramid>("pyramid");
         const PassParams& params = ctx.params();
-        const auto level = static_cast<std::uint32_t>(params.getInt("level"));
+        const auto levelIndex = static_cast<std::uint32_t>(params.getInt("level"));
         const bool depthClip = params.getBool("depth_clip");
-        const double delta = params.getFloat("delta");
         const auto tile = static_cast<int>(params.getInt("tile"));
         const std::int64_t frames = params.getInt("frames");
-        if (!pyramid.nodes.empty() && level > pyramid.levels) {
-            throw InputError("pass '" + ctx.instanceName() + "': level " + std::to_string(level) +
+        if (!pyramid.nodes.empty() && levelIndex > pyramid.levels) {
+            throw InputError("pass '" + ctx.instanceName() + "': level " + std::to_string(levelIndex) +
                              " does not exist: the fitted pyramid has levels 0 (the leaves) to " +
                              std::to_string(pyramid.levels));
         }
+        Level level(pyramid.nodes, levelIndex, params.getFloat("delta"));
 
         Camera camera = scene.camera;
         camera.width = ctx.filmSettings().width;
@@ -237,7 +283,7 @@ public:
         FrameCounts counts;
         const std::int64_t start = jobs::wallNanos();
         for (std::int64_t frame = 0; frame < frames; ++frame)
-            counts = renderFrame(scene, camera, rays, pyramid, level, depthClip, delta, tile, radiance, gaussiansPerPixel);
+            counts = renderFrame(scene, camera, rays, level, depthClip, tile, radiance, gaussiansPerPixel);
         const std::int64_t elapsed = jobs::wallNanos() - start;
 
         Film& image = ctx.createOutput<Film>("volume", ctx.filmSettings());
@@ -246,22 +292,24 @@ public:
         ctx.addItems(frames);
         ctx.addCounter("frames", frames);
         ctx.addCounter("frame_ns", elapsed / frames);
-        ctx.addCounter("splats", counts.splats);
+        ctx.addCounter("splats", static_cast<std::int64_t>(level.splats.size()));
         ctx.addCounter("splat_pixels", counts.pixelsTested);
         ctx.addCounter("gaussians_evaluated", counts.gaussiansEvaluated);
     }
 
 private:
-    static FrameCounts renderFrame(const Scene& scene, const Camera& camera, const RayQuery* rays,
-                                   const GmmPyramid& pyramid, std::uint32_t level, bool depthClip, double delta,
-                                   int tile, std::vector<Rgb>& radiance, std::vector<float>& gaussiansPerPixel) {
+    // One view of the level: the pixels' rays, the splats' rectangles, their
+    // tiles, and Eq. 15 per covered pixel.
+    static FrameCounts renderFrame(const Scene& scene, const Camera& camera, const RayQuery* rays, Level& level,
+                                   bool depthClip, int tile, std::vector<Rgb>& radiance,
+                                   std::vector<float>& gaussiansPerPixel) {
         const int width = camera.width, height = camera.height;
         const std::size_t pixelCount = static_cast<std::size_t>(width) * static_cast<std::size_t>(height);
         radiance.assign(pixelCount, Rgb(0.0f));
         gaussiansPerPixel.assign(pixelCount, 0.0f);
         FrameCounts counts;
-        const GmmPyramidBuffer& nodes = pyramid.nodes;
-        if (nodes.empty() || pixelCount == 0) return counts;
+        std::vector<Splat>& splats = level.splats;
+        if (splats.empty() || pixelCount == 0) return counts;
 
         std::vector<PixelRay> pixelRays(pixelCount);
         jobs::parallelFor(pixelCount, kPixelGrain, [&](std::size_t p) {
@@ -269,36 +317,9 @@ private:
                                     static_cast<int>(p / static_cast<std::size_t>(width)), depthClip);
         });
 
-        // The level's nodes in pyramid (depth-first) order.
-        const auto right = nodes.column<GmmRight>();
-        const auto nodeLevel = nodes.column<GmmLevel>();
-        std::vector<Splat> splats;
-        std::vector<std::uint32_t> stack{0};
-        while (!stack.empty()) {
-            const std::uint32_t j = stack.back();
-            stack.pop_back();
-            if (right[j] == kNoGmmNode || nodeLevel[j] <= level) {
-                splats.push_back({j, 0.0, 0, 0, -1, -1});
-                continue;
-            }
-            stack.push_back(right[j]);
-            stack.push_back(j + 1);
-        }
-        counts.splats = static_cast<std::int64_t>(splats.size());
-
-        const auto power = nodes.column<GmmPower>();
-        const double total = energy(power[0]);
-        const double allowed = delta * total / static_cast<double>((nodes.size() + 1) / 2);
         const Screen screen(camera);
-        std::vector<gmm::SegmentGaussian> gaussians(splats.size());
         jobs::parallelFor(splats.size(), kSplatGrain, [&](std::size_t s) {
-            Splat& splat = splats[s];
-            const std::uint32_t j = splat.node;
-            gaussians[s] = gmm::SegmentGaussian(gaussianAt(nodes, j));
-            const double e = energy(power[j]);
-            const double r = e > 0.0 ? truncationRadius(allowed / e) : 0.0;
-            splat.radiusSquared = r * r;
-            if (r > 0.0) setRectangle(screen, nodes.column<GmmMean>()[j], nodes.column<GmmCovariance>()[j], splat);
+            if (splats[s].radiusSquared > 0.0) setRectangle(screen, level.means[s], level.covariances[s], splats[s]);
         });
 
         // Each tile's splats in pyramid order (compressed rows).
@@ -334,8 +355,8 @@ private:
                 for (std::size_t e = rowStart[t]; e != rowStart[t + 1]; ++e) {
                     const std::uint32_t s = tileSplats[e];
                     const Splat& splat = splats[s];
-                    const gmm::SegmentGaussian& g = gaussians[s];
-                    const glm::dvec3 splatPower = power[splat.node];
+                    const gmm::SegmentGaussian& g = level.gaussians[s];
+                    const glm::dvec3& splatPower = level.powers[s];
                     for (int y = std::max(ty0, splat.y0); y <= std::min(ty1, splat.y1); ++y) {
                         for (int x = std::max(tx0, splat.x0); x <= std::min(tx1, splat.x1); ++x) {
                             const PixelRay& ray =
