@@ -99,8 +99,10 @@ PixelRay pixelRay(const Scene& scene, const Camera& camera, const RayQuery* rays
     for (int crossings = 0; !scattering(scene, medium); ++crossings) {
         if (!rays || crossings > kMaxNullCrossings) return out;
         const Hit hit = rays->intersect(ray);
-        if (medium >= 0)
-            weight *= segmentTransmittance(scene.media[static_cast<std::size_t>(medium)], hit.valid() ? hit.t : kInfinity);
+        if (medium >= 0) {
+            const HomogeneousMedium& crossed = scene.media[static_cast<std::size_t>(medium)];
+            weight *= segmentTransmittance(crossed, hit.valid() ? hit.t : kInfinity);
+        }
         if (!hit.valid() || isBlack(weight)) return out;
         const Shape& shape = scene.shapes[hit.shape];
         const Bsdf* bsdf = shape.bsdf >= 0 ? scene.bsdfs[static_cast<std::size_t>(shape.bsdf)].get() : nullptr;
@@ -324,13 +326,16 @@ private:
 
         // Each tile's splats in pyramid order (compressed rows).
         const int tilesX = (width + tile - 1) / tile, tilesY = (height + tile - 1) / tile;
-        const std::size_t tileCount = static_cast<std::size_t>(tilesX) * static_cast<std::size_t>(tilesY);
+        const auto rowMajor = [](int x, int y, int rowLength) {
+            return static_cast<std::size_t>(y) * static_cast<std::size_t>(rowLength) + static_cast<std::size_t>(x);
+        };
+        const std::size_t tileCount = rowMajor(0, tilesY, tilesX);
         std::vector<std::size_t> rowStart(tileCount + 1, 0);
         const auto forTilesOf = [&](const Splat& splat, auto&& body) {
             if (splat.x1 < splat.x0 || splat.y1 < splat.y0) return;
             for (int ty = splat.y0 / tile; ty <= splat.y1 / tile; ++ty)
                 for (int tx = splat.x0 / tile; tx <= splat.x1 / tile; ++tx)
-                    body(static_cast<std::size_t>(ty) * static_cast<std::size_t>(tilesX) + static_cast<std::size_t>(tx));
+                    body(rowMajor(tx, ty, tilesX));
         };
         for (const Splat& splat : splats) forTilesOf(splat, [&](std::size_t t) { ++rowStart[t + 1]; });
         for (std::size_t t = 0; t < tileCount; ++t) rowStart[t + 1] += rowStart[t];
@@ -349,7 +354,7 @@ private:
                 const int ty0 = static_cast<int>(t / static_cast<std::size_t>(tilesX)) * tile;
                 const int tx1 = std::min(width, tx0 + tile) - 1, ty1 = std::min(height, ty0 + tile) - 1;
                 const int rowLength = tx1 - tx0 + 1;
-                sum.assign(static_cast<std::size_t>(rowLength) * static_cast<std::size_t>(ty1 - ty0 + 1), glm::dvec3(0.0));
+                sum.assign(rowMajor(0, ty1 - ty0 + 1, rowLength), glm::dvec3(0.0));
                 evaluated.assign(sum.size(), 0.0f);
                 FrameCounts& tileCounts = perTile[t];
                 for (std::size_t e = rowStart[t]; e != rowStart[t + 1]; ++e) {
@@ -359,15 +364,12 @@ private:
                     const glm::dvec3& splatPower = level.powers[s];
                     for (int y = std::max(ty0, splat.y0); y <= std::min(ty1, splat.y1); ++y) {
                         for (int x = std::max(tx0, splat.x0); x <= std::min(tx1, splat.x1); ++x) {
-                            const PixelRay& ray =
-                                pixelRays[static_cast<std::size_t>(y) * static_cast<std::size_t>(width) +
-                                          static_cast<std::size_t>(x)];
+                            const PixelRay& ray = pixelRays[rowMajor(x, y, width)];
                             if (isBlack(ray.weight)) continue;
                             ++tileCounts.pixelsTested;
                             if (!meetsEllipsoid(g, splat.radiusSquared, ray)) continue;
                             ++tileCounts.gaussiansEvaluated;
-                            const std::size_t local = static_cast<std::size_t>(y - ty0) * static_cast<std::size_t>(rowLength) +
-                                                      static_cast<std::size_t>(x - tx0);
+                            const std::size_t local = rowMajor(x - tx0, y - ty0, rowLength);
                             sum[local] += splatPower * gmm::segmentIntegralRgb(g, ray.start, ray.direction, ray.sigmaT,
                                                                                0.0, ray.length);
                             evaluated[local] += 1.0f;
@@ -376,10 +378,8 @@ private:
                 }
                 for (int y = ty0; y <= ty1; ++y) {
                     for (int x = tx0; x <= tx1; ++x) {
-                        const std::size_t p = static_cast<std::size_t>(y) * static_cast<std::size_t>(width) +
-                                              static_cast<std::size_t>(x);
-                        const std::size_t local = static_cast<std::size_t>(y - ty0) * static_cast<std::size_t>(rowLength) +
-                                                  static_cast<std::size_t>(x - tx0);
+                        const std::size_t p = rowMajor(x, y, width);
+                        const std::size_t local = rowMajor(x - tx0, y - ty0, rowLength);
                         const Rgb value = Rgb(sum[local] * inverseFourPi) * pixelRays[p].weight;
                         radiance[p] = isFinite(value) ? value : Rgb(0.0f);
                         gaussiansPerPixel[p] = evaluated[local];
