@@ -176,6 +176,72 @@ TEST(GmmSplat, EveryLevelEqualsGmmRenderOfThatLevelInAMediumOnlyScene) {
         EXPECT_GT(relativeRms(splats[level], splats[0]), 0.02) << "level " << level;
 }
 
+// Pixel-splat pairs whose centre ray (from the camera, in the medium, to
+// infinity) meets the splat's truncated ellipsoid, over every pixel and every
+// node of the level: what the screen rectangles must not lose.
+double pairsMeetingEllipsoids(const Scene& scene, const GmmPyramid& pyramid, std::uint32_t level, int size) {
+    const GmmPyramidBuffer& nodes = pyramid.nodes;
+    const auto energy = [](const glm::dvec3& p) { return p.x + p.y + p.z; };
+    const double allowed = 1e-3 * energy(nodes.column<GmmPower>()[0]) / static_cast<double>((nodes.size() + 1) / 2);
+    const auto chi3Tail = [](double r) {
+        return std::erfc(r / std::sqrt(2.0)) + std::sqrt(2.0 / M_PI) * r * std::exp(-0.5 * r * r);
+    };
+    Camera camera = scene.camera;
+    camera.width = camera.height = size;
+    double pairs = 0.0;
+    for (std::size_t j = 0; j < nodes.size(); ++j) {
+        // A node of the level: at or below it, its parent above it (the root has none).
+        if (nodes.column<GmmLevel>()[j] > level) continue;
+        bool parentAbove = j == 0;
+        for (std::size_t parent = 0; parent < j && !parentAbove; ++parent) {
+            const std::uint32_t right = nodes.column<GmmRight>()[parent];
+            if (right != kNoGmmNode && (parent + 1 == j || right == j))
+                parentAbove = nodes.column<GmmLevel>()[parent] > level;
+        }
+        if (!parentAbove) continue;
+        // The truncation radius r: chi3Tail(r) = the node's allowed share of its energy, by bisection.
+        const double tail = allowed / energy(nodes.column<GmmPower>()[j]);
+        double lo = 0.0, hi = 64.0;
+        for (int i = 0; i < 100; ++i) {
+            const double mid = 0.5 * (lo + hi);
+            (chi3Tail(mid) > tail ? lo : hi) = mid;
+        }
+        const gmm::Gaussian g = gaussianAt(nodes, j);
+        for (int y = 0; y < size; ++y) {
+            for (int x = 0; x < size; ++x) {
+                const Ray ray = camera.generateRay(Vec2(static_cast<float>(x) + 0.5f, static_cast<float>(y) + 0.5f));
+                const glm::dvec3 w(glm::normalize(ray.direction));
+                const glm::dvec3 q = glm::dvec3(ray.origin) - g.mean;
+                const double a = g.factors.precision.quadratic(w);
+                const double b = glm::dot(q, g.factors.precision * w);
+                const double discriminant = b * b - a * (g.factors.precision.quadratic(q) - hi * hi);
+                if (discriminant >= 0.0 && (-b + std::sqrt(discriminant)) / a >= 0.0) pairs += 1.0;
+            }
+        }
+    }
+    return pairs;
+}
+
+TEST(GmmSplat, ScreenRectanglesHoldEveryPixelWhoseRayMeetsTheEllipsoid) {
+    Scene scene = mediumScene();
+    const Chain c = fitChain(scene, 64);
+    const GmmPyramid& pyramid = test::bufferAs<GmmPyramid>(c.pyramid.at("pyramid"));
+    const int size = 32;
+    // From outside the Gaussians, and from among them, where ellipsoids reach
+    // behind the eye and off the film's edges.
+    for (const Vec3 eye : {Vec3(0.0f, 0.0f, -4.0f), Vec3(0.3f, -0.2f, -0.3f)}) {
+        scene.camera.eye = eye;
+        scene.camera.target = eye + Vec3(0.0f, 0.0f, 1.0f);
+        for (const std::uint32_t level : {0u, 3u}) {
+            double gaussians = 0.0;
+            splat(scene, nullptr, c, size, {{"level", std::int64_t{level}}}, &gaussians);
+            const double expected = pairsMeetingEllipsoids(scene, pyramid, level, size);
+            EXPECT_GT(expected, 0.0);
+            EXPECT_EQ(gaussians, expected) << "eye z " << eye.z << ", level " << level;
+        }
+    }
+}
+
 TEST(GmmSplat, DepthClipEqualsGmmRenderToTheFirstSurface) {
     Scene scene = mediumScene();
     scene.shapes.push_back(wallAt(0.1f, test::addDiffuse(scene, Rgb(0.5f))));
