@@ -24,6 +24,7 @@ PassRegistration pemFitPass();
 PassRegistration gmmPyramidPass();
 PassRegistration gmmBbhPass();
 PassRegistration gmmRenderPass();
+PassRegistration gmmSplatPass();
 PassRegistration lightTracePass();
 PassRegistration bdptPass();
 PassRegistration filmNoisePass();

@@ -17,6 +17,7 @@ const Registry& builtinRegistry() {
             photonIndexPass(), gatherPass(), gatherGlobalPass(), splatPass(),
             volumeEyePass(),   photonRadiusPass(), photonBvhPass(), beamQueryPass(), lightTracePass(),
             emStatsPass(),     emFitPass(),  pemFitPass(),       gmmPyramidPass(),   gmmBbhPass(),   gmmRenderPass(),
+            gmmSplatPass(),
             filmNoisePass(),   compositePass(),
             rayBandwidthPass(), splatIndexPass(), raySplatPass(), radianceIntegratePass(), radianceCachePass(),
             cacheUpdatePass(), importonPass(),
