@@ -126,6 +126,20 @@ WeightedMoments merge(const WeightedMoments& a, const WeightedMoments& b) {
     return m;
 }
 
+double truncationRadius(double tail) {
+    if (!(tail < 1.0)) return 0.0;
+    // P(chi_3 > r) = erfc(r / sqrt 2) + sqrt(2 / pi) r e^{-r^2 / 2}, decreasing in r.
+    const auto chi3Tail = [](double r) {
+        return std::erfc(r / std::sqrt(2.0)) + std::sqrt(2.0 / M_PI) * r * std::exp(-0.5 * r * r);
+    };
+    double lo = 0.0, hi = 64.0;
+    for (int i = 0; i < 100; ++i) {
+        const double mid = 0.5 * (lo + hi);
+        (chi3Tail(mid) > tail ? lo : hi) = mid;
+    }
+    return hi;
+}
+
 double erfcx(double x) {
     // Below 25 erfc keeps its relative accuracy and e^{x^2} stays finite;
     // beyond, erfc underflows and the asymptotic series is exact to ~1e-13.

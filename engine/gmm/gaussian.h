@@ -90,6 +90,11 @@ WeightedMoments merge(const WeightedMoments& a, const WeightedMoments& b);
 // erfc(x) e^{x^2} for x >= 0, accurate where erfc underflows.
 double erfcx(double x);
 
+// The Mahalanobis radius beyond which a share `tail` of a 3D Gaussian's mass
+// lies (P(chi_3 > r) = tail); 0 for tail >= 1. The truncated ellipsoids of
+// gmm_bbh and gmm_splat cut each Gaussian there.
+double truncationRadius(double tail);
+
 // Eqs. 16-17 as they should read: for r(t) = x + t w (w of unit length),
 //   int_a^b g(r(t)) e^{-sigma_t t} dt
 //     = N sqrt(pi) / (2 sqrt(C2)) e^{C3^2 / 4 C2 - C1}

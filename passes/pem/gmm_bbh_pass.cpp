@@ -20,19 +20,6 @@ namespace fg {
 
 namespace {
 
-double chi3Tail(double r) { return std::erfc(r / std::sqrt(2.0)) + std::sqrt(2.0 / M_PI) * r * std::exp(-0.5 * r * r); }
-
-// The Mahalanobis radius beyond which a share `tail` of a Gaussian's mass lies.
-double truncationRadius(double tail) {
-    if (!(tail < 1.0)) return 0.0;
-    double lo = 0.0, hi = 64.0;
-    for (int i = 0; i < 100; ++i) {
-        const double mid = 0.5 * (lo + hi);
-        (chi3Tail(mid) > tail ? lo : hi) = mid;
-    }
-    return hi;
-}
-
 double energy(const glm::dvec3& power) { return power.x + power.y + power.z; }
 
 class GmmBbhPass final : public Pass {
@@ -54,7 +41,7 @@ public:
         auto radius = bbh.nodes.column<BbhRadius>();
         jobs::parallelFor(n, 256, [&](std::size_t j) {
             const double e = energy(nodes.column<GmmPower>()[j]);
-            const double r = e > 0.0 ? truncationRadius(allowed / e) : 0.0;
+            const double r = e > 0.0 ? gmm::truncationRadius(allowed / e) : 0.0;
             radius[j] = r;
             const glm::dvec3 mean = nodes.column<GmmMean>()[j];
             const gmm::Sym3& sigma = nodes.column<GmmCovariance>()[j];

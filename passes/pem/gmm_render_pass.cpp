@@ -232,10 +232,12 @@ public:
         // stops above the leaves (the pixel is small against the nodes' spheres)
         // tests mostly those loose boxes. A node the level-of-detail test stops
         // is evaluated where its leaves' boxes are met.
+        // The level mode evaluates inner nodes wherever their own ellipsoids
+        // reach, so it descends the BBH's boxes themselves.
+        const auto bbhLo = bbh.nodes.column<BbhLo>();
+        const auto bbhHi = bbh.nodes.column<BbhHi>();
         std::vector<Vec3> lo(nodeCount), hi(nodeCount);
         {
-            const auto bbhLo = bbh.nodes.column<BbhLo>();
-            const auto bbhHi = bbh.nodes.column<BbhHi>();
             for (std::size_t j = nodeCount; j-- > 0;) {
                 if (right[j] == kNoGmmNode) {
                     lo[j] = bbhLo[j];
@@ -340,7 +342,8 @@ public:
                             const std::uint32_t j = stack.back();
                             stack.pop_back();
                             ++result.nodes;
-                            const SlabInterval box = slabInterval(ray, lo[j], hi[j]);
+                            const SlabInterval box = mode == Mode::Level ? slabInterval(ray, bbhLo[j], bbhHi[j])
+                                                                         : slabInterval(ray, lo[j], hi[j]);
                             if (!box.hit()) continue;
                             bool stop = right[j] == kNoGmmNode;
                             if (!stop && mode == Mode::Level) stop = nodeLevel[j] <= level;

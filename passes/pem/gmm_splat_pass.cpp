@@ -63,20 +63,6 @@ struct Splat {
     int x0 = 0, y0 = 0, x1 = -1, y1 = -1;  // inclusive; empty when x1 < x0
 };
 
-// P(chi_3 > r): the share of a 3D Gaussian's mass beyond Mahalanobis radius r.
-// gmm_bbh's own copy is local to its file.
-double chi3Tail(double r) { return std::erfc(r / std::sqrt(2.0)) + std::sqrt(2.0 / M_PI) * r * std::exp(-0.5 * r * r); }
-
-double truncationRadius(double tail) {
-    if (!(tail < 1.0)) return 0.0;
-    double lo = 0.0, hi = 64.0;
-    for (int i = 0; i < 100; ++i) {
-        const double mid = 0.5 * (lo + hi);
-        (chi3Tail(mid) > tail ? lo : hi) = mid;
-    }
-    return hi;
-}
-
 double energy(const glm::dvec3& power) { return power.x + power.y + power.z; }
 
 // ceil(log2 k): the levels above the leaves of a pyramid over k Gaussians (Alg. 3).
@@ -251,7 +237,7 @@ struct Level {
             covariances[s] = nodes.column<GmmCovariance>()[j];
             powers[s] = power[j];
             const double e = energy(power[j]);
-            const double r = e > 0.0 ? truncationRadius(allowed / e) : 0.0;
+            const double r = e > 0.0 ? gmm::truncationRadius(allowed / e) : 0.0;
             splats[s].radiusSquared = r * r;
         });
     }
