@@ -146,6 +146,13 @@ public:
                 zero.fill(Rgb(0.0f));
                 acc.mapHigherBands.assign(glossyCount, zero);
             }
+            // Raw pointers and per-ray counts in locals: the deposit runs once per
+            // candidate, and through the block's vectors and the tree the compiler
+            // reloads every pointer and counter each time.
+            const Vec3* const slotPositions = index.tree.slotPositions().data();
+            const Vec3* const slotNormals = index.tree.slotNormals().data();
+            const Target* const targets = targets_.data();
+            Rgb* const pixels = acc.pixels.data();
             for (std::size_t r = range.begin; r != range.end; ++r) {
                 if (rayClass[r] == PhotonRayClass::Direct && !withDirect) continue;
                 const SplatRay ray{origin[r], direction[r], h0[r], dh[r], length[r], originNormal[r], endNormal[r]};
@@ -165,17 +172,19 @@ public:
                         for (int channel = 0; channel < 3; ++channel)
                             poweredBasis[3 * k + static_cast<std::size_t>(channel)] = power[r][channel] * y[k];
                 }
-                const auto deposit = [&](std::uint32_t slot) {
-                    ++acc.candidates;
-                    const Vec3& position = index.tree.slotPosition(slot);
-                    const float weight = frustum.weight(position, index.tree.slotNormal(slot));
+                const Rgb rayPower = power[r];
+                std::int64_t candidates = 0, deposits = 0;
+                const auto deposit = [&](std::uint32_t slot) __attribute__((always_inline)) {
+                    ++candidates;
+                    const Vec3& position = slotPositions[slot];
+                    const float weight = frustum.weight(position, slotNormals[slot]);
                     if (!(weight > 0.0f)) return;
-                    const Target& target = targets_[slot];
+                    const Target& target = targets[slot];
                     Rgb f;
                     if (target.glossy != kNotGlossy) {
                         // Shading normals must not let light through the geometric surface.
                         if (!(glm::dot(incident, target.geometricNormal) > 0.0f)) return;
-                        const Rgb value = power[r] * weight;
+                        const Rgb value = rayPower * weight;
                         if (!isFinite(value)) return;
                         MapSums& sums = acc.map[target.glossy];
                         sums.c00.x += weight * poweredBasis[0];
@@ -193,7 +202,7 @@ public:
                         // Feasible vertices lie in front of the origin's surface, so the distance is positive.
                         const float distance = glm::length(position - ray.origin);
                         if (distance > 0.0f) sums.inverseDistance += weight / distance;
-                        ++acc.deposits;
+                        ++deposits;
                         return;
                     }
                     if (target.lambertian) {
@@ -203,19 +212,20 @@ public:
                         f = VertexBrdf(scene, eye, target.vertex)(incident) *
                             eye.column<EyeThroughput>()[target.vertex];
                     }
-                    const Rgb value = f * power[r] * weight;
+                    const Rgb value = f * rayPower * weight;
                     if (!isFinite(value)) return;
-                    acc.pixels[target.pixel] += value;
-                    ++acc.deposits;
+                    pixels[target.pixel] += value;
+                    ++deposits;
                 };
                 const SplatCone cone = splatCone(ray, cap);
                 if (tightBoxes) {
                     acc.leafVertices += static_cast<std::int64_t>(index.tree.forEachVertexInCone(cone, deposit, useCullNodes));
                 } else {
-                    const std::int64_t before = acc.candidates;
                     index.tree.forEachCandidate(cone, deposit, useCullNodes);
-                    acc.leafVertices += acc.candidates - before;
+                    acc.leafVertices += candidates;
                 }
+                acc.candidates += candidates;
+                acc.deposits += deposits;
             }
         });
         std::vector<Rgb> total(pixelCount, Rgb(0.0f));
