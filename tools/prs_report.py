@@ -26,7 +26,7 @@ for the mean signed error in the concave corners (crops 20,20,16,16 and
 with --scaling RS's and PM's T_S at 1, 2 and 4 times the photons.
 
     python3 tools/prs_report.py [--threads 1] [--photons 200000] [--out results/prs]
-                                [--seeds 11 12 13 14] [--scaling]
+                                [--seeds 11 12 13 14] [--scaling] [--set-rs KEY=VALUE ...]
 """
 import argparse
 import collections
@@ -174,9 +174,14 @@ def main():
     parser.add_argument("--seeds", type=int, nargs="*", default=[],
                         help="photon seeds for the corner-crop error of PM and RS (e.g. 11 12 13 14)")
     parser.add_argument("--scaling", action="store_true", help="PM's and RS's T_S at 1, 2 and 4 times the photons")
+    parser.add_argument("--set-rs", nargs="*", default=[],
+                        help="extra --set for the RS row (e.g. passes.ray_bandwidth.smoothness=1.0)")
     args = parser.parse_args()
     reference = read_exr_rgb(REFERENCE)
     ref_means = [crop_mean(reference, 128, c) for c in CROPS]
+
+    def rs_settings(label):
+        return [a for setting in args.set_rs for a in ("--set", setting)] if label.startswith("RS ") else []
 
     os.makedirs(args.out, exist_ok=True)
     rows = []
@@ -186,7 +191,7 @@ def main():
             f.write(SPM_JOB.format(scene=os.path.join(SCENE_DIR, "cornell-box.xml")))
         methods = [
             ("PM (spm, k = 100)", spm_job),
-            ("RS (prs, C = 0.29, S = 0.4)", os.path.join(SCENE_DIR, "prs.toml")),
+            ("RS (prs, " + (", ".join(args.set_rs) or "C = 0.29, S = 0.4") + ")", os.path.join(SCENE_DIR, "prs.toml")),
             ("RC (prs-rc, C = 0.6, S = 0.4, ε = 0.7)", os.path.join(SCENE_DIR, "prs-rc.toml")),
             ("PM-FG (pm-fg, k = 100, 16 FGRs)", os.path.join(SCENE_DIR, "pm-fg.toml")),
             ("RS-FG (prs-fg, C = 0.6, S = 0.8, 16 FGRs, 1 tile)", os.path.join(SCENE_DIR, "prs-fg.toml")),
@@ -200,7 +205,7 @@ def main():
             saves = []
             if label.startswith("PM "):
                 saves = ["--save", f"eye_vertices={out_dir}/eye.fgbuf", "--save", f"global_photons={out_dir}/global.fgbuf"]
-            times, counters, image = render(args.binary, job, out_dir, args.threads, photons, saves)
+            times, counters, image = render(args.binary, job, out_dir, args.threads, photons, saves + rs_settings(label))
             if saves:
                 radius, diagonal = mean_gather_radius(f"{out_dir}/eye.fgbuf", f"{out_dir}/global.fgbuf", 100)
                 counters["mean_gather_radius_ppm"] = round(1e6 * radius / diagonal)
@@ -215,7 +220,7 @@ def main():
                 os.makedirs(out_dir)
                 print(f"rendering {label}, photon seed {seed} ...", file=sys.stderr)
                 _, _, image = render(args.binary, job, out_dir, args.threads, args.photons,
-                                     ["--set", f"passes.photon.seed={seed}"])
+                                     ["--set", f"passes.photon.seed={seed}"] + rs_settings(label))
                 pixels = read_exr_rgb(image)
                 for i, crop in enumerate(CROPS):
                     errors[i].append(100.0 * (crop_mean(pixels, 128, crop) - ref_means[i]) / ref_means[i])
@@ -228,7 +233,8 @@ def main():
                 out_dir = os.path.join(scratch, f"scale-{len(scaling)}-{factor}")
                 os.makedirs(out_dir)
                 print(f"rendering {label} with {factor * base_photons} photons ...", file=sys.stderr)
-                times, counters, _ = render(args.binary, job, out_dir, args.threads, factor * base_photons)
+                times, counters, _ = render(args.binary, job, out_dir, args.threads, factor * base_photons,
+                                            rs_settings(label))
                 scaling.setdefault(label, []).append((factor * base_photons, times["T_S"], counters))
 
     load = os.getloadavg()[0]
