@@ -14,15 +14,35 @@ shared machine says more about its load than about the method):
   ΣT   their sum (composite and scene loading are left out)
 and the RMSE and relMSE of each image against the scene's reference.
 
+Beside them, for PM and RS, the mean bandwidth in millionths of the scene
+diagonal (the paper chooses C so that RS's mean splat radius equals PM's
+mean gather radius, §9 and Fig. 10): ray_splat's mean_hit_radius_ppm, R at
+the hits of the splatted rays; for PM the distance to the k-th nearest
+global photon, averaged over 3000 eye vertices drawn with a fixed seed from
+the saved eye vertices and photon map (the gather pass reports no radius).
+With --seeds the PM and RS rows are rendered again with those photon seeds
+for the mean signed error in the concave corners (crops 20,20,16,16 and
+92,20,16,16, percent of the reference's mean there, ± its standard error);
+with --scaling RS's and PM's T_S at 1, 2 and 4 times the photons.
+
     python3 tools/prs_report.py [--threads 1] [--photons 200000] [--out results/prs]
+                                [--seeds 11 12 13 14] [--scaling] [--set-rs KEY=VALUE ...]
 """
 import argparse
+import collections
 import datetime
 import json
+import math
 import os
+import random
+import struct
 import subprocess
 import sys
 import tempfile
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from caustics_report import read_exr_rgb  # noqa: E402
+from prs_fg_report import CROPS, crop_mean, mean_and_error  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SCENE_DIR = os.path.join(ROOT, "data", "cornell-box")
@@ -55,9 +75,9 @@ k_global = 100
 """
 
 
-def render(binary, job, out_dir, threads, photons):
+def render(binary, job, out_dir, threads, photons, extra=()):
     stats = os.path.join(out_dir, "stats.json")
-    command = [binary, "render", job, "--out", out_dir, "--threads", str(threads), "--stats", stats]
+    command = [binary, "render", job, "--out", out_dir, "--threads", str(threads), "--stats", stats] + list(extra)
     if photons:
         command += ["--set", f"passes.photon.photons={photons}"]
     subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
@@ -75,6 +95,70 @@ def render(binary, job, out_dir, threads, photons):
     return times, counters, os.path.join(out_dir, images[0])
 
 
+def buffer_columns(path):
+    """The columns of a saved buffer (.fgbuf, engine/core/codec.h): name -> raw bytes. The columns are the
+    file's last bytes, in the order its header lists them."""
+    with open(path, "rb") as f:
+        data = f.read()
+    if data[:5] != b"FGBUF":
+        raise SystemExit(f"{path}: not a buffer file")
+    offset = 9  # magic, format version
+
+    def take(fmt):
+        nonlocal offset
+        value = struct.unpack_from(fmt, data, offset)[0]
+        offset += struct.calcsize(fmt)
+        return value
+
+    def string():
+        nonlocal offset
+        n = take("<I")
+        offset += n
+        return data[offset - n:offset].decode()
+
+    string()  # type name
+    header = [(string(), take("<I"), take("<Q")) for _ in range(take("<I"))]
+    start = len(data) - sum(size * count for _, size, count in header)
+    columns = {}
+    for name, size, count in header:
+        columns[name] = data[start:start + size * count]
+        start += size * count
+    return columns
+
+
+def points(raw):
+    return [struct.unpack_from("<3f", raw, 12 * i) for i in range(len(raw) // 12)]
+
+
+def mean_gather_radius(eye_file, photon_file, k, sample=3000):
+    """Mean distance from an eye vertex to its k-th nearest global photon, over `sample` vertices, and the
+    diagonal of the box around vertices and photons."""
+    photons = points(buffer_columns(photon_file)["photons.position"])
+    vertices = points(buffer_columns(eye_file)["vertices.position"])
+    lo = [min(p[a] for p in photons + vertices) for a in range(3)]
+    hi = [max(p[a] for p in photons + vertices) for a in range(3)]
+    diagonal = math.dist(lo, hi)
+    cell = diagonal / 60
+    grid = collections.defaultdict(list)
+    for p in photons:
+        grid[tuple(int((p[a] - lo[a]) // cell) for a in range(3))].append(p)
+    radii = []
+    for v in random.Random(7).sample(vertices, min(sample, len(vertices))):
+        c = tuple(int((v[a] - lo[a]) // cell) for a in range(3))
+        ring = 0
+        while True:  # grow the cube of cells until the k-th distance lies within it
+            d2 = [(p[0] - v[0]) ** 2 + (p[1] - v[1]) ** 2 + (p[2] - v[2]) ** 2
+                  for i in range(c[0] - ring, c[0] + ring + 1) for j in range(c[1] - ring, c[1] + ring + 1)
+                  for l in range(c[2] - ring, c[2] + ring + 1) for p in grid.get((i, j, l), ())]
+            if len(d2) >= k:
+                r = math.sqrt(sorted(d2)[k - 1])
+                if r <= ring * cell or len(d2) == len(photons):
+                    break
+            ring += 1
+        radii.append(r)
+    return sum(radii) / len(radii), diagonal
+
+
 def compare(binary, image):
     text = subprocess.run([binary, "compare", image, REFERENCE], check=True, capture_output=True, text=True).stdout
     values = dict(line.split()[:2] for line in text.splitlines() if len(line.split()) >= 2)
@@ -87,7 +171,17 @@ def main():
     parser.add_argument("--photons", type=int, default=0, help="override the jobs' photon count")
     parser.add_argument("--out", default=os.path.join(ROOT, "results", "prs"))
     parser.add_argument("--binary", default=os.path.join(ROOT, "build", "fluxgraph"))
+    parser.add_argument("--seeds", type=int, nargs="*", default=[],
+                        help="photon seeds for the corner-crop error of PM and RS (e.g. 11 12 13 14)")
+    parser.add_argument("--scaling", action="store_true", help="PM's and RS's T_S at 1, 2 and 4 times the photons")
+    parser.add_argument("--set-rs", nargs="*", default=[],
+                        help="extra --set for the RS row (e.g. passes.ray_bandwidth.smoothness=1.0)")
     args = parser.parse_args()
+    reference = read_exr_rgb(REFERENCE)
+    ref_means = [crop_mean(reference, 128, c) for c in CROPS]
+
+    def rs_settings(label):
+        return [a for setting in args.set_rs for a in ("--set", setting)] if label.startswith("RS ") else []
 
     os.makedirs(args.out, exist_ok=True)
     rows = []
@@ -97,7 +191,7 @@ def main():
             f.write(SPM_JOB.format(scene=os.path.join(SCENE_DIR, "cornell-box.xml")))
         methods = [
             ("PM (spm, k = 100)", spm_job),
-            ("RS (prs, C = 1.0, S = 0.4)", os.path.join(SCENE_DIR, "prs.toml")),
+            ("RS (prs, " + (", ".join(args.set_rs) or "C = 0.29, S = 0.4") + ")", os.path.join(SCENE_DIR, "prs.toml")),
             ("RC (prs-rc, C = 0.6, S = 0.4, ε = 0.7)", os.path.join(SCENE_DIR, "prs-rc.toml")),
             ("PM-FG (pm-fg, k = 100, 16 FGRs)", os.path.join(SCENE_DIR, "pm-fg.toml")),
             ("RS-FG (prs-fg, C = 0.6, S = 0.8, 16 FGRs, 1 tile)", os.path.join(SCENE_DIR, "prs-fg.toml")),
@@ -108,9 +202,40 @@ def main():
             print(f"rendering {label} ...", file=sys.stderr)
             # --photons applies to the direct-visualisation rows; the FG jobs keep their own count.
             photons = 0 if "FG" in label else args.photons
-            times, counters, image = render(args.binary, job, out_dir, args.threads, photons)
+            saves = []
+            if label.startswith("PM "):
+                saves = ["--save", f"eye_vertices={out_dir}/eye.fgbuf", "--save", f"global_photons={out_dir}/global.fgbuf"]
+            times, counters, image = render(args.binary, job, out_dir, args.threads, photons, saves + rs_settings(label))
+            if saves:
+                radius, diagonal = mean_gather_radius(f"{out_dir}/eye.fgbuf", f"{out_dir}/global.fgbuf", 100)
+                counters["mean_gather_radius_ppm"] = round(1e6 * radius / diagonal)
             rmse, relmse = compare(args.binary, image)
             rows.append((label, times, counters, rmse, relmse))
+
+        corners = {}
+        for label, job in methods[:2] if args.seeds else ():
+            errors = [[] for _ in CROPS]
+            for seed in args.seeds:
+                out_dir = os.path.join(scratch, f"seed-{len(rows)}-{seed}-{len(corners)}")
+                os.makedirs(out_dir)
+                print(f"rendering {label}, photon seed {seed} ...", file=sys.stderr)
+                _, _, image = render(args.binary, job, out_dir, args.threads, args.photons,
+                                     ["--set", f"passes.photon.seed={seed}"] + rs_settings(label))
+                pixels = read_exr_rgb(image)
+                for i, crop in enumerate(CROPS):
+                    errors[i].append(100.0 * (crop_mean(pixels, 128, crop) - ref_means[i]) / ref_means[i])
+            corners[label] = [mean_and_error(e) for e in errors]
+
+        scaling = {}
+        base_photons = args.photons or 200000
+        for label, job in methods[:2] if args.scaling else ():
+            for factor in (1, 2, 4):
+                out_dir = os.path.join(scratch, f"scale-{len(scaling)}-{factor}")
+                os.makedirs(out_dir)
+                print(f"rendering {label} with {factor * base_photons} photons ...", file=sys.stderr)
+                times, counters, _ = render(args.binary, job, out_dir, args.threads, factor * base_photons,
+                                            rs_settings(label))
+                scaling.setdefault(label, []).append((factor * base_photons, times["T_S"], counters))
 
     load = os.getloadavg()[0]
     lines = [
@@ -132,6 +257,30 @@ def main():
         lines.append(
             f"| {label} | {times['T_E']:.2f} | {times['T_L']:.2f} | {times['T_S']:.2f} | {total:.2f} | {rmse:.4f} | {relmse:.4f} |"
         )
+    pm_counters, rs_counters = rows[0][2], rows[1][2]
+    pm_radius, rs_radius = pm_counters["mean_gather_radius_ppm"], rs_counters["mean_hit_radius_ppm"]
+    rs_rays = max(1, rs_counters["splatted_rays"])
+    lines += [
+        "",
+        f"RS's T_S is {rows[1][1]['T_S'] / rows[0][1]['T_S']:.2f} × PM's (the paper: 0.54–1.00). Mean bandwidth"
+        f" (millionths of the scene diagonal): PM's k-nearest radius {pm_radius}, RS's R at the hits {rs_radius}"
+        f" ({rs_radius / pm_radius:.2f} × PM's). RS made {rs_counters['vertex_deposits'] / rs_rays:.0f} deposits per"
+        f" splatted ray ({rs_counters['vertex_deposits']} in all) from {rs_counters['vertex_candidates']} candidates"
+        f" ({rs_counters['leaf_vertices']} leaf vertices tested against the cones); PM used"
+        f" {pm_counters.get('photon_contributions', 0)} photons.",
+    ]
+    if corners:
+        lines += ["", f"Corner crops, mean signed error over photon seeds {args.seeds}:", "",
+                  "| Method | " + " | ".join(f"crop {','.join(map(str, c))}" for c in CROPS) + " |",
+                  "|---|" + "---:|" * len(CROPS)]
+        for label, cells in corners.items():
+            lines.append(f"| {label} | " + " | ".join(f"{m:+.1f} % ± {e:.1f}" for m, e in cells) + " |")
+    if scaling:
+        lines += ["", "T_S (CPU s) against the emitted photon paths:", "",
+                  "| Method | " + " | ".join(f"{m // 1000}k" for m, _, _ in next(iter(scaling.values()))) + " |",
+                  "|---|" + "---:|" * 3]
+        for label, runs in scaling.items():
+            lines.append(f"| {label} | " + " | ".join(f"{t:.2f}" for _, t, _ in runs) + " |")
     rc_counters = rows[2][2]
     lines += [
         "",

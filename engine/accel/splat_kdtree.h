@@ -14,7 +14,10 @@
 // first along the ray (by the sign of dir[a]) gets [t0, min(t1, t + Δt)] and
 // the other [max(t0, t - Δt), t1], Δt = R1 / |dir[a]|; a ray parallel to the
 // plane visits a child iff it lies within R1 of the child's half-space, over
-// the whole interval. Built the same for any thread count (built serially).
+// the whole interval. forEachVertexInCone answers the same queries with the
+// same vertices in the same order from far fewer candidates (tight node
+// boxes, leaf vertices tested against the cone from coordinate columns).
+// Built the same for any thread count (built serially).
 #pragma once
 
 #include "engine/core/math.h"
@@ -85,6 +88,7 @@ public:
             normals_[i] = normals[ids_[i]];
         }
         computeLeafSpheres();
+        computeNodeBoxes();
     }
 
     std::size_t size() const { return ids_.size(); }
@@ -158,6 +162,7 @@ public:
         tree.positions_ = std::move(positions);
         tree.normals_ = std::move(normals);
         tree.computeLeafSpheres();
+        tree.computeNodeBoxes();
         return tree;
     }
 
@@ -262,7 +267,153 @@ public:
         }
     }
 
+    // As forEachCandidate, for the same cones and with the same vertices in
+    // the same order where they lie in the cone, but searched more tightly
+    // (nodes by their vertices' tight boxes, vertices by the cone itself), so
+    // the caller's feasibility test sees far fewer of them:
+    //  - A node is entered only where the ray's segment [0, tMax] meets the
+    //    tight box of its vertices grown by R at the end of the part of the
+    //    ray its parent was clipped to. A vertex within R(t_p) of the ray at
+    //    t_p lies in every box that holds it grown by R(t_p), which the
+    //    clipped parts contain by induction (R grows with t), so none is lost.
+    //    Algorithm 1 clips against the sliding-midpoint cells instead, which
+    //    reach far into the empty space between the walls eye vertices lie on.
+    //  - A leaf's vertices are tested against the cone four at a time from
+    //    the coordinate columns (t_p in [0, tMax], d_perp <= R(t_p), widened
+    //    by a relative slack so that rounding keeps every vertex the exact
+    //    test of ray_splat.h accepts), and visit(slot) is called only for
+    //    those inside, in slot order.
+    // Children are taken nearest first by the sign of dir[axis], left first
+    // for a ray parallel to the plane, as Algorithm 1 (forEachCandidate)
+    // takes them; pruning does not reorder what is left, so the vertices in
+    // the cone are visited in the same order by both. Returns how many leaf
+    // vertices were tested against the cone.
+    template <class Visit>
+    std::uint64_t forEachVertexInCone(const SplatCone& cone, Visit&& visit, bool useCullNodes = true) const {
+        if (nodes_.empty()) return 0;
+        // Slack for rounding, relative to the coordinates: far above float
+        // rounding (6e-8), far below any radius that matters.
+        const Vec3 end = cone.origin + cone.tMax * cone.direction;
+        const float scale = std::max({std::abs(cone.origin.x), std::abs(cone.origin.y), std::abs(cone.origin.z),
+                                      std::abs(end.x), std::abs(end.y), std::abs(end.z)});
+        const float slack = 1e-5f * (1.0f + scale);
+        Vec3 inverse;
+        for (int a = 0; a < 3; ++a) inverse[a] = cone.direction[a] != 0.0f ? 1.0f / cone.direction[a] : kInfinity;
+        // The part [t0, t1] of [0, tMax] where the ray runs through `box` grown by `grow`.
+        const auto clip = [&](const NodeBox& box, float grow, float& t0, float& t1) {
+            t0 = 0.0f;
+            t1 = cone.tMax;
+            for (int a = 0; a < 3; ++a) {
+                const float lo = box.lo[a] - grow, hi = box.hi[a] + grow;
+                if (!(lo <= hi)) return false;  // empty
+                const float o = cone.origin[a];
+                if (cone.direction[a] == 0.0f) {
+                    if (o < lo || o > hi) return false;
+                    continue;
+                }
+                float ta = (lo - o) * inverse[a], tb = (hi - o) * inverse[a];
+                if (ta > tb) std::swap(ta, tb);
+                t0 = std::max(t0, ta);
+                t1 = std::min(t1, tb);
+                if (t0 > t1) return false;
+            }
+            return true;
+        };
+        const auto grown = [&](float t) { return cone.radius(t) * 1.0001f + slack; };
+        struct Entry {
+            std::uint32_t node;
+            float grow;
+        };
+        Entry stack[128];
+        int top = 0;
+        stack[top++] = {0, grown(cone.tMax)};
+        std::uint64_t tested = 0;
+        while (top > 0) {
+            const Entry e = stack[--top];
+            float t0 = 0.0f, t1 = 0.0f;
+            if (!clip(boxes_[e.node], e.grow, t0, t1)) continue;
+            const float childGrow = grown(t1);
+            const SplatKdNode node = nodes_[e.node];
+            switch (node.kind()) {
+            case SplatKdNode::Empty:
+                break;
+            case SplatKdNode::Leaf: {
+                // The ray's point nearest the sphere's centre on [t0, t1] is
+                // no farther from it than the point at any vertex's t_p.
+                const Vec4& sphere = leafSpheres_[e.node];
+                const Vec3 centre(sphere);
+                const float tc = std::clamp(glm::dot(centre - cone.origin, cone.direction), t0, t1);
+                const Vec3 offset = centre - (cone.origin + tc * cone.direction);
+                const float reach = sphere.w + childGrow;
+                if (glm::dot(offset, offset) > reach * reach) break;
+                const std::uint32_t count = node.b >> 2;
+                tested += count;
+                visitVerticesInCone(cone, slack, node.a, count, visit);
+                break;
+            }
+            case SplatKdNode::Cull: {
+                const Vec4& cull = cullPlanes_[e.node];
+                if (useCullNodes && glm::dot(cone.direction, Vec3(cull)) > cull.w) break;
+                stack[top++] = {e.node + 1, childGrow};
+                break;
+            }
+            case SplatKdNode::Interior: {
+                const int axis = static_cast<int>((node.b >> 2) & 3u);
+                const std::uint32_t left = e.node + 1, right = e.node + (node.b >> 4);
+                const float d = cone.direction[axis];
+                const bool rightFirst = std::abs(d) >= 1e-12f && d < 0.0f;
+                stack[top++] = {rightFirst ? left : right, childGrow};
+                stack[top++] = {rightFirst ? right : left, childGrow};
+                break;
+            }
+            }
+        }
+        return tested;
+    }
+
 private:
+    // The tight bounding box of a node's vertices (empty nodes: lo > hi).
+    struct NodeBox {
+        Vec3 lo{kInfinity};
+        Vec3 hi{-kInfinity};
+    };
+
+    // The cone test of forEachVertexInCone on slots [first, first + count):
+    // first every vertex of a chunk, branch-free so that the compiler tests
+    // four at once, then a visit per vertex inside.
+    template <class Visit>
+    void visitVerticesInCone(const SplatCone& cone, float slack, std::uint32_t first, std::uint32_t count,
+                             Visit& visit) const {
+        for (std::uint32_t base = first; base < first + count; base += kConeChunk) {
+            const std::uint32_t n = std::min(kConeChunk, first + count - base);
+            std::int32_t inside[kConeChunk];
+            coneMask(cone, slack, base, n, inside);
+            for (std::uint32_t k = 0; k < n; ++k)
+                if (inside[k]) visit(base + k);
+        }
+    }
+
+    // Not inlined: inside the traversal loop GCC 12 leaves it scalar.
+    static constexpr std::uint32_t kConeChunk = 64;
+    [[gnu::noinline]] void coneMask(const SplatCone& cone, float slack, std::uint32_t base, std::uint32_t n,
+                                    std::int32_t* inside) const {
+        const float ox = cone.origin.x, oy = cone.origin.y, oz = cone.origin.z;
+        const float dx = cone.direction.x, dy = cone.direction.y, dz = cone.direction.z;
+        const float tLow = -slack, tHigh = cone.tMax + slack;
+        const float h0 = cone.h0, dh = cone.dh, tCap = cone.tCap;
+        const float* xs = xs_.data() + base;
+        const float* ys = ys_.data() + base;
+        const float* zs = zs_.data() + base;
+        for (std::uint32_t k = 0; k < n; ++k) {
+            const float x = xs[k] - ox, y = ys[k] - oy, z = zs[k] - oz;
+            const float tp = x * dx + y * dy + z * dz;
+            const float px = x - tp * dx, py = y - tp * dy, pz = z - tp * dz;
+            const float d2 = px * px + py * py + pz * pz;
+            const float radius = (h0 + dh * (tp < tCap ? tp : tCap)) * 1.00001f + slack;
+            inside[k] = (tp >= tLow ? 1 : 0) & (tp <= tHigh ? 1 : 0) & (d2 <= radius * radius ? 1 : 0);
+        }
+    }
+
     static std::uint32_t floatBits(float f) {
         std::uint32_t bits;
         std::memcpy(&bits, &f, sizeof bits);
@@ -358,6 +509,48 @@ private:
         buildNode(p, n, mid, end, rightLo, hi, mayCull, cosLimit, depth + 1);
     }
 
+    // Tight boxes, children before parents (a node's children follow it in
+    // the node array, so one backward sweep sees them first), the culling
+    // nodes' normals decoded once, and the vertices' coordinates as columns
+    // in slot order.
+    void computeNodeBoxes() {
+        boxes_.assign(nodes_.size(), NodeBox{});
+        cullPlanes_.assign(nodes_.size(), Vec4(0.0f));
+        for (std::size_t i = nodes_.size(); i-- > 0;) {
+            NodeBox& box = boxes_[i];
+            const SplatKdNode node = nodes_[i];
+            switch (node.kind()) {
+            case SplatKdNode::Empty:
+                break;
+            case SplatKdNode::Leaf:
+                for (std::uint32_t s = node.a; s < node.a + (node.b >> 2); ++s) {
+                    box.lo = glm::min(box.lo, positions_[s]);
+                    box.hi = glm::max(box.hi, positions_[s]);
+                }
+                break;
+            case SplatKdNode::Cull:
+                box = boxes_[i + 1];
+                cullPlanes_[i] = Vec4(decodeNormal(node.a), decodeFloat(node.b & ~3u));
+                break;
+            case SplatKdNode::Interior: {
+                const NodeBox& left = boxes_[i + 1];
+                const NodeBox& right = boxes_[i + (node.b >> 4)];
+                box.lo = glm::min(left.lo, right.lo);
+                box.hi = glm::max(left.hi, right.hi);
+                break;
+            }
+            }
+        }
+        xs_.resize(positions_.size());
+        ys_.resize(positions_.size());
+        zs_.resize(positions_.size());
+        for (std::size_t s = 0; s < positions_.size(); ++s) {
+            xs_[s] = positions_[s].x;
+            ys_[s] = positions_[s].y;
+            zs_[s] = positions_[s].z;
+        }
+    }
+
     // Per node (leaves only; zero elsewhere): centre and radius of a sphere
     // around the leaf's vertices. Beside the 8-byte nodes, not in them: a
     // leaf the split planes let through is tested against it before its
@@ -388,6 +581,9 @@ private:
     SplatKdTreeOptions options_;
     std::vector<SplatKdNode> nodes_;
     std::vector<Vec4> leafSpheres_;
+    std::vector<NodeBox> boxes_;
+    std::vector<Vec4> cullPlanes_;  // culling nodes: the decoded reference normal and C_max
+    std::vector<float> xs_, ys_, zs_;  // slot positions as columns
     std::vector<std::uint32_t> ids_;
     std::vector<Vec3> positions_, normals_;
     Vec3 lo_{0.0f}, hi_{0.0f};

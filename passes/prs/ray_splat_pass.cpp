@@ -19,6 +19,11 @@
 // radiance_cache interpolates each coefficient on its own, so the other 15
 // would be summed for no reader (16 multiply-adds of three channels per
 // deposit instead of one; the image is bit for bit the same).
+// The kd search (`traversal = "tight_boxes"`, SplatKdTree::forEachVertexInCone)
+// enters nodes by their vertices' tight boxes rather than Algorithm 1's cells
+// and hands on only the leaf vertices inside the cone, in Algorithm 1's
+// order: the same deposits in the same order, so the same image bit for bit
+// (`"cells"` keeps Algorithm 1).
 // Rays are splatted in fixed blocks into per-block films merged in block
 // order, so the image is the same for any thread count.
 #include "passes/passes.h"
@@ -64,8 +69,32 @@ struct BlockFilm {
     std::vector<HigherBands> mapHigherBands;  // per mapped vertex, when the map keeps them
     std::int64_t deposits = 0;
     std::int64_t candidates = 0;
+    std::int64_t leafVertices = 0;
     std::int64_t splatted = 0;
 };
+
+// The mean radius R(t_hit) at the hits of the rays that splat and meet a
+// surface, in millionths of the scene diagonal: the bandwidth to compare
+// with photon mapping's mean gather radius, as the paper chooses C for equal
+// mean bandwidths (§9, Fig. 10). Summed in integers, so the figure does not
+// depend on the order.
+std::int64_t meanHitRadiusPpm(const Scene& scene, const PhotonRayBuffer& rays, bool withDirect) {
+    const auto h0 = rays.column<RayH0>();
+    const auto dh = rays.column<RayDh>();
+    const auto length = rays.column<RayLength>();
+    const auto endNormal = rays.column<RayEndNormal>();
+    const auto rayClass = rays.column<RayClassColumn>();
+    const double scale = 1e6 / static_cast<double>(glm::length(scene.boundsMax - scene.boundsMin));
+    std::int64_t sum = 0, count = 0;
+    for (std::size_t r = 0; r < rays.size(); ++r) {
+        if (rayClass[r] == PhotonRayClass::Direct && !withDirect) continue;
+        const float radius = h0[r] + dh[r] * length[r];
+        if (endNormal[r] == Vec3(0.0f) || !(radius > 0.0f)) continue;
+        sum += std::llround(scale * static_cast<double>(radius));
+        ++count;
+    }
+    return count > 0 ? sum / count : 0;
+}
 
 class RaySplatPass final : public Pass {
 public:
@@ -80,6 +109,7 @@ public:
                                                                                   : SplatEndCap::TangentPlane;
         const bool withDirect = ctx.params().getString("classes") == "all";
         const bool useCullNodes = ctx.params().getBool("cull_nodes");
+        const bool tightBoxes = ctx.params().getString("traversal") == "tight_boxes";
         const bool shMap = ctx.params().getString("glossy") == "sh_map";
         const bool lambertianToMap = ctx.params().getString("lambertian") == "sh_map";
 
@@ -116,6 +146,13 @@ public:
                 zero.fill(Rgb(0.0f));
                 acc.mapHigherBands.assign(glossyCount, zero);
             }
+            // Raw pointers and per-ray counts in locals: the deposit runs once per
+            // candidate, and through the block's vectors and the tree the compiler
+            // reloads every pointer and counter each time.
+            const Vec3* const slotPositions = index.tree.slotPositions().data();
+            const Vec3* const slotNormals = index.tree.slotNormals().data();
+            const Target* const targets = targets_.data();
+            Rgb* const pixels = acc.pixels.data();
             for (std::size_t r = range.begin; r != range.end; ++r) {
                 if (rayClass[r] == PhotonRayClass::Direct && !withDirect) continue;
                 const SplatRay ray{origin[r], direction[r], h0[r], dh[r], length[r], originNormal[r], endNormal[r]};
@@ -135,52 +172,60 @@ public:
                         for (int channel = 0; channel < 3; ++channel)
                             poweredBasis[3 * k + static_cast<std::size_t>(channel)] = power[r][channel] * y[k];
                 }
-                index.tree.forEachCandidate(
-                    splatCone(ray, cap),
-                    [&](std::uint32_t slot) {
-                        ++acc.candidates;
-                        const Vec3& position = index.tree.slotPosition(slot);
-                        const float weight = frustum.weight(position, index.tree.slotNormal(slot));
-                        if (!(weight > 0.0f)) return;
-                        const Target& target = targets_[slot];
-                        Rgb f;
-                        if (target.glossy != kNotGlossy) {
-                            // Shading normals must not let light through the geometric surface.
-                            if (!(glm::dot(incident, target.geometricNormal) > 0.0f)) return;
-                            const Rgb value = power[r] * weight;
-                            if (!isFinite(value)) return;
-                            MapSums& sums = acc.map[target.glossy];
-                            sums.c00.x += weight * poweredBasis[0];
-                            sums.c00.y += weight * poweredBasis[1];
-                            sums.c00.z += weight * poweredBasis[2];
-                            if (higherBands) {
-                                HigherBands& c = acc.mapHigherBands[target.glossy];
-                                for (std::size_t k = 1; k < sh::kCoefficients; ++k) {
-                                    c[k - 1].x += weight * poweredBasis[3 * k];
-                                    c[k - 1].y += weight * poweredBasis[3 * k + 1];
-                                    c[k - 1].z += weight * poweredBasis[3 * k + 2];
-                                }
-                            }
-                            sums.weight += weight;
-                            // Feasible vertices lie in front of the origin's surface, so the distance is positive.
-                            const float distance = glm::length(position - ray.origin);
-                            if (distance > 0.0f) sums.inverseDistance += weight / distance;
-                            ++acc.deposits;
-                            return;
-                        }
-                        if (target.lambertian) {
-                            if (!(glm::dot(incident, target.geometricNormal) > 0.0f)) return;
-                            f = target.weight;
-                        } else {
-                            f = VertexBrdf(scene, eye, target.vertex)(incident) *
-                                eye.column<EyeThroughput>()[target.vertex];
-                        }
-                        const Rgb value = f * power[r] * weight;
+                const Rgb rayPower = power[r];
+                std::int64_t candidates = 0, deposits = 0;
+                const auto deposit = [&](std::uint32_t slot) __attribute__((always_inline)) {
+                    ++candidates;
+                    const Vec3& position = slotPositions[slot];
+                    const float weight = frustum.weight(position, slotNormals[slot]);
+                    if (!(weight > 0.0f)) return;
+                    const Target& target = targets[slot];
+                    Rgb f;
+                    if (target.glossy != kNotGlossy) {
+                        // Shading normals must not let light through the geometric surface.
+                        if (!(glm::dot(incident, target.geometricNormal) > 0.0f)) return;
+                        const Rgb value = rayPower * weight;
                         if (!isFinite(value)) return;
-                        acc.pixels[target.pixel] += value;
-                        ++acc.deposits;
-                    },
-                    useCullNodes);
+                        MapSums& sums = acc.map[target.glossy];
+                        sums.c00.x += weight * poweredBasis[0];
+                        sums.c00.y += weight * poweredBasis[1];
+                        sums.c00.z += weight * poweredBasis[2];
+                        if (higherBands) {
+                            HigherBands& c = acc.mapHigherBands[target.glossy];
+                            for (std::size_t k = 1; k < sh::kCoefficients; ++k) {
+                                c[k - 1].x += weight * poweredBasis[3 * k];
+                                c[k - 1].y += weight * poweredBasis[3 * k + 1];
+                                c[k - 1].z += weight * poweredBasis[3 * k + 2];
+                            }
+                        }
+                        sums.weight += weight;
+                        // Feasible vertices lie in front of the origin's surface, so the distance is positive.
+                        const float distance = glm::length(position - ray.origin);
+                        if (distance > 0.0f) sums.inverseDistance += weight / distance;
+                        ++deposits;
+                        return;
+                    }
+                    if (target.lambertian) {
+                        if (!(glm::dot(incident, target.geometricNormal) > 0.0f)) return;
+                        f = target.weight;
+                    } else {
+                        f = VertexBrdf(scene, eye, target.vertex)(incident) *
+                            eye.column<EyeThroughput>()[target.vertex];
+                    }
+                    const Rgb value = f * rayPower * weight;
+                    if (!isFinite(value)) return;
+                    pixels[target.pixel] += value;
+                    ++deposits;
+                };
+                const SplatCone cone = splatCone(ray, cap);
+                if (tightBoxes) {
+                    acc.leafVertices += static_cast<std::int64_t>(index.tree.forEachVertexInCone(cone, deposit, useCullNodes));
+                } else {
+                    index.tree.forEachCandidate(cone, deposit, useCullNodes);
+                    acc.leafVertices += candidates;
+                }
+                acc.candidates += candidates;
+                acc.deposits += deposits;
             }
         });
         std::vector<Rgb> total(pixelCount, Rgb(0.0f));
@@ -190,7 +235,7 @@ public:
         HigherBands zeroBands;
         zeroBands.fill(Rgb(0.0f));
         std::vector<HigherBands> higherBandsTotal(higherBands ? glossyCount : 0, zeroBands);
-        std::int64_t deposits = 0, candidates = 0, splatted = 0;
+        std::int64_t deposits = 0, candidates = 0, leafVertices = 0, splatted = 0;
         for (const BlockFilm& block : blocks) {
             for (std::size_t i = 0; i < block.pixels.size(); ++i) total[i] += block.pixels[i];
             for (std::size_t g = 0; g < block.map.size(); ++g) {
@@ -202,14 +247,17 @@ public:
                 for (std::size_t k = 0; k < zeroBands.size(); ++k) higherBandsTotal[g][k] += block.mapHigherBands[g][k];
             deposits += block.deposits;
             candidates += block.candidates;
+            leafVertices += block.leafVertices;
             splatted += block.splatted;
         }
         image.addToPixels(total, 1.0f);
         storeMap(map.vertices, mapTotal, higherBandsTotal);
         ctx.addItems(static_cast<std::int64_t>(rays.size()));
         ctx.addCounter("splatted_rays", splatted);
+        ctx.addCounter("leaf_vertices", leafVertices);
         ctx.addCounter("vertex_candidates", candidates);
         ctx.addCounter("vertex_deposits", deposits);
+        ctx.addCounter("mean_hit_radius_ppm", meanHitRadiusPpm(scene, rays, withDirect));
         ctx.addCounter("map_coefficients", glossyCount == 0 ? 0 : higherBands ? sh::kCoefficients : 1);
     }
 
@@ -305,6 +353,9 @@ PassRegistration raySplatPass() {
         {"classes", ParamType::String, std::string("indirect"), 0, 0, {"indirect", "all"},
          "which rays splat: indirect (caustic and global; the eye pass has the direct light) or all"},
         {"cull_nodes", ParamType::Bool, true, 0, 0, {}, "use the index's backface-culling nodes"},
+        {"traversal", ParamType::String, std::string("tight_boxes"), 0, 0, {"tight_boxes", "cells"},
+         "kd search: nodes by their vertices' tight boxes and leaf vertices by the cone, four at a time, or "
+         "Algorithm 1's cells (§7.2); the same deposits in the same order"},
         {"glossy", ParamType::String, std::string("direct"), 0, 0, {"direct", "sh_map"},
          "glossy vertices: f_s evaluated per ray (Eq. 6) into the film, or projected into the SH radiance map for "
          "radiance_integrate (§8.1)"},

@@ -1,13 +1,15 @@
 // The splat kd-tree (Herzog et al. 2007, §7): structural invariants, and the
 // frustum traversal against brute force: for 10^4 random cones (axis-parallel,
 // grazing, dh = 0 and degenerate among them) the tree must report every
-// feasible eye vertex, with and without backface-culling nodes.
+// feasible eye vertex, with and without backface-culling nodes, by
+// Algorithm 1's cells and by the tight-box cone search.
 #include "engine/accel/splat_kdtree.h"
 #include "passes/prs/ray_splat.h"
 #include "jobs/random.h"
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <set>
 #include <vector>
 
@@ -159,6 +161,47 @@ TEST_P(SplatKdTreeTraversal, FindsEveryFeasibleVertex) {
     EXPECT_LT(visitedTotal, 10000 * static_cast<std::int64_t>(p.size()) / 10);
 }
 
+// forEachVertexInCone searches by tight boxes and tests the leaves' vertices
+// against the cone; ray_splat's image stays the same bit for bit only if
+// every feasible vertex is still visited, in Algorithm 1's order.
+TEST_P(SplatKdTreeTraversal, ConeSearchVisitsTheFeasibleVerticesInAlgorithmOnesOrder) {
+    std::vector<Vec3> p, n;
+    makeVertices(p, n, 6000);
+    const SplatKdTree tree(p, n, {16, 0.0f, GetParam()});
+    std::int64_t feasibleTotal = 0, cellCandidates = 0, coneCandidates = 0;
+    std::uint64_t tested = 0;
+    for (const SplatEndCap cap : {SplatEndCap::Hemisphere, SplatEndCap::TangentPlane}) {
+        for (std::uint64_t i = 0; i < 5000; ++i) {
+            const SplatRay ray = randomRay(i);
+            std::vector<std::uint32_t> expected, found;
+            std::vector<int> seen(p.size(), 0);
+            tree.forEachCandidate(splatCone(ray, cap), [&](std::uint32_t slot) {
+                ++cellCandidates;
+                const std::uint32_t v = tree.vertexOf(slot);
+                if (splatWeight(ray, cap, p[v], n[v]) > 0.0f) expected.push_back(v);
+            });
+            tested += tree.forEachVertexInCone(splatCone(ray, cap), [&](std::uint32_t slot) {
+                ++coneCandidates;
+                const std::uint32_t v = tree.vertexOf(slot);
+                ++seen[v];
+                if (splatWeight(ray, cap, p[v], n[v]) > 0.0f) found.push_back(v);
+            });
+            ASSERT_EQ(found, expected) << "ray " << i;
+            ASSERT_LE(*std::max_element(seen.begin(), seen.end()), 1) << "ray " << i << ": a vertex twice";
+            std::size_t bruteForce = 0;
+            for (std::uint32_t v = 0; v < p.size(); ++v)
+                if (splatWeight(ray, cap, p[v], n[v]) > 0.0f) ++bruteForce;
+            ASSERT_EQ(found.size(), bruteForce) << "ray " << i;
+            feasibleTotal += static_cast<std::int64_t>(found.size());
+        }
+    }
+    EXPECT_GT(feasibleTotal, 10000);
+    // Fewer leaf vertices than Algorithm 1 hands out, and of those only the
+    // ones in the cone (plus rounding slack) reach the caller.
+    EXPECT_LT(tested, static_cast<std::uint64_t>(cellCandidates));
+    EXPECT_LT(coneCandidates, 2 * feasibleTotal);
+}
+
 INSTANTIATE_TEST_SUITE_P(CullNodes, SplatKdTreeTraversal, ::testing::Values(0.0f, 45.0f, 89.0f));
 
 // A flat wall's culling node: its 16-bit octahedral reference normal is off
@@ -209,6 +252,13 @@ TEST(SplatKdTree, GrazingRaysAreNotCulledOffFlatWalls) {
                 EXPECT_GT(expected.size(), 50u);
                 EXPECT_EQ(found, expected) << "wall " << wall.x << "," << wall.y << "," << wall.z << " slope " << slope
                                            << " yaw " << yaw;
+                std::set<std::uint32_t> inCone;
+                tree.forEachVertexInCone(splatCone(ray, SplatEndCap::TangentPlane), [&](std::uint32_t slot) {
+                    const std::uint32_t v = tree.vertexOf(slot);
+                    if (splatWeight(ray, SplatEndCap::TangentPlane, p[v], n[v]) > 0.0f) inCone.insert(v);
+                });
+                EXPECT_EQ(inCone, expected) << "cone search, wall " << wall.x << "," << wall.y << "," << wall.z
+                                            << " slope " << slope << " yaw " << yaw;
                 ++cases;
             }
     }

@@ -107,6 +107,7 @@ TEST(PrsCodecs, SplatIndexRoundTripAnswersTheSameQueries) {
     ASSERT_EQ(loaded->tree.size(), index->tree.size());
     std::mt19937 rng(9);
     std::uniform_real_distribution<float> u(0.0f, 1.0f);
+    std::size_t coneHits = 0;
     for (int q = 0; q < 200; ++q) {
         SplatCone cone;
         cone.origin = Vec3(u(rng), u(rng), u(rng));
@@ -118,7 +119,15 @@ TEST(PrsCodecs, SplatIndexRoundTripAnswersTheSameQueries) {
         index->tree.forEachCandidate(cone, [&](std::uint32_t s) { a.push_back(index->tree.vertexOf(s)); });
         loaded->tree.forEachCandidate(cone, [&](std::uint32_t s) { b.push_back(loaded->tree.vertexOf(s)); });
         ASSERT_EQ(a, b) << "query " << q;
+        // The tight boxes and coordinate columns are rebuilt on loading.
+        a.clear();
+        b.clear();
+        index->tree.forEachVertexInCone(cone, [&](std::uint32_t s) { a.push_back(index->tree.vertexOf(s)); });
+        loaded->tree.forEachVertexInCone(cone, [&](std::uint32_t s) { b.push_back(loaded->tree.vertexOf(s)); });
+        ASSERT_EQ(a, b) << "cone query " << q;
+        coneHits += a.size();
     }
+    EXPECT_GT(coneHits, 200u);
 }
 
 TEST(PrsCodecs, EmptySplatIndexAndRadianceMapRoundTrip) {

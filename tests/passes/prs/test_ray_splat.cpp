@@ -3,17 +3,27 @@
 // the tangent-plane end cap gives E_0 cos θ and the paper's hemisphere cap
 // E_0 cos θ (1/2 + cos θ (1/2 + sin^2 θ / 4)) (passes/prs/ray_splat.h derives
 // it); a point light over a plane, E(r) = I H / (H^2 + r^2)^(3/2); and the
-// prs pipeline's image, bit-identical on 1 and 2 threads.
+// prs pipeline's image, bit-identical on 1 and 2 threads and for either kd
+// search.
 #include "passes/prs/ray_splat.h"
 
+#include "engine/accel/ray_query.h"
+#include "engine/core/scheduler.h"
+#include "engine/image/film.h"
 #include "engine/scene/scene_loader.h"
+#include "passes/passes.h"
+#include "tests/support/pass_helpers.h"
 #include "tests/support/render_helpers.h"
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <map>
+#include <string>
+#include <vector>
 
 namespace fg {
 namespace {
@@ -194,6 +204,69 @@ TEST(PrsPipeline, SameImageOnOneAndTwoThreads) {
         sum += one.pixels[i].x + one.pixels[i].y + one.pixels[i].z;
     }
     EXPECT_GT(sum, 0.0);
+}
+
+// ray_splat's tight-box cone search (traversal = "tight_boxes") and
+// Algorithm 1's cells must make the same deposits in the same order, so the
+// image is the same bit for bit, from fewer candidates; and its mean radius
+// at the hits scales with C (§6: every h and both clamps are proportional to
+// C), as the comparison with photon mapping's gather radius assumes.
+struct CountedRender {
+    std::vector<Rgb> pixels;
+    std::map<std::string, std::int64_t> counters;  // ray_splat's
+};
+
+CountedRender renderCounted(const Scene& scene, const std::map<std::string, ParamValue>& params, int size) {
+    JobParams jobParams;
+    for (const auto& [key, value] : params) {
+        const auto dot = key.find('.');
+        jobParams.values[key.substr(0, dot)][key.substr(dot + 1)] = {value, "test"};
+    }
+    const ExecutionPlan plan = ExecutionPlan::build(*findPipeline("prs"), jobParams, "test");
+    const RayQuery rays(scene);
+    RunOptions options;
+    options.film = test::smallFilm(size, size);
+    const RunResult run = execute(plan, scene, rays, options);
+    const auto stats = std::find_if(run.stats.begin(), run.stats.end(),
+                                    [](const PassStats& s) { return s.instance == "ray_splat"; });
+    EXPECT_NE(stats, run.stats.end());
+    CountedRender out{test::bufferAs<Film>(run.results.at("image")).resolve(), {}};
+    if (stats != run.stats.end())
+        for (const auto& [name, value] : stats->counters) out.counters[name] = value;
+    return out;
+}
+
+TEST(PrsPipeline, TightBoxSearchKeepsEveryDepositInOrder) {
+    const Scene scene = loadScene((std::filesystem::path(FLUXGRAPH_SOURCE_DIR) / "data/cornell-box/cornell-box.xml").string());
+    std::int64_t previousRadius = 0;
+    for (const double smoothness : {1.0, 0.5}) {
+        std::map<std::string, ParamValue> params = {
+            {"eye.spp", std::int64_t{2}},
+            {"photon.photons", std::int64_t{10000}},
+            {"photon.photon_rays", true},
+            {"photon.store", std::string("none")},
+            {"ray_bandwidth.smoothness", smoothness},
+            {"splat_index.leaf_size", std::int64_t{64}},
+            {"ray_splat.traversal", std::string("cells")},
+        };
+        const CountedRender cells = renderCounted(scene, params, 24);
+        params["ray_splat.traversal"] = std::string("tight_boxes");
+        const CountedRender boxes = renderCounted(scene, params, 24);
+        const auto counter = [](const CountedRender& image, const std::string& name) { return image.counters.at(name); };
+        ASSERT_GT(counter(cells, "vertex_deposits"), 10000) << "C = " << smoothness;
+        EXPECT_EQ(counter(boxes, "vertex_deposits"), counter(cells, "vertex_deposits")) << "C = " << smoothness;
+        EXPECT_LT(counter(boxes, "leaf_vertices"), counter(cells, "leaf_vertices")) << "C = " << smoothness;
+        EXPECT_LT(counter(boxes, "vertex_candidates"), counter(cells, "vertex_candidates")) << "C = " << smoothness;
+        ASSERT_EQ(boxes.pixels.size(), cells.pixels.size());
+        for (std::size_t i = 0; i < cells.pixels.size(); ++i)
+            ASSERT_EQ(boxes.pixels[i], cells.pixels[i]) << "C = " << smoothness << ", pixel " << i;
+        const std::int64_t radius = counter(boxes, "mean_hit_radius_ppm");
+        EXPECT_EQ(radius, counter(cells, "mean_hit_radius_ppm"));
+        if (previousRadius > 0) {
+            EXPECT_NEAR(static_cast<double>(radius) / static_cast<double>(previousRadius), 0.5, 0.0025);
+        }
+        previousRadius = radius;
+    }
 }
 
 }  // namespace
