@@ -207,7 +207,7 @@ def main():
         f"{median('independent', 'cpu_seconds'):.3f} and {median('coherent', 'cpu_seconds'):.3f} s); "
         f"median EM iterations {median('independent', 'iterations'):g} and {median('coherent', 'iterations'):g}, "
         f"photons {median_counter('independent', 'photons'):,.0f} and {median_counter('coherent', 'photons'):,.0f}; "
-        f"All of pem's media passes (photon, pem_fit, gmm_pyramid, gmm_bbh, gmm_render) {all_i:.2f} s independent, "
+        f"all of pem's media passes (photon, pem_fit, gmm_pyramid, gmm_bbh, gmm_render) {all_i:.2f} s independent, "
         f"{all_c:.2f} s coherent ({all_i / all_c:.2f}×); bre's (photon, photon_radius, photon_bvh, beam_query, "
         f"at the independent fit's photons) {total_b:.2f} s.",
         "",
