@@ -8,7 +8,8 @@ and with `bre` at as many volume photons as the independent fit used.
 The scene is data/<scene>/<scene>.xml with the lamp's position made a define
 (`$lamp_x`, written to a temporary copy); frame t moves the lamp by
 t * --step along x. Every frame draws its own photons (`--seed` 1 + t), as
-separately rendered frames of an animation do.
+separately rendered frames of an animation do, or with --same-seed the
+same random numbers (seed 1), which correlates the photons of all frames.
 
 Per frame: pem_fit CPU seconds (`--stats`), EM iterations, photons, the
 CPU seconds of all of pem's media passes and of bre's; per method the
@@ -25,7 +26,7 @@ blur included).
 
 Usage:
   tools/pem_animation.py [--build build] [--scene spot-fog] [--frames 24] [--k 1024] [--res 64]
-                         [--step 0.01] [--crop X,Y,W,H] [--threads 1] [--out results/pem]
+                         [--step 0.01] [--crop X,Y,W,H] [--same-seed] [--threads 1] [--out results/pem]
 
 Writes <out>/animation.md and prints the same table.
 """
@@ -104,6 +105,8 @@ def main():
     parser.add_argument("--crop", help="X,Y,W,H of the flicker crop (default: the beam above the sphere)")
     parser.add_argument("--reference-factor", type=int, default=2,
                         help="the reference's volume photons, times the first frame's independent fit's")
+    parser.add_argument("--same-seed", action="store_true",
+                        help="every frame with seed 1 (correlated photons) instead of 1 + frame")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--out", default="results/pem")
     args = parser.parse_args()
@@ -125,7 +128,7 @@ def main():
         reference_photons = None
         for t in range(args.frames):
             lamp = ["--define", f"lamp_x={-1.0 + args.step * t:.6f}"]
-            seed = ["--seed", str(1 + t)]
+            seed = ["--seed", str(1 if args.same_seed else 1 + t)]
             row = {"frame": t}
             d = work / f"independent-{t}"
             p = render(binary, pem_job, d, args, lamp + seed + fit_sets)
@@ -174,8 +177,9 @@ def main():
         "# Temporal coherence of the mixture fit (Jakob et al. 2011 §5.4)",
         "",
         f"Written by `tools/pem_animation.py --scene {args.scene} --frames {args.frames} --k {k} --res {args.res} "
-        f"--step {args.step} --threads {args.threads}`: the lamp moves {args.step} along x per frame, every frame "
-        f"draws its own photons (seed 1 + frame); k = {k}, n0 = {128 * k}, maps of {32 * k}; "
+        f"--step {args.step} --threads {args.threads}{' --same-seed' if args.same_seed else ''}`: the lamp moves "
+        f"{args.step} along x per frame, "
+        f"{'every frame with seed 1' if args.same_seed else 'every frame draws its own photons (seed 1 + frame)'}; k = {k}, n0 = {128 * k}, maps of {32 * k}; "
         f"{args.res}x{args.res} pixels. CPU seconds per pass (`--stats`).",
         "",
         "| frame | independent pem_fit | iterations (inner / outer) | photons | coherent pem_fit | iterations "
