@@ -446,8 +446,9 @@ PassRegistration pemFitPass() {
                     "volume_batch (32 k) while wanted",
                     true},
                    {"previous", "GaussianMixture",
-                    "optional: the previous frame's fitted mixture (import it), which replaces the initial guess and "
-                    "starts the fit on a cut of seeded_cut cells per component (§5.4, temporal coherence)",
+                    "the previous frame's fitted mixture (import it), which replaces the initial guess (its "
+                    "components, not k) and starts the fit on a cut of seeded_cut cells per component (§5.4, temporal "
+                    "coherence)",
                     false, true}};
     spec.outputs = {{"gmm", "GaussianMixture", "the fitted mixture: weight, power, mean, covariance and factors, n_eff"}};
     spec.params = {
