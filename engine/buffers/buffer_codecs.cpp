@@ -12,6 +12,7 @@
 #include "engine/buffers/photon_ray_buffers.h"
 #include "engine/buffers/radiance_cache_buffers.h"
 #include "engine/core/codec.h"
+#include "engine/gmm/gmm_buffers.h"
 #include "engine/guiding/guiding_cache.h"
 #include "engine/guiding/importons.h"
 #include "engine/image/film.h"
@@ -325,6 +326,52 @@ BufferCodec guidingCacheCodec() {
         });
 }
 
+
+// The fitted Gaussian mixture of pem_fit and em_fit (Jakob et al. 2011 §5),
+// saved so that the next frame of an animation can seed its fit with it
+// (§5.4). Its codec version is the first scalar, so that a later layout is
+// refused rather than misread. A loaded mixture is rendered and refitted
+// without being factorised again: every component must be finite with a
+// positive Cholesky diagonal and a non-negative weight.
+constexpr std::uint32_t kGaussianMixtureCodecVersion = 1;
+
+bool validGaussianComponent(const GmmBuffer& components, std::size_t s) {
+    const gmm::Gaussian g = gaussianAt(components, s);
+    const double weight = components.column<GmmWeight>()[s];
+    const glm::dvec3 power = components.column<GmmPower>()[s];
+    std::vector<double> values = {weight, components.column<GmmEffectiveCount>()[s], g.factors.logNormaliser,
+                                  power.x, power.y, power.z, g.mean.x, g.mean.y, g.mean.z};
+    for (const gmm::Sym3* m : {&g.covariance, &g.factors.cholesky, &g.factors.precision})
+        values.insert(values.end(), std::begin(m->v), std::end(m->v));
+    for (const double v : values)
+        if (!std::isfinite(v)) return false;
+    const gmm::Sym3& l = g.factors.cholesky;
+    return weight >= 0.0 && l.v[0] > 0.0 && l.v[3] > 0.0 && l.v[5] > 0.0;
+}
+
+BufferCodec gaussianMixtureCodec() {
+    return codecFor<GaussianMixture>(
+        [](const GaussianMixture& mixture, CodecWriter& writer) {
+            writer.setItemCount(mixture.components.size());
+            writer.write<std::uint32_t>(kGaussianMixtureCodecVersion);
+            writer.write<std::uint64_t>(mixture.photons);
+            writer.writeSoa("components", mixture.components);
+        },
+        [](CodecReader& reader) {
+            const auto version = reader.read<std::uint32_t>();
+            if (version != kGaussianMixtureCodecVersion)
+                reader.fail("a Gaussian mixture of codec version " + std::to_string(version) +
+                            " (this build reads version " + std::to_string(kGaussianMixtureCodecVersion) + ")");
+            GaussianMixture mixture;
+            mixture.photons = reader.read<std::uint64_t>();
+            reader.readSoa("components", mixture.components);
+            for (std::size_t s = 0; s < mixture.components.size(); ++s)
+                if (!validGaussianComponent(mixture.components, s))
+                    reader.fail("corrupt buffer: Gaussian component " + std::to_string(s));
+            return mixture;
+        });
+}
+
 }  // namespace
 
 std::vector<BufferCodec> builtinCodecs() {
@@ -344,6 +391,7 @@ std::vector<BufferCodec> builtinCodecs() {
     codecs.push_back(splatIndexCodec());
     codecs.push_back(radianceMapCodec());
     codecs.push_back(cacheRecordsCodec());
+    codecs.push_back(gaussianMixtureCodec());
     return codecs;
 }
 
