@@ -192,7 +192,7 @@ def main():
         methods = [
             ("PM (spm, k = 100)", spm_job),
             ("RS (prs, " + (", ".join(args.set_rs) or "C = 0.29, S = 0.4") + ")", os.path.join(SCENE_DIR, "prs.toml")),
-            ("RC (prs-rc, C = 0.6, S = 0.4, ε = 0.7)", os.path.join(SCENE_DIR, "prs-rc.toml")),
+            ("RC (prs-rc, C = 0.29, S = 0.4, ε = 0.7)", os.path.join(SCENE_DIR, "prs-rc.toml")),
             ("PM-FG (pm-fg, k = 100, 16 FGRs)", os.path.join(SCENE_DIR, "pm-fg.toml")),
             ("RS-FG (prs-fg, C = 0.6, S = 0.8, 16 FGRs, 1 tile)", os.path.join(SCENE_DIR, "prs-fg.toml")),
         ]
