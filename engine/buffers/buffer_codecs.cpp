@@ -335,7 +335,8 @@ BufferCodec guidingCacheCodec() {
 // positive Cholesky diagonal and a non-negative weight.
 constexpr std::uint32_t kGaussianMixtureCodecVersion = 1;
 
-bool validGaussianComponent(const GmmBuffer& components, std::size_t s) {
+template <class Buffer>
+bool validGaussianComponent(const Buffer& components, std::size_t s) {
     const gmm::Gaussian g = gaussianAt(components, s);
     const double weight = components.column<GmmWeight>()[s];
     const glm::dvec3 power = components.column<GmmPower>()[s];
@@ -372,6 +373,90 @@ BufferCodec gaussianMixtureCodec() {
         });
 }
 
+// The Gaussian pyramid (Alg. 3) and its bounding hierarchy (§7.1), saved so
+// that `replay` can feed gmm_render or gmm_splat and a pyramid can be
+// imported. The renderers walk the pyramid by index, so the file must hold a
+// depth-first binary tree (left child next, right child further on, leaves
+// at level 0, parents above their children) and a BBH of finite boxes.
+constexpr std::uint32_t kGmmPyramidCodecVersion = 1;
+constexpr std::uint32_t kGmmBbhCodecVersion = 1;
+
+std::string pyramidDefect(const GmmPyramid& pyramid) {
+    const std::size_t n = pyramid.nodes.size();
+    if (n == 0) return {};
+    if (n % 2 == 0) return "a binary pyramid has an odd number of nodes, not " + std::to_string(n);
+    const auto right = pyramid.nodes.column<GmmRight>();
+    const auto level = pyramid.nodes.column<GmmLevel>();
+    for (std::size_t j = 0; j < n; ++j) {
+        if (!validGaussianComponent(pyramid.nodes, j)) return "pyramid node " + std::to_string(j) + " is not a usable Gaussian";
+        if (level[j] > pyramid.levels) return "pyramid node " + std::to_string(j) + " lies above the top level";
+        if (right[j] == kNoGmmNode) {
+            if (level[j] != 0) return "pyramid leaf " + std::to_string(j) + " is not at level 0";
+            continue;
+        }
+        if (!(right[j] > j + 1 && right[j] < n)) return "pyramid node " + std::to_string(j) + " has its children out of order";
+        if (!(level[j + 1] < level[j] && level[right[j]] < level[j]))
+            return "pyramid node " + std::to_string(j) + " is not above its children";
+    }
+    return {};
+}
+
+BufferCodec gmmPyramidCodec() {
+    return codecFor<GmmPyramid>(
+        [](const GmmPyramid& pyramid, CodecWriter& writer) {
+            writer.setItemCount(pyramid.nodes.size());
+            writer.write<std::uint32_t>(kGmmPyramidCodecVersion);
+            writer.write<std::uint32_t>(pyramid.levels);
+            writer.writeSoa("nodes", pyramid.nodes);
+        },
+        [](CodecReader& reader) {
+            const auto version = reader.read<std::uint32_t>();
+            if (version != kGmmPyramidCodecVersion)
+                reader.fail("a Gaussian pyramid of codec version " + std::to_string(version) + " (this build reads version " +
+                            std::to_string(kGmmPyramidCodecVersion) + ")");
+            GmmPyramid pyramid;
+            pyramid.levels = reader.read<std::uint32_t>();
+            reader.readSoa("nodes", pyramid.nodes);
+            if (const std::string defect = pyramidDefect(pyramid); !defect.empty()) reader.fail("corrupt buffer: " + defect);
+            return pyramid;
+        });
+}
+
+BufferCodec gmmBbhCodec() {
+    return codecFor<GmmBbh>(
+        [](const GmmBbh& bbh, CodecWriter& writer) {
+            writer.setItemCount(bbh.nodes.size());
+            writer.write<std::uint32_t>(kGmmBbhCodecVersion);
+            writer.write<double>(bbh.truncation);
+            writer.writeSoa("nodes", bbh.nodes);
+        },
+        [](CodecReader& reader) {
+            const auto version = reader.read<std::uint32_t>();
+            if (version != kGmmBbhCodecVersion)
+                reader.fail("a Gaussian BBH of codec version " + std::to_string(version) + " (this build reads version " +
+                            std::to_string(kGmmBbhCodecVersion) + ")");
+            GmmBbh bbh;
+            bbh.truncation = reader.read<double>();
+            if (!(bbh.truncation > 0.0 && bbh.truncation < 1.0))
+                reader.fail("corrupt buffer: a BBH truncation of " + std::to_string(bbh.truncation));
+            reader.readSoa("nodes", bbh.nodes);
+            const auto lo = bbh.nodes.column<BbhLo>();
+            const auto hi = bbh.nodes.column<BbhHi>();
+            const auto sphere = bbh.nodes.column<BbhSphere>();
+            const auto radius = bbh.nodes.column<BbhRadius>();
+            for (std::size_t j = 0; j < bbh.nodes.size(); ++j) {
+                const bool finite = std::isfinite(radius[j]) && radius[j] >= 0.0 && std::isfinite(sphere[j].w) &&
+                                    sphere[j].w >= 0.0;
+                bool ordered = true;
+                for (int a = 0; a < 3; ++a)
+                    ordered = ordered && std::isfinite(lo[j][a]) && std::isfinite(hi[j][a]) && lo[j][a] <= hi[j][a] &&
+                              std::isfinite(sphere[j][a]);
+                if (!finite || !ordered) reader.fail("corrupt buffer: BBH node " + std::to_string(j));
+            }
+            return bbh;
+        });
+}
+
 }  // namespace
 
 std::vector<BufferCodec> builtinCodecs() {
@@ -392,6 +477,8 @@ std::vector<BufferCodec> builtinCodecs() {
     codecs.push_back(radianceMapCodec());
     codecs.push_back(cacheRecordsCodec());
     codecs.push_back(gaussianMixtureCodec());
+    codecs.push_back(gmmPyramidCodec());
+    codecs.push_back(gmmBbhCodec());
     return codecs;
 }
 

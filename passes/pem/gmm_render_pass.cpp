@@ -27,6 +27,7 @@
 // and a Gaussian whose truncated ellipsoid the segment misses is skipped
 // before Eq. 16 (`cull_ellipsoids`).
 #include "passes/passes.h"
+#include "engine/core/error.h"
 
 #include "passes/pem/pem_common.h"
 #include "engine/buffers/beam_buffers.h"
@@ -201,7 +202,9 @@ public:
         const double epsTr = params.getFloat("eps_tr");
         const bool cullEllipsoids = params.getBool("cull_ellipsoids");
         if (bbh.nodes.size() != pyramid.nodes.size())
-            throw std::logic_error("gmm_render: the BBH and the pyramid differ in size");
+            throw InputError("pass '" + ctx.instanceName() + "': the BBH has " + std::to_string(bbh.nodes.size()) +
+                             " nodes but the pyramid " + std::to_string(pyramid.nodes.size()) +
+                             " (were they saved from different runs?)");
         const FilmSettings& film = ctx.filmSettings();
         // A pixel's solid angle at the image centre (the paper's Omega(r)).
         const double pixelAngle = 2.0 * std::tan(0.5 * static_cast<double>(scene.camera.fovYDegrees) * M_PI / 180.0) /
