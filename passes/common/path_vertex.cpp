@@ -218,7 +218,10 @@ bool advancePathAtSurface(const PathTracerScene& pts, const PathLimits& limits, 
         return true;
     }
 
-    const Frame frame(sp.ns);
+    // Built from the components, not from sp.ns itself: GCC otherwise copies
+    // the normal into the frame in two stores and reloads it across both,
+    // a failed store forward at every vertex.
+    const Frame frame(Vec3(sp.ns.x, sp.ns.y, sp.ns.z));
     const Vec3 wo = frame.toLocal(-s.ray.direction);
 
     // A material that lets part of the light straight through (thindielectric)

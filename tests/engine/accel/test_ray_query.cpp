@@ -6,6 +6,8 @@
 
 #include <glm/gtc/matrix_transform.hpp>
 
+#include <array>
+#include <map>
 #include <thread>
 #include <vector>
 
@@ -381,6 +383,78 @@ TEST(RayQuery, ConcurrentQueriesAgree) {
     }
     for (std::thread& th : threads) th.join();
     for (int m : mismatches) EXPECT_EQ(m, 0);
+}
+
+// The cube [-1, 1]^3 with each face cut into n x n squares of two triangles,
+// every vertex shared by all the triangles that meet there (a closed mesh).
+TriangleMesh tessellatedCube(int n) {
+    TriangleMesh mesh;
+    std::map<std::array<int, 3>, std::uint32_t> vertexAt;
+    const auto vertex = [&](std::array<int, 3> lattice) {
+        const auto [it, added] = vertexAt.try_emplace(lattice, static_cast<std::uint32_t>(mesh.positions.size()));
+        if (added) {
+            mesh.positions.push_back(Vec3(static_cast<float>(lattice[0]), static_cast<float>(lattice[1]),
+                                          static_cast<float>(lattice[2])) *
+                                         (2.0f / static_cast<float>(n)) -
+                                     Vec3(1.0f));
+        }
+        return it->second;
+    };
+    for (int axis = 0; axis < 3; ++axis) {
+        for (int side : {0, n}) {
+            const auto corner = [&](int a, int b) {
+                std::array<int, 3> lattice{};
+                lattice[static_cast<std::size_t>(axis)] = side;
+                lattice[static_cast<std::size_t>((axis + 1) % 3)] = a;
+                lattice[static_cast<std::size_t>((axis + 2) % 3)] = b;
+                return vertex(lattice);
+            };
+            for (int a = 0; a < n; ++a) {
+                for (int b = 0; b < n; ++b) {
+                    const std::uint32_t v00 = corner(a, b), v10 = corner(a + 1, b), v11 = corner(a + 1, b + 1),
+                                        v01 = corner(a, b + 1);
+                    mesh.indices.insert(mesh.indices.end(), {v00, v10, v11, v00, v11, v01});
+                }
+            }
+        }
+    }
+    return mesh;
+}
+
+// Embree's fast (non-robust) triangle test is not watertight at shared edges;
+// a ray that passes between two triangles ends a path early. Rays from inside
+// a closed mesh towards uniformly random points of its surface, as sampled
+// directions are, must practically never escape: measured 4 in 3e7 for this
+// cube (none of the 10^6 here), while 60 of its triangles pulled 0.1 % off
+// their neighbours let 81 of these 10^6 through. Cornell-box-sized
+// coordinates, rotated so that no edge is axis-aligned.
+TEST(RayQuery, ClosedMeshKeepsRandomRaysIn) {
+    const Mat4 toWorld = glm::scale(glm::rotate(glm::translate(Mat4(1.0f), Vec3(278.0f, 273.0f, 279.0f)), 0.7f,
+                                                glm::normalize(Vec3(1, 2, 3))),
+                                    Vec3(270.0f));
+    TriangleMesh cube = tessellatedCube(8);
+    cube.transform(toWorld);
+    Scene scene;
+    scene.shapes.push_back(meshShape(cube));
+    RayQuery query(scene);
+
+    jobs::Rng rng(5, 0, 0);
+    constexpr std::size_t kRays = 1000000, kBatch = 256;
+    std::vector<Ray> rays(kBatch);
+    std::vector<Hit> hits(kBatch);
+    std::size_t escaped = 0;
+    for (std::size_t done = 0; done < kRays; done += kBatch) {
+        for (Ray& ray : rays) {
+            const Vec3 inside = Vec3(rng.uniform(), rng.uniform(), rng.uniform()) * 1.6f - Vec3(0.8f);
+            Vec3 onSurface = Vec3(rng.uniform(), rng.uniform(), rng.uniform()) * 2.0f - Vec3(1.0f);
+            onSurface[static_cast<int>(rng.uniformIndex(3))] = rng.uniform() < 0.5f ? -1.0f : 1.0f;
+            const Vec3 origin = Vec3(toWorld * Vec4(inside, 1.0f));
+            ray = makeRay(origin, glm::normalize(Vec3(toWorld * Vec4(onSurface, 1.0f)) - origin));
+        }
+        query.intersect(rays, hits);
+        for (const Hit& hit : hits) escaped += hit.valid() ? 0 : 1;
+    }
+    EXPECT_LE(escaped, 3u) << "of " << kRays;
 }
 
 TEST(RayQuery, EmptySceneAndEmptyMesh) {
