@@ -338,9 +338,9 @@ constexpr std::uint32_t kGaussianMixtureCodecVersion = 1;
 template <class Buffer>
 bool validGaussianComponent(const Buffer& components, std::size_t s) {
     const gmm::Gaussian g = gaussianAt(components, s);
-    const double weight = components.column<GmmWeight>()[s];
-    const glm::dvec3 power = components.column<GmmPower>()[s];
-    std::vector<double> values = {weight, components.column<GmmEffectiveCount>()[s], g.factors.logNormaliser,
+    const double weight = components.template column<GmmWeight>()[s];
+    const glm::dvec3 power = components.template column<GmmPower>()[s];
+    std::vector<double> values = {weight, components.template column<GmmEffectiveCount>()[s], g.factors.logNormaliser,
                                   power.x, power.y, power.z, g.mean.x, g.mean.y, g.mean.z};
     for (const gmm::Sym3* m : {&g.covariance, &g.factors.cholesky, &g.factors.precision})
         values.insert(values.end(), std::begin(m->v), std::end(m->v));

@@ -7,6 +7,7 @@
 #include "engine/accel/ray_query.h"
 #include "engine/buffers/beam_buffers.h"
 #include "engine/buffers/photon_buffers.h"
+#include "engine/core/codec.h"
 #include "engine/core/error.h"
 #include "engine/gmm/gmm_buffers.h"
 #include "engine/scene/scene.h"
@@ -24,6 +25,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <filesystem>
 #include <random>
 
 namespace fg {
@@ -339,6 +341,52 @@ TEST(GmmSplat, TheCommandLineRefusesAMissingLevelBeforeAnyWork) {
     EXPECT_EQ(r.exitCode, 2) << r.err;
     EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
     EXPECT_NE(r.err.find("level 13 does not exist"), std::string::npos) << r.err;
+}
+
+
+// The pyramid and its BBH go through their codecs byte for byte (so that
+// `replay` can feed the splat and the renderer), and a file whose tree or
+// boxes the renderers could not walk safely is refused with one line.
+TEST(GmmSplat, PyramidAndBbhRoundTripAndBrokenOnesAreRefused) {
+    registerBuiltinCodecs();
+    const std::filesystem::path dir = test::scratchDirectory("gmm-splat-codec");
+    const Chain c = fitChain(mediumScene(), 16);
+    const auto roundTrip = [&](const BufferHandle& buffer, const std::string& type) {
+        const std::string first = (dir / (type + "-1.fgbuf")).string(), second = (dir / (type + "-2.fgbuf")).string();
+        saveBuffer(buffer, first, "");
+        saveBuffer(loadBuffer(first, type), second, "");
+        EXPECT_EQ(test::readText(first), test::readText(second)) << type;
+    };
+    roundTrip(c.pyramid.at("pyramid"), "GmmPyramid");
+    roundTrip(c.bbh.at("bbh"), "GmmBbh");
+
+    const auto refused = [&](const BufferHandle& buffer, const std::string& type, const std::string& expected) {
+        const std::string path = (dir / "broken.fgbuf").string();
+        saveBuffer(buffer, path, "");
+        try {
+            loadBuffer(path, type);
+            ADD_FAILURE() << "accepted: " << expected;
+        } catch (const InputError& error) {
+            EXPECT_NE(std::string(error.what()).find(expected), std::string::npos) << error.what();
+            EXPECT_EQ(std::string(error.what()).find('\n'), std::string::npos);
+        }
+    };
+    // Fresh copies to break (the buffers are move-only): loaded from the saved files.
+    const auto fresh = [&](const std::string& type) { return loadBuffer((dir / (type + "-1.fgbuf")).string(), type); };
+    const auto mutablePyramid = [](const BufferHandle& h) -> GmmPyramid& {
+        return const_cast<GmmPyramid&>(test::bufferAs<GmmPyramid>(h));
+    };
+    const BufferHandle cyclic = fresh("GmmPyramid");
+    mutablePyramid(cyclic).nodes.column<GmmRight>()[0] = 0;
+    refused(cyclic, "GmmPyramid", "pyramid node 0 has its children out of order");
+    const BufferHandle flat = fresh("GmmPyramid");
+    auto level = mutablePyramid(flat).nodes.column<GmmLevel>();
+    level[1] = level[0];
+    refused(flat, "GmmPyramid", "pyramid node 0 is not above its children");
+    const BufferHandle inverted = fresh("GmmBbh");
+    auto& bbh = const_cast<GmmBbh&>(test::bufferAs<GmmBbh>(inverted));
+    std::swap(bbh.nodes.column<BbhLo>()[3], bbh.nodes.column<BbhHi>()[3]);
+    refused(inverted, "GmmBbh", "BBH node 3");
 }
 
 }  // namespace
