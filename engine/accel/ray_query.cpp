@@ -174,32 +174,22 @@ Hit fromEmbreeRayHit(const RTCRayHit& rh) {
     return hit;
 }
 
-// Packet traversal only pays off when neighbouring rays share origin and direction
-// (camera rays, shadow rays to one point light). A few spread-out neighbour pairs
-// tell a camera batch from scattered secondary rays; a minority of dissimilar
-// pairs is tolerated because image rows wrap around.
-bool streamLooksCoherent(std::span<const Ray> rays) {
-    if (rays.size() < 8) return false;
-    const std::size_t probes = 16;
-    const std::size_t step = std::max<std::size_t>(1, (rays.size() - 1) / probes);
-    std::size_t similar = 0, total = 0;
-    for (std::size_t i = 0; i + 1 < rays.size(); i += step) {
-        const Ray& a = rays[i];
-        const Ray& b = rays[i + 1];
-        const float scale = 1.0f + glm::length(a.origin);
-        const bool sameOrigin = glm::length(a.origin - b.origin) <= 1e-3f * scale;
-        const bool sameDirection =
-            glm::dot(a.direction, b.direction) > 0.99f * glm::length(a.direction) * glm::length(b.direction);
-        similar += sameOrigin && sameDirection ? 1 : 0;
-        ++total;
-    }
-    return 4 * similar >= 3 * total;
-}
-
-RTCIntersectContext makeContext(bool coherent) {
+// Every query, single or streamed, is marked incoherent. Embree's coherent
+// mode (packet traversal of camera-like streams) visits leaves in another
+// order than its single-ray kernel, so where two triangles are hit at the
+// same t (coplanar overlaps such as the Cornell box ceiling's light opening,
+// or faces duplicated across shapes in the conference scene) it reports the
+// other one, and its t can differ in the last bit: the wavefront and tile
+// schedules of `pt` then rendered different images. Incoherent streams leave
+// each ray to the single-ray kernel once its packet has spread out, and gave
+// the same hits as rtcIntersect1 on every data `pt` job and on the scene of
+// tools/bench_vs_embree.sh (RayQuery.CameraStreamHitsWhatSingleRaysHit keeps
+// watch). There, at one thread, the incoherent camera streams cost about 2 %
+// of `pt`'s CPU time and rtcIntersect1 ray by ray about 20 %.
+RTCIntersectContext makeIncoherentContext() {
     RTCIntersectContext context;
     rtcInitIntersectContext(&context);
-    context.flags = coherent ? RTC_INTERSECT_CONTEXT_FLAG_COHERENT : RTC_INTERSECT_CONTEXT_FLAG_INCOHERENT;
+    context.flags = RTC_INTERSECT_CONTEXT_FLAG_INCOHERENT;
     return context;
 }
 
@@ -376,14 +366,14 @@ RayQuery::RayQuery(const Scene& scene) : scene_(scene), impl_(std::make_unique<I
 RayQuery::~RayQuery() = default;
 
 Hit RayQuery::intersect(const Ray& ray, float tMin) const {
-    RTCIntersectContext context = makeContext(false);
+    RTCIntersectContext context = makeIncoherentContext();
     RTCRayHit rh = toEmbreeRayHit(ray, tMin);
     rtcIntersect1(impl_->scene, &context, &rh);
     return fromEmbreeRayHit(rh);
 }
 
 bool RayQuery::occluded(const Ray& ray, float tMin) const {
-    RTCIntersectContext context = makeContext(false);
+    RTCIntersectContext context = makeIncoherentContext();
     RTCRay r = toEmbreeRay(ray, tMin);
     rtcOccluded1(impl_->scene, &context, &r);
     return r.tfar < 0.0f;
@@ -391,7 +381,7 @@ bool RayQuery::occluded(const Ray& ray, float tMin) const {
 
 void RayQuery::intersect(std::span<const Ray> rays, std::span<Hit> out, float tMin) const {
     if (out.size() < rays.size()) throw std::invalid_argument("RayQuery::intersect: output span shorter than input");
-    RTCIntersectContext context = makeContext(streamLooksCoherent(rays));
+    RTCIntersectContext context = makeIncoherentContext();
     RTCRayHit buffer[kStreamChunk];
     for (std::size_t begin = 0; begin < rays.size(); begin += kStreamChunk) {
         const std::size_t count = std::min(kStreamChunk, rays.size() - begin);
@@ -406,7 +396,7 @@ void RayQuery::intersect(std::span<const Ray> rays, std::span<Hit> out, float tM
 
 void RayQuery::occluded(std::span<const Ray> rays, std::span<std::uint8_t> occludedOut, float tMin) const {
     if (occludedOut.size() < rays.size()) throw std::invalid_argument("RayQuery::occluded: output span shorter than input");
-    RTCIntersectContext context = makeContext(streamLooksCoherent(rays));
+    RTCIntersectContext context = makeIncoherentContext();
     RTCRay buffer[kStreamChunk];
     for (std::size_t begin = 0; begin < rays.size(); begin += kStreamChunk) {
         const std::size_t count = std::min(kStreamChunk, rays.size() - begin);

@@ -2,7 +2,8 @@
 // Embree device and scene built from Scene::shapes (triangle meshes as Embree
 // triangle geometry, spheres as user geometry with an analytic intersector).
 // Geometry id == shape index. Single rays and streams of rays (rtcIntersect1M /
-// rtcOccluded1M) are both offered; the wavefront integrators use the streams.
+// rtcOccluded1M) are both offered and give the same hits; the wavefront
+// integrators use the streams.
 #pragma once
 
 #include "engine/core/math.h"

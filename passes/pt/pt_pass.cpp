@@ -13,8 +13,9 @@
 //    the end, so that a stream stays in cache and a wave has a single barrier;
 //  - tile: each pixel's samples are traced to completion one after another.
 // Both consume the same random numbers per path, keyed by (seed, instance, sample
-// index), so they produce the same image up to floating-point order in the
-// film (identical here: the film gathers in a fixed order).
+// index), and RayQuery's streams report the hits its single rays do, so they
+// produce the same image up to floating-point order in the film (identical
+// here: the film gathers in a fixed order).
 #include "passes/common/path_vertex.h"
 #include "passes/passes.h"
 
