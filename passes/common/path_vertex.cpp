@@ -271,14 +271,18 @@ bool advancePathAtSurface(const PathTracerScene& pts, const PathLimits& limits, 
         const float uStrategy = s.rng.uniform();
         const float uLobe = s.rng.uniform();
         const Vec2 uDir = s.rng.uniform2();
-        const std::optional<GuidedSample> sampled = guided->sample(uStrategy, uLobe, uDir);
-        if (!sampled) return false;
-        const Vec3 wiLocal = sampled->wi;
-        const Vec3& wi = sampled->wiWorld;
+        const std::optional<GuidedDraw> drawn = guided->draw(uStrategy, uLobe, uDir);
+        if (!drawn) return false;
+        const Vec3 wiLocal = drawn->wi;
+        const Vec3& wi = drawn->wiWorld;
+        // Directions that end the path whatever their density are turned away
+        // before the mixture's density is evaluated (GMM directions below the
+        // surface of a BSDF that only reflects, mostly).
         if (glm::dot(wi, sp.ng) * wiLocal.z <= 0.0f) return false;
-        const float pdf = sampled->pdf;
         const Rgb f = bsdf->eval(wo, wiLocal, sp.texturePoint(), TransportMode::Radiance);
-        if (!(pdf > 0.0f) || isBlack(f)) return false;
+        if (isBlack(f)) return false;
+        const float pdf = guided->drawnPdf(*drawn);
+        if (!(pdf > 0.0f)) return false;
         beta *= f / pdf;
         h.specular = false;
         h.previousPdf = pdf;
