@@ -164,15 +164,21 @@ std::optional<Vec2> hemisphereToSquare(const Vec3& w) {
     // Inverse of the concentric map. In the wedge where |x| >= |y| the square
     // point is (a, b) = (±r, ±r·φ'/(π/4)), φ' = atan(y/x) the angle from the
     // wedge's axis, and symmetrically with x and y swapped in the other wedge.
-    // The ratio lies in [-1, 1], where an odd polynomial gives atan without
-    // atan2's quadrant handling (the pdf's most expensive step after exp).
-    const bool xWedge = std::abs(w.x) >= std::abs(w.y);
-    const float t = xWedge ? w.y / w.x : w.x / w.y;
-    const float side = std::copysign(r, xWedge ? w.x : w.y);
-    const float across = side * atanUnitOverQuarterPi(t);
-    const float a = xWedge ? side : across;
-    const float b = xWedge ? across : side;
-    return Vec2(std::clamp(0.5f * (a + 1.0f), 0.0f, 1.0f), std::clamp(0.5f * (b + 1.0f), 0.0f, 1.0f));
+    // The ratio's magnitude, min/max of |x| and |y|, lies in [0, 1], where an
+    // odd polynomial gives atan without atan2's quadrant handling (the pdf's
+    // most expensive step after exp). a and b take x's and y's signs, and the
+    // wedge only decides which of them is ±r: written as max() with the
+    // wedge's 0 or 1, not as a choice between two expressions, because GCC
+    // compiles the choice into a branch that guided directions, spread over
+    // both wedges, mispredict about every second time. The polynomial gives
+    // exactly 1 at 1, so max(g, 1) is 1 and the result equals the two-branch
+    // form bit for bit.
+    const float absX = std::abs(w.x), absY = std::abs(w.y);
+    const float inWedgeX = static_cast<float>(absX >= absY);
+    const float g = atanUnitOverQuarterPi(std::min(absX, absY) / std::max(absX, absY));
+    const float a = std::copysign(r * std::max(g, inWedgeX), w.x);
+    const float b = std::copysign(r * std::max(g, 1.0f - inWedgeX), w.y);
+    return Vec2(std::min(std::max(0.5f * (a + 1.0f), 0.0f), 1.0f), std::min(std::max(0.5f * (b + 1.0f), 0.0f), 1.0f));
 }
 
 bool DirectionalGmm::finalize() {
