@@ -164,15 +164,21 @@ std::optional<Vec2> hemisphereToSquare(const Vec3& w) {
     // Inverse of the concentric map. In the wedge where |x| >= |y| the square
     // point is (a, b) = (±r, ±r·φ'/(π/4)), φ' = atan(y/x) the angle from the
     // wedge's axis, and symmetrically with x and y swapped in the other wedge.
-    // The ratio lies in [-1, 1], where an odd polynomial gives atan without
-    // atan2's quadrant handling (the pdf's most expensive step after exp).
-    const bool xWedge = std::abs(w.x) >= std::abs(w.y);
-    const float t = xWedge ? w.y / w.x : w.x / w.y;
-    const float side = std::copysign(r, xWedge ? w.x : w.y);
-    const float across = side * atanUnitOverQuarterPi(t);
-    const float a = xWedge ? side : across;
-    const float b = xWedge ? across : side;
-    return Vec2(std::clamp(0.5f * (a + 1.0f), 0.0f, 1.0f), std::clamp(0.5f * (b + 1.0f), 0.0f, 1.0f));
+    // The ratio's magnitude, min/max of |x| and |y|, lies in [0, 1], where an
+    // odd polynomial gives atan without atan2's quadrant handling (the pdf's
+    // most expensive step after exp). a and b take x's and y's signs, and the
+    // wedge only decides which of them is ±r: written as max() with the
+    // wedge's 0 or 1, not as a choice between two expressions, because GCC
+    // compiles the choice into a branch that guided directions, spread over
+    // both wedges, mispredict about every second time. The polynomial gives
+    // exactly 1 at 1, so max(g, 1) is 1 and the result equals the two-branch
+    // form bit for bit.
+    const float absX = std::abs(w.x), absY = std::abs(w.y);
+    const float inWedgeX = static_cast<float>(absX >= absY);
+    const float g = atanUnitOverQuarterPi(std::min(absX, absY) / std::max(absX, absY));
+    const float a = std::copysign(r * std::max(g, inWedgeX), w.x);
+    const float b = std::copysign(r * std::max(g, 1.0f - inWedgeX), w.y);
+    return Vec2(std::min(std::max(0.5f * (a + 1.0f), 0.0f), 1.0f), std::min(std::max(0.5f * (b + 1.0f), 0.0f), 1.0f));
 }
 
 bool DirectionalGmm::finalize() {
@@ -250,6 +256,31 @@ float DirectionalGmm::pdfSquare(const Vec2& s) const {
         sum += loadLanes(lanes.scale, first) * exp2NonPositive(exponent2);
     }
     return (sum[0] + sum[2]) + (sum[1] + sum[3]);
+}
+
+std::array<float, 2> DirectionalGmm::pdfSquarePair(const Vec2& s0, const Vec2& s1) const {
+    // pdfSquare's arithmetic, in its order, for each point.
+    const Float4 zero = {};
+    const Float4 x0 = zero + s0.x, y0 = zero + s0.y, x1 = zero + s1.x, y1 = zero + s1.y;
+    Float4 sum0 = zero, sum1 = zero;
+    for (std::size_t first = 0; first < kGmmComponents; first += 4) {
+        const Float4 meanX = loadLanes(lanes.meanX, first), meanY = loadLanes(lanes.meanY, first);
+        const Float4 quadXX = loadLanes(lanes.quadXX, first), quadXY = loadLanes(lanes.quadXY, first),
+                     quadYY = loadLanes(lanes.quadYY, first);
+        const Float4 scale = loadLanes(lanes.scale, first);
+        const Float4 dx0 = x0 - meanX, dy0 = y0 - meanY, dx1 = x1 - meanX, dy1 = y1 - meanY;
+        sum0 += scale * exp2NonPositive(quadXX * dx0 * dx0 + quadXY * dx0 * dy0 + quadYY * dy0 * dy0);
+        sum1 += scale * exp2NonPositive(quadXX * dx1 * dx1 + quadXY * dx1 * dy1 + quadYY * dy1 * dy1);
+    }
+    return {(sum0[0] + sum0[2]) + (sum0[1] + sum0[3]), (sum1[0] + sum1[2]) + (sum1[1] + sum1[3])};
+}
+
+std::array<float, 2> DirectionalGmm::pdfLocalPair(const Vec3& local0, const Vec3& local1) const {
+    const std::optional<Vec2> s0 = hemisphereToSquare(local0);
+    const std::optional<Vec2> s1 = hemisphereToSquare(local1);
+    if (!s0 || !s1) return {s0 ? pdfLocal(local0) : 0.0f, s1 ? pdfLocal(local1) : 0.0f};
+    const std::array<float, 2> square = pdfSquarePair(*s0, *s1);
+    return {square[0] * (1.0f / kSquareToHemisphereJacobian), square[1] * (1.0f / kSquareToHemisphereJacobian)};
 }
 
 float DirectionalGmm::pdfLocal(const Vec3& local) const {

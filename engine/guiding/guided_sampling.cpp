@@ -11,21 +11,53 @@ float GuidedBsdfSampler::pdf(const Vec3& wiLocal, const Vec3& wiWorld) const {
     return bsdfProbability * bsdfPdf + (1.0f - bsdfProbability) * gmmPdf;
 }
 
-std::optional<GuidedSample> GuidedBsdfSampler::sample(float uStrategy, float uLobe, const Vec2& uDir) const {
+std::optional<GuidedDraw> GuidedBsdfSampler::draw(float uStrategy, float uLobe, const Vec2& uDir) const {
     if (uStrategy < bsdfProbability) {
         const std::optional<BsdfSample> bs = bsdf->sample(wo, at, uLobe, uDir, TransportMode::Radiance);
         if (!bs || bs->pdf <= 0.0f || isBlack(bs->weight)) return std::nullopt;
-        const Vec3 wiWorld = shading.toWorld(bs->wi);
-        const float gmmPdf = gmm->pdfLocal(gmmFrame.toLocal(wiWorld));
-        return GuidedSample{bs->wi, wiWorld, bsdfProbability * bs->pdf + (1.0f - bsdfProbability) * gmmPdf};
+        return GuidedDraw{bs->wi, shading.toWorld(bs->wi), Vec2(0.0f), bs->pdf, false};
     }
     const Vec2 square = gmm->samplePlane(uLobe, uDir);
     // The GMM's mass outside the square (§4.1).
     if (!(square.x >= 0.0f && square.x <= 1.0f && square.y >= 0.0f && square.y <= 1.0f)) return std::nullopt;
     const Vec3 wiWorld = gmmFrame.toWorld(squareToHemisphere(square));
-    const Vec3 wi = shading.toLocal(wiWorld);
-    const float gmmPdf = gmm->pdfSquare(square) * (1.0f / kSquareToHemisphereJacobian);
-    return GuidedSample{wi, wiWorld, bsdfProbability * bsdf->pdf(wo, wi, at) + (1.0f - bsdfProbability) * gmmPdf};
+    return GuidedDraw{shading.toLocal(wiWorld), wiWorld, square, 0.0f, true};
+}
+
+float GuidedBsdfSampler::drawnPdf(const GuidedDraw& drawn) const {
+    if (!drawn.fromGmm) {
+        const float gmmPdf = gmm->pdfLocal(gmmFrame.toLocal(drawn.wiWorld));
+        return bsdfProbability * drawn.bsdfPdf + (1.0f - bsdfProbability) * gmmPdf;
+    }
+    const float gmmPdf = gmm->pdfSquare(drawn.square) * (1.0f / kSquareToHemisphereJacobian);
+    return bsdfProbability * bsdf->pdf(wo, drawn.wi, at) + (1.0f - bsdfProbability) * gmmPdf;
+}
+
+std::array<float, 2> GuidedBsdfSampler::pdfAndDrawnPdf(const Vec3& wiLocal, const Vec3& wiWorld,
+                                                      const GuidedDraw& drawn) const {
+    const float bsdfPdf = bsdf->pdf(wo, wiLocal, at);
+    const float drawnBsdfPdf = drawn.fromGmm ? bsdf->pdf(wo, drawn.wi, at) : drawn.bsdfPdf;
+    std::array<float, 2> gmmPdf{};
+    if (drawn.fromGmm) {
+        const std::optional<Vec2> square = hemisphereToSquare(gmmFrame.toLocal(wiWorld));
+        if (square) {
+            gmmPdf = gmm->pdfSquarePair(*square, drawn.square);
+            gmmPdf[0] *= 1.0f / kSquareToHemisphereJacobian;
+        } else {
+            gmmPdf[1] = gmm->pdfSquare(drawn.square);
+        }
+        gmmPdf[1] *= 1.0f / kSquareToHemisphereJacobian;
+    } else {
+        gmmPdf = gmm->pdfLocalPair(gmmFrame.toLocal(wiWorld), gmmFrame.toLocal(drawn.wiWorld));
+    }
+    return {bsdfProbability * bsdfPdf + (1.0f - bsdfProbability) * gmmPdf[0],
+            bsdfProbability * drawnBsdfPdf + (1.0f - bsdfProbability) * gmmPdf[1]};
+}
+
+std::optional<GuidedSample> GuidedBsdfSampler::sample(float uStrategy, float uLobe, const Vec2& uDir) const {
+    const std::optional<GuidedDraw> drawn = draw(uStrategy, uLobe, uDir);
+    if (!drawn) return std::nullopt;
+    return GuidedSample{drawn->wi, drawn->wiWorld, drawnPdf(*drawn)};
 }
 
 }  // namespace fg

@@ -12,13 +12,20 @@
 // sample() returns p(ω) with the direction: the strategy that drew it already
 // holds half of it (the BSDF's pdf, or the GMM's square point, whose density
 // needs no return trip through the frames and the inverse map), so the path
-// does not evaluate the mixture a second time.
+// does not evaluate the mixture a second time. draw() and drawnPdf() are its
+// two halves, for a path that ends some directions before it needs p(ω): a
+// direction the BSDF does not scatter into (a GMM direction below the surface
+// of a BSDF that only reflects) or one the shading normal would let through
+// the geometric surface ends the path whatever p(ω) is, and p(ω) — the GMM's
+// density and, for a GMM direction, the BSDF's pdf — is most of a guided
+// vertex's sampling cost.
 #pragma once
 
 #include "engine/core/math.h"
 #include "engine/guiding/directional_gmm.h"
 #include "engine/shading/bsdf.h"
 
+#include <array>
 #include <optional>
 
 namespace fg {
@@ -27,6 +34,15 @@ struct GuidedSample {
     Vec3 wi{0.0f};   // local to the shading frame
     Vec3 wiWorld{0.0f};  // the same direction in world space
     float pdf = 0.0f;  // mixture density of wi
+};
+
+// A direction drawn by one of the two strategies, before its mixture density.
+struct GuidedDraw {
+    Vec3 wi{0.0f};       // local to the shading frame
+    Vec3 wiWorld{0.0f};  // the same direction in world space
+    Vec2 square{0.0f};   // the GMM's point for a GMM direction
+    float bsdfPdf = 0.0f;  // the BSDF's own pdf for a BSDF direction
+    bool fromGmm = false;
 };
 
 struct GuidedBsdfSampler {
@@ -47,6 +63,13 @@ struct GuidedBsdfSampler {
     // when the chosen strategy fails (the BSDF gives no sample, the GMM point
     // falls outside its square). The density agrees with pdf() up to rounding.
     std::optional<GuidedSample> sample(float uStrategy, float uLobe, const Vec2& uDir) const;
+    // sample() in two steps: the direction (nothing where sample() gives
+    // nothing), then its mixture density, the same value sample() returns.
+    std::optional<GuidedDraw> draw(float uStrategy, float uLobe, const Vec2& uDir) const;
+    float drawnPdf(const GuidedDraw& drawn) const;
+    // pdf(wiLocal, wiWorld) and drawnPdf(drawn), the same values, with the two
+    // GMM densities evaluated side by side (DirectionalGmm::pdfSquarePair).
+    std::array<float, 2> pdfAndDrawnPdf(const Vec3& wiLocal, const Vec3& wiWorld, const GuidedDraw& drawn) const;
 };
 
 }  // namespace fg

@@ -34,23 +34,34 @@ float lightSelectionPmf(const Scene& scene, int light) {
 
 // Samples one light for next-event estimation from p. `scatter(wi)` returns the
 // scattering value (BSDF * |cos| or phase) and its sampling pdf for direction wi.
+// With deferWeight, a queued sample of a non-delta light leaves its MIS weight
+// out of shadow.contribution (and scatter's pdf unused) and returns its light
+// pdf: the caller multiplies the contribution by weight / light pdf once it
+// has the scattering pdf, the same product in the same order.
 template <class Scatter>
-void queueLightSample(const PathTracerScene& pts, const Vec3& p, const Vec3& ng, const Shape* shape, int medium,
-                      const Rgb& beta, jobs::Rng& rng, Scatter&& scatter, ShadowRequest& shadow) {
+std::optional<float> queueLightSample(const PathTracerScene& pts, const Vec3& p, const Vec3& ng, const Shape* shape,
+                                      int medium, const Rgb& beta, jobs::Rng& rng, Scatter&& scatter,
+                                      ShadowRequest& shadow, bool deferWeight = false) {
     const Scene& scene = pts.scene;
-    if (scene.lights.empty()) return;
+    if (scene.lights.empty()) return std::nullopt;
     const float uLight = rng.uniform();
     const Vec2 uPoint = rng.uniform2();
     float pmf = 0.0f;
     const std::size_t index = scene.lightChoice.sampleDiscrete(uLight, &pmf);
     const Light& light = *scene.lights[index];
     const std::optional<LightSample> ls = light.sampleLi(p, uPoint);
-    if (!ls || ls->pdf <= 0.0f || isBlack(ls->value)) return;
+    if (!ls || ls->pdf <= 0.0f || isBlack(ls->value)) return std::nullopt;
     const auto [f, scatterPdf] = scatter(ls->wi);
-    if (isBlack(f)) return;
+    if (isBlack(f)) return std::nullopt;
     const float lightPdf = ls->pdf * pmf;
-    const float weight = light.isDelta() ? 1.0f : powerHeuristic(lightPdf, scatterPdf);
-    shadow.contribution = beta * f * ls->value * (weight / lightPdf);
+    std::optional<float> deferredLightPdf;
+    if (deferWeight && !light.isDelta()) {
+        shadow.contribution = beta * f * ls->value;
+        deferredLightPdf = lightPdf;
+    } else {
+        const float weight = light.isDelta() ? 1.0f : powerHeuristic(lightPdf, scatterPdf);
+        shadow.contribution = beta * f * ls->value * (weight / lightPdf);
+    }
     const bool onSurface = shape != nullptr;
     shadow.ray.origin = onSurface ? offsetRayOrigin(p, ng, ls->wi) : p;
     if (std::isinf(ls->distance) || ls->distance >= kInfinity) {
@@ -67,6 +78,7 @@ void queueLightSample(const PathTracerScene& pts, const Vec3& p, const Vec3& ng,
     }
     shadow.medium = onSurface ? mediumAfterCrossing(*shape, ng, ls->wi, medium) : medium;
     shadow.pending = true;
+    return deferredLightPdf;
 }
 
 // The GMM (and its frame) guiding directions at a surface vertex, if any.
@@ -255,30 +267,55 @@ bool advancePathAtSurface(const PathTracerScene& pts, const PathLimits& limits, 
     std::optional<GuidedBsdfSampler> guided;
     if (guide.gmm) guided.emplace(GuidedBsdfSampler{bsdf, frame, wo, sp.texturePoint(), guide.gmm, guide.frame, guide.bsdfProbability});
 
+    // A guided vertex weighs its light sample once the sampled direction is
+    // drawn, so that the two mixture densities are evaluated side by side.
+    std::optional<float> lightPdfToWeigh;
+    Vec3 lightWiLocal{0.0f}, lightWi{0.0f};
     if (bsdf->hasSmoothLobe()) {
-        queueLightSample(pts, sp.p, sp.ng, &shape, h.medium, beta, s.rng,
-                         [&](const Vec3& wi) {
-                             const Vec3 wiLocal = frame.toLocal(wi);
-                             // Shading normals must not let light through the geometric surface.
-                             if (glm::dot(wi, sp.ng) * wiLocal.z <= 0.0f) return std::pair<Rgb, float>(Rgb(0.0f), 0.0f);
-                             const float pdf = guided ? guided->pdf(wiLocal, wi) : bsdf->pdf(wo, wiLocal, sp.texturePoint());
-                             return std::pair<Rgb, float>(bsdf->eval(wo, wiLocal, sp.texturePoint(), TransportMode::Radiance), pdf);
-                         },
-                         shadow);
+        lightPdfToWeigh = queueLightSample(
+            pts, sp.p, sp.ng, &shape, h.medium, beta, s.rng,
+            [&](const Vec3& wi) {
+                const Vec3 wiLocal = frame.toLocal(wi);
+                // Shading normals must not let light through the geometric surface.
+                if (glm::dot(wi, sp.ng) * wiLocal.z <= 0.0f) return std::pair<Rgb, float>(Rgb(0.0f), 0.0f);
+                lightWiLocal = wiLocal;
+                lightWi = wi;
+                const float pdf = guided ? 0.0f : bsdf->pdf(wo, wiLocal, sp.texturePoint());
+                return std::pair<Rgb, float>(bsdf->eval(wo, wiLocal, sp.texturePoint(), TransportMode::Radiance), pdf);
+            },
+            shadow, guided.has_value());
     }
 
     if (guided) {
+        const auto weighLightSample = [&](float scatterPdf) {
+            shadow.contribution = shadow.contribution * (powerHeuristic(*lightPdfToWeigh, scatterPdf) / *lightPdfToWeigh);
+        };
+        const auto endPath = [&] {
+            if (lightPdfToWeigh) weighLightSample(guided->pdf(lightWiLocal, lightWi));
+            return false;
+        };
         const float uStrategy = s.rng.uniform();
         const float uLobe = s.rng.uniform();
         const Vec2 uDir = s.rng.uniform2();
-        const std::optional<GuidedSample> sampled = guided->sample(uStrategy, uLobe, uDir);
-        if (!sampled) return false;
-        const Vec3 wiLocal = sampled->wi;
-        const Vec3& wi = sampled->wiWorld;
-        if (glm::dot(wi, sp.ng) * wiLocal.z <= 0.0f) return false;
-        const float pdf = sampled->pdf;
+        const std::optional<GuidedDraw> drawn = guided->draw(uStrategy, uLobe, uDir);
+        if (!drawn) return endPath();
+        const Vec3 wiLocal = drawn->wi;
+        const Vec3& wi = drawn->wiWorld;
+        // Directions that end the path whatever their density are turned away
+        // before the mixture's density is evaluated (GMM directions below the
+        // surface of a BSDF that only reflects, mostly).
+        if (glm::dot(wi, sp.ng) * wiLocal.z <= 0.0f) return endPath();
         const Rgb f = bsdf->eval(wo, wiLocal, sp.texturePoint(), TransportMode::Radiance);
-        if (!(pdf > 0.0f) || isBlack(f)) return false;
+        if (isBlack(f)) return endPath();
+        float pdf = 0.0f;
+        if (lightPdfToWeigh) {
+            const std::array<float, 2> pdfs = guided->pdfAndDrawnPdf(lightWiLocal, lightWi, *drawn);
+            weighLightSample(pdfs[0]);
+            pdf = pdfs[1];
+        } else {
+            pdf = guided->drawnPdf(*drawn);
+        }
+        if (!(pdf > 0.0f)) return false;
         beta *= f / pdf;
         h.specular = false;
         h.previousPdf = pdf;
