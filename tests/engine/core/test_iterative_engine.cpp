@@ -394,7 +394,9 @@ TEST(RandomStreams, KeysArePerInstanceAndKeepTheirOldValueForAPassNamedInstance)
     // The quickstart image, bit for bit as before keys took the instance name:
     // its hash was recorded from the render of the previous engine, and again
     // when pt began to render in sample passes (the same samples; the film
-    // sums them in other rounds: RMSE 1e-7 against the earlier image).
+    // sums them in other rounds: RMSE 1e-7 against the earlier image), and
+    // again when Embree's robust mode was dropped and every query became
+    // incoherent (hits differ from the robust traversal's in the last bits).
     const Job job = loadJob(sourcePath("data/jobs/quickstart.toml"));
     const Scene scene = loadScene(job.scenePath, job.sceneDefines);
     const RayQuery rays(scene);
@@ -402,7 +404,7 @@ TEST(RandomStreams, KeysArePerInstanceAndKeepTheirOldValueForAPassNamedInstance)
     options.seed = job.seed;
     options.film = job.film;
     const RunResult run = execute(ExecutionPlan::build(job.pipeline, job.params, job.path), scene, rays, options);
-    EXPECT_EQ(imageHash(*static_cast<const Film*>(run.results.at("image").data.get())), 0x83a744b2e3957042ull);
+    EXPECT_EQ(imageHash(*static_cast<const Film*>(run.results.at("image").data.get())), 0x304d6180b3dbb200ull);
 
     // Another instance name draws other numbers.
     const Rendered a = renderText("pipeline = \"pt\"\n" + kCornell + "[passes.pt]\nspp = 1\n");
