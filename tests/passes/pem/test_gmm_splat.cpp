@@ -15,6 +15,7 @@
 #include "jobs/parallel.h"
 #include "passes/passes.h"
 #include "tests/support/cli_helpers.h"
+#include "tests/support/gaussian_pyramid_chain.h"
 #include "tests/support/pass_helpers.h"
 #include "tests/support/render_helpers.h"
 
@@ -62,39 +63,11 @@ Shape wallAt(float depth, int bsdf) {
     return wall;
 }
 
-// Volume photons from a few anisotropic clusters in [-1, 1]^3.
-std::shared_ptr<VolumePhotonMap> clusteredPhotons(std::size_t n, std::uint64_t seed) {
-    std::mt19937_64 rng(seed);
-    std::normal_distribution<float> normal;
-    std::uniform_real_distribution<float> uniform(-0.6f, 0.6f);
-    std::vector<Vec3> centres;
-    for (int c = 0; c < 12; ++c) centres.emplace_back(uniform(rng), uniform(rng), uniform(rng));
-    auto map = std::make_shared<VolumePhotonMap>();
-    map->emitted = n;
-    map->photons.resize(n);
-    for (std::size_t i = 0; i < n; ++i) {
-        const Vec3& c = centres[i % centres.size()];
-        map->photons.column<PhotonPosition>()[i] =
-            c + Vec3(0.15f * normal(rng), 0.05f * normal(rng), 0.08f * normal(rng) + 0.03f * normal(rng));
-        map->photons.column<PhotonPower>()[i] = Rgb(1.0f, 0.5f + 0.5f * static_cast<float>(i % 3), 0.25f) / float(n);
-        map->photons.column<PhotonClassColumn>()[i] = PhotonClass::Volume;
-    }
-    return map;
-}
-
-struct Chain {
-    std::map<std::string, BufferHandle> fit, pyramid, bbh;
-};
+using Chain = test::GmmChain;
+using test::relativeRms;
 
 Chain fitChain(const Scene& scene, std::int64_t k) {
-    Chain c;
-    const auto stats = test::runPass(*findPass("em_stats"), scene, nullptr, boxFilm(4),
-                                     {{"photons", test::makeBuffer(clusteredPhotons(40000, 7))}});
-    c.fit = test::runPass(*findPass("em_fit"), scene, nullptr, boxFilm(4), {{"tree", stats.at("tree")}},
-                          {{"k", k}, {"max_iterations", std::int64_t{20}}});
-    c.pyramid = test::runPass(*findPass("gmm_pyramid"), scene, nullptr, boxFilm(4), {{"gmm", c.fit.at("gmm")}});
-    c.bbh = test::runPass(*findPass("gmm_bbh"), scene, nullptr, boxFilm(4), {{"pyramid", c.pyramid.at("pyramid")}});
-    return c;
+    return test::fitGmmChain(scene, test::clusteredPhotons(40000, 7), k, 20);
 }
 
 // One segment per pixel along its centre ray: from where it enters the medium
@@ -143,16 +116,6 @@ std::vector<Rgb> splat(const Scene& scene, const RayQuery* rays, const Chain& c,
                 for (const float v : values) *gaussians += v;
     }
     return film.resolve();
-}
-
-double relativeRms(const std::vector<Rgb>& a, const std::vector<Rgb>& reference) {
-    double err = 0.0, ref = 0.0;
-    for (std::size_t i = 0; i < a.size(); ++i) {
-        const Rgb d = a[i] - reference[i];
-        err += glm::dot(glm::dvec3(d), glm::dvec3(d));
-        ref += glm::dot(glm::dvec3(reference[i]), glm::dvec3(reference[i]));
-    }
-    return std::sqrt(err / ref);
 }
 
 TEST(GmmSplat, EveryLevelEqualsGmmRenderOfThatLevelInAMediumOnlyScene) {
