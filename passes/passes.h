@@ -36,6 +36,7 @@ PassRegistration cacheUpdatePass();
 PassRegistration importonPass();
 PassRegistration radianceIntegratePass();
 PassRegistration radianceCachePass();
+PassRegistration cacheSelectPass();
 PassRegistration finalGatherSplatPass();
 PassRegistration finalGatherPass();
 

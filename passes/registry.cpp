@@ -20,6 +20,7 @@ const Registry& builtinRegistry() {
             gmmSplatPass(),
             filmNoisePass(),   compositePass(),
             rayBandwidthPass(), splatIndexPass(), raySplatPass(), radianceIntegratePass(), radianceCachePass(),
+            cacheSelectPass(),
             cacheUpdatePass(), importonPass(),
             finalGatherSplatPass(), finalGatherPass(),
             bdptPass(),

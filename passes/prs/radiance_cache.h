@@ -1,12 +1,9 @@
 // The image-space radiance cache of photon ray splatting (Herzog et al. 2007,
 // §8.3), placed by the multi-pass cache splatting of Gautron et al. 2005,
-// shared by the radiance_cache pass and its tests.
+// shared by the cache_select and radiance_cache passes and their tests.
 //
-// Records are taken at pixels and need no gathering: a record's SH
-// coefficients are those the photon rays splatted into the radiance map at
-// the pixel, and its radius R_k is the pixel's kernel-weighted harmonic mean
-// distance to the rays' origins. A record k is used at a point x with normal
-// n where Ward et al.'s (1988) weight
+// A record k is used at a point x with normal n where Ward et al.'s (1988)
+// weight
 //   w_k(x) = 1 / (‖x − x_k‖ / R_k + √(1 − n·n_k))
 // exceeds 1/ε, i.e. where the denominator is below ε; within that set
 // ‖x − x_k‖ < ε R_k, so the record's footprint on the image is the
@@ -17,6 +14,13 @@
 // covered by fewer are reported. The interpolated coefficients at x are
 //   c(x) = Σ_k w_k(x) c_k / Σ_k w_k(x)
 // over the records valid at x (no gradients), in record order.
+//
+// R_k comes either from the photon rays splatted at the record's pixel (the
+// kernel-weighted harmonic mean distance of their origins, §8.3; the whole
+// map must be splatted first) or, so that the records can be chosen before
+// any splatting and the rays splatted onto the records alone, from the
+// geometry around x_k: Ward et al.'s harmonic mean distance of the surfaces
+// seen over the hemisphere (harmonicMeanDistanceDirections).
 #pragma once
 
 #include "engine/buffers/radiance_cache_buffers.h"
@@ -28,6 +32,7 @@
 #include <array>
 #include <cmath>
 #include <cstdint>
+#include <span>
 #include <vector>
 
 namespace fg {
@@ -100,9 +105,13 @@ struct RadianceCachePlacement {
 // Gautron et al.'s multi-pass placement over `samples` (one per pixel of a
 // camera.width × camera.height image, row-major). Records of one pass are
 // chosen from the coverage left by the previous passes, so each pass is
-// independent of the thread count; coverage is updated row by row.
-inline RadianceCachePlacement placeCacheRecords(const std::vector<CachePixelSample>& samples, const Camera& camera,
-                                                const RadianceCacheSettings& settings) {
+// independent of the thread count; coverage is updated row by row. Before a
+// pass's records are splatted onto the image, `measureRadius(pixel)` may set
+// their samples' radius (called once per record, from any thread); samples
+// that no pass picks need none.
+template <class MeasureRadius>
+RadianceCachePlacement placeCacheRecords(std::vector<CachePixelSample>& samples, const Camera& camera,
+                                         const RadianceCacheSettings& settings, const MeasureRadius& measureRadius) {
     const int width = camera.width, height = camera.height;
     RadianceCachePlacement placement;
     placement.coverage.assign(samples.size(), 0);
@@ -121,6 +130,7 @@ inline RadianceCachePlacement placeCacheRecords(const std::vector<CachePixelSamp
             }
         const std::size_t last = placement.recordPixels.size();
         placement.windows.resize(last);
+        jobs::parallelFor(last - first, 1, [&](std::size_t i) { measureRadius(placement.recordPixels[first + i]); });
         jobs::parallelFor(last - first, 64, [&](std::size_t i) {
             const CachePixelSample& record = samples[placement.recordPixels[first + i]];
             placement.windows[first + i] = recordWindow(camera, record.position, settings.error * record.radius);
@@ -146,6 +156,93 @@ inline RadianceCachePlacement placeCacheRecords(const std::vector<CachePixelSamp
         if (samples[pixel].valid && placement.coverage[pixel] < static_cast<std::uint32_t>(settings.minRecords))
             placement.undercoveredPixels.push_back(static_cast<std::uint32_t>(pixel));
     return placement;
+}
+
+// The same with every sample's radius known beforehand.
+inline RadianceCachePlacement placeCacheRecords(const std::vector<CachePixelSample>& samples, const Camera& camera,
+                                                const RadianceCacheSettings& settings) {
+    std::vector<CachePixelSample> copy = samples;
+    return placeCacheRecords(copy, camera, settings, [](std::uint32_t) {});
+}
+
+// The records valid at a point of the image, found through each row's list
+// of records whose window meets it (in record order, so that every point
+// sums its records in the same order on any thread count).
+class CacheRecordLookup {
+public:
+    CacheRecordLookup(std::span<const Vec3> positions, std::span<const Vec3> normals, std::span<const float> radii,
+                      std::span<const PixelWindow> windows, int height, float error)
+        : positions_(positions), normals_(normals), radii_(radii), windows_(windows), error_(error),
+          rowRecords_(static_cast<std::size_t>(std::max(height, 0))) {
+        for (std::size_t k = 0; k < windows.size(); ++k)
+            for (int y = windows[k].y0; y < windows[k].y1; ++y)
+                rowRecords_[static_cast<std::size_t>(y)].push_back(static_cast<std::uint32_t>(k));
+    }
+
+    // visit(k, w_k) for every record k valid at `position` (pixel x, y) with
+    // `normal`, in record order; returns how many there were.
+    template <class Visit>
+    std::uint32_t forEachValid(int x, int y, const Vec3& position, const Vec3& normal, const Visit& visit) const {
+        std::uint32_t count = 0;
+        for (std::uint32_t k : rowRecords_[static_cast<std::size_t>(y)]) {
+            if (!windows_[k].contains(x, y)) continue;
+            const float denominator = wardDenominator(position, normal, positions_[k], normals_[k], radii_[k]);
+            if (!(denominator < error_)) continue;
+            visit(k, wardWeight(denominator));
+            ++count;
+        }
+        return count;
+    }
+
+private:
+    std::span<const Vec3> positions_, normals_;
+    std::span<const float> radii_;
+    std::span<const PixelWindow> windows_;
+    float error_;
+    std::vector<std::vector<std::uint32_t>> rowRecords_;
+};
+
+// Interpolated coefficients c(x) = Σ_k w_k c_k / Σ_k w_k over the records
+// valid at x; false (and `out` untouched) where none is.
+template <class CoefficientsOf>
+bool interpolateCache(const CacheRecordLookup& lookup, int x, int y, const Vec3& position, const Vec3& normal,
+                      const CoefficientsOf& coefficientsOf, CacheCoefficientArray& out) {
+    CacheCoefficientArray sum;
+    sum.fill(Rgb(0.0f));
+    float weightTotal = 0.0f;
+    lookup.forEachValid(x, y, position, normal, [&](std::uint32_t k, float w) {
+        const CacheCoefficientArray& c = coefficientsOf(k);
+        for (std::size_t i = 0; i < sum.size(); ++i) sum[i] += w * c[i];
+        weightTotal += w;
+    });
+    if (!(weightTotal > 0.0f)) return false;
+    for (std::size_t i = 0; i < sum.size(); ++i) out[i] = sum[i] / weightTotal;
+    return true;
+}
+
+// Cosine-distributed directions over the hemisphere around +z, one at the
+// centre of each of strata × strata cells of the unit square (Ward et al.'s
+// stratified hemisphere sampling without jitter, so that a record's radius
+// does not depend on a random stream).
+inline std::vector<Vec3> harmonicMeanDistanceDirections(int strata) {
+    std::vector<Vec3> directions;
+    directions.reserve(static_cast<std::size_t>(strata * strata));
+    for (int j = 0; j < strata; ++j)
+        for (int i = 0; i < strata; ++i)
+            directions.push_back(sampleCosineHemisphere(
+                Vec2((static_cast<float>(i) + 0.5f) / static_cast<float>(strata),
+                     (static_cast<float>(j) + 0.5f) / static_cast<float>(strata))));
+    return directions;
+}
+
+// Ward et al.'s R = N / Σ 1 / d_i over N hit distances (rays that meet
+// nothing count as infinitely far), held to [minRadius, maxRadius].
+inline float harmonicMeanRadius(std::span<const float> distances, float minRadius, float maxRadius) {
+    double inverseSum = 0.0;
+    for (float d : distances)
+        if (d > 0.0f && std::isfinite(d)) inverseSum += 1.0 / static_cast<double>(d);
+    const double mean = inverseSum > 0.0 ? static_cast<double>(distances.size()) / inverseSum : static_cast<double>(maxRadius);
+    return std::clamp(static_cast<float>(mean), minRadius, maxRadius);
 }
 
 }  // namespace fg

@@ -1,17 +1,29 @@
 // Radiance caching (`radiance_cache`): Herzog et al. 2007, §8.3, with the
 // multi-pass image-space cache splatting of Gautron et al. 2005 and the
 // weight of Ward et al. 1988, w_k(x) = 1 / (‖x − x_k‖ / R_k + √(1 − n·n_k)),
-// record k used where w_k > 1/ε (passes/prs/radiance_cache.h). The radiance
-// map must hold every eye vertex (ray_splat lambertian = "sh_map"). A pixel's
-// record sits at its first mapped eye vertex; its coefficients are the mean
-// of the pixel's mapped vertices that the record is valid at, and its radius
-// R_k the kernel-weighted harmonic mean distance over all of them,
-// Σ w / Σ (w / d) from the map's sums, clamped to `max_radius` times the
-// scene diagonal (pixels no ray reached get that bound). The output map has
-// the input's vertices, in its order, each with Σ w_k c_k / Σ w_k over the
-// records valid at the vertex's own position and normal; vertices no record
-// is valid at keep their own coefficients. radiance_integrate turns it into
-// radiance as before (§8.1).
+// record k used where w_k > 1/ε (passes/prs/radiance_cache.h). Two ways:
+//
+// Sparse (the records chosen before splatting, `placed_records` and
+// `record_vertices` from cache_select): the photon rays were splatted onto
+// the records' eye vertices alone (and onto the vertices no record is valid
+// at), as §8.3's "sparse sampling in the image plane" allows. A record takes
+// the coefficients splatted at its vertex; every eye vertex gets
+// Σ w_k c_k / Σ w_k over the records valid at it, and a vertex no record is
+// valid at its own splatted coefficients. The placement's parameters are
+// cache_select's; this pass's placement parameters are not used.
+//
+// Dense (without those inputs): the radiance map holds every eye vertex
+// (ray_splat lambertian = "sh_map"). A pixel's record sits at its first
+// mapped eye vertex; its coefficients are the mean of the pixel's mapped
+// vertices that the record is valid at, and its radius R_k the
+// kernel-weighted harmonic mean distance over all of them, Σ w / Σ (w / d)
+// from the map's sums, clamped to `max_radius` times the scene diagonal
+// (pixels no ray reached get that bound). Vertices no record is valid at
+// keep their own coefficients.
+//
+// Either way the output map has one entry per eye vertex the cache serves
+// (sparse: every eye vertex, in eye order; dense: the input map's vertices,
+// in its order), and radiance_integrate turns it into radiance (§8.1).
 #include "passes/passes.h"
 #include "passes/prs/radiance_cache.h"
 
@@ -36,6 +48,10 @@ namespace {
 class RadianceCachePass final : public Pass {
 public:
     void run(PassContext& ctx) override {
+        if (ctx.hasInput("placed_records") || ctx.hasInput("record_vertices")) {
+            runSparse(ctx);
+            return;
+        }
         const Scene& scene = ctx.scene();
         const EyeVertexBuffer::View eye = ctx.input<EyeVertices>("eye_vertices").vertices.view();
         const RadianceMapBuffer& map = ctx.input<RadianceMap>("radiance_map").vertices;
@@ -168,6 +184,96 @@ public:
         ctx.addCounter("undercovered_pixels", static_cast<std::int64_t>(placement.undercoveredPixels.size()));
         ctx.addCounter("uncached_vertices", std::count(uncached.begin(), uncached.end(), std::uint8_t{1}));
     }
+
+private:
+    static void runSparse(PassContext& ctx) {
+        if (!ctx.hasInput("placed_records") || !ctx.hasInput("record_vertices"))
+            throw std::logic_error("radiance_cache: placed_records and record_vertices come together (cache_select)");
+        const EyeVertexBuffer::View eye = ctx.input<EyeVertices>("eye_vertices").vertices.view();
+        const CacheRecords& placed = ctx.input<CacheRecords>("placed_records");
+        const std::size_t splatVertexCount = ctx.input<EyeVertices>("record_vertices").vertices.size();
+        const RadianceMapBuffer& map = ctx.input<RadianceMap>("radiance_map").vertices;
+        Camera camera = ctx.scene().camera;
+        camera.width = ctx.filmSettings().width;
+        camera.height = ctx.filmSettings().height;
+        const std::size_t pixelCount = static_cast<std::size_t>(camera.width) * static_cast<std::size_t>(camera.height);
+        const std::size_t recordCount = placed.records.size();
+        if (recordCount > splatVertexCount)
+            throw std::logic_error("radiance_cache: fewer record vertices than records");
+
+        // The map's entry of every splat vertex: the records' vertices first, in record order.
+        constexpr std::uint32_t kUnmapped = ~std::uint32_t(0);
+        std::vector<std::uint32_t> entryOf(splatVertexCount, kUnmapped);
+        const auto vertexOf = map.column<MapVertex>();
+        for (std::size_t g = 0; g < map.size(); ++g) {
+            if (vertexOf[g] >= splatVertexCount) throw std::logic_error("radiance_cache: map vertex outside the record vertices");
+            entryOf[vertexOf[g]] = static_cast<std::uint32_t>(g);
+        }
+        if (std::find(entryOf.begin(), entryOf.end(), kUnmapped) != entryOf.end())
+            throw std::logic_error("radiance_cache: a record vertex is not in the radiance map (ray_splat glossy and "
+                                   "lambertian must both be sh_map)");
+        const auto columns = radianceMapShColumns(map);
+        const auto coefficientsAt = [&](std::uint32_t splatVertex) {
+            CacheCoefficientArray c;
+            for (std::size_t k = 0; k < c.size(); ++k) c[k] = columns[k][entryOf[splatVertex]];
+            return c;
+        };
+
+        CacheRecords& cache = ctx.createOutput<CacheRecords>("cache_records");
+        cache.error = placed.error;
+        cache.records.resize(recordCount);
+        for (std::size_t k = 0; k < recordCount; ++k) {
+            CacheRecordBuffer::Record record = placed.records.get(k);
+            record.get<CacheCoefficients>() = coefficientsAt(static_cast<std::uint32_t>(k));
+            cache.records.set(k, record);
+        }
+        const auto recordPosition = cache.records.column<CachePosition>();
+        const auto recordNormal = cache.records.column<CacheNormal>();
+        const auto recordRadius = cache.records.column<CacheRadius>();
+        const auto recordCoefficients = cache.records.column<CacheCoefficients>();
+        std::vector<PixelWindow> windows(recordCount);
+        jobs::parallelFor(recordCount, 64, [&](std::size_t k) {
+            windows[k] = recordWindow(camera, recordPosition[k], placed.error * recordRadius[k]);
+        });
+        const CacheRecordLookup lookup(recordPosition, recordNormal, recordRadius, windows, camera.height, placed.error);
+
+        const auto pixelOf = eye.column<EyePixel>();
+        const auto positionOf = eye.column<EyePosition>();
+        const auto normalOf = eye.column<EyeNormal>();
+        RadianceMap& cached = ctx.createOutput<RadianceMap>("cached_map");
+        cached.vertices.resize(eye.size());
+        const auto cachedColumns = radianceMapShColumns(cached.vertices);
+        const auto cachedVertex = cached.vertices.column<MapVertex>();
+        std::vector<std::uint8_t> uncached(eye.size(), 0);
+        jobs::parallelFor(eye.size(), 1024, [&](std::size_t v) {
+            if (pixelOf[v] >= pixelCount) throw std::logic_error("radiance_cache: eye vertex outside the film");
+            cachedVertex[v] = static_cast<std::uint32_t>(v);
+            const int x = static_cast<int>(pixelOf[v] % static_cast<std::uint32_t>(camera.width));
+            const int y = static_cast<int>(pixelOf[v] / static_cast<std::uint32_t>(camera.width));
+            CacheCoefficientArray c;
+            if (!interpolateCache(lookup, x, y, positionOf[v], normalOf[v],
+                                  [&](std::uint32_t k) -> const CacheCoefficientArray& { return recordCoefficients[k]; }, c)) {
+                uncached[v] = 1;
+                return;
+            }
+            for (std::size_t i = 0; i < c.size(); ++i) cachedColumns[i][v] = c[i];
+        });
+        // The vertices no record is valid at were splatted directly, after the records' vertices, in eye order.
+        std::size_t fallback = recordCount;
+        for (std::size_t v = 0; v < eye.size(); ++v) {
+            if (!uncached[v]) continue;
+            if (fallback >= splatVertexCount)
+                throw std::logic_error("radiance_cache: more vertices outside every record than cache_select splatted");
+            const CacheCoefficientArray c = coefficientsAt(static_cast<std::uint32_t>(fallback++));
+            for (std::size_t i = 0; i < c.size(); ++i) cachedColumns[i][v] = c[i];
+        }
+        if (fallback != splatVertexCount)
+            throw std::logic_error("radiance_cache: fewer vertices outside every record than cache_select splatted");
+
+        ctx.addItems(static_cast<std::int64_t>(eye.size()));
+        ctx.addCounter("cache_records", static_cast<std::int64_t>(recordCount));
+        ctx.addCounter("uncached_vertices", static_cast<std::int64_t>(splatVertexCount - recordCount));
+    }
 };
 
 }  // namespace
@@ -175,15 +281,22 @@ public:
 PassRegistration radianceCachePass() {
     PassSpec spec;
     spec.name = "radiance_cache";
-    spec.doc = "Radiance caching in image space (Herzog et al. 2007, §8.3; Gautron et al. 2005): records at pixels of "
-               "ever finer grids take the radiance map's SH coefficients and harmonic mean distance; every mapped "
-               "vertex gets the Ward-weighted mean of the records valid at it";
+    spec.doc = "Radiance caching in image space (Herzog et al. 2007, §8.3; Gautron et al. 2005): records take the "
+               "radiance map's SH coefficients (placed by cache_select before splatting, or here at pixels of ever "
+               "finer grids with the map's harmonic mean distance); every vertex gets the Ward-weighted mean of the "
+               "records valid at it";
     spec.inputs = {
-        {"eye_vertices", "EyeVertices", "the vertices the map was splatted onto"},
-        {"radiance_map", "RadianceMap", "SH coefficients of every eye vertex (ray_splat lambertian = sh_map)"},
+        {"eye_vertices", "EyeVertices", "every eye vertex (sparse) or the vertices the map was splatted onto (dense)"},
+        {"radiance_map", "RadianceMap",
+         "SH coefficients splatted at every eye vertex (ray_splat lambertian = sh_map), or at the record_vertices"},
+        {"placed_records", "CacheRecords", "records chosen before splatting (cache_select); absent: placed here", false,
+         true},
+        {"record_vertices", "EyeVertices",
+         "the vertices the map was splatted onto when the records were chosen before (cache_select)", false, true},
     };
     spec.outputs = {
-        {"cached_map", "RadianceMap", "the map's vertices with the coefficients interpolated from the cache records"},
+        {"cached_map", "RadianceMap",
+         "coefficients interpolated from the cache records at every eye vertex (sparse) or at the map's vertices (dense)"},
         {"cache_records", "CacheRecords", "the records: position, normal, radius R_k, pixel, SH coefficients"},
     };
     spec.params = {
@@ -204,11 +317,16 @@ PassRegistration radianceCachePass() {
             throw InputError(pf.source + ": pass '" + pf.instance + "': grid " + std::to_string(grid) + " cannot be halved " +
                              std::to_string(passes - 1) + " times; use a grid of at least " +
                              std::to_string(std::int64_t{1} << (passes - 1)) + " or fewer passes");
-        if (const PassParams* splat = pf.producerParams("radiance_map");
-            splat && pf.producerPass("radiance_map") == "ray_splat" && splat->getString("lambertian") != "sh_map")
+        const PassParams* splat = pf.producerParams("radiance_map");
+        if (!splat || pf.producerPass("radiance_map") != "ray_splat") return;
+        if (splat->getString("lambertian") != "sh_map")
             throw InputError(pf.source + ": pass '" + pf.instance +
                              "': the radiance cache serves every vertex from the radiance map; set [passes." +
                              "ray_splat] lambertian = \"sh_map\" so that Lambertian vertices are mapped too");
+        if (!pf.producerPass("placed_records").empty() && splat->getString("glossy") != "sh_map")
+            throw InputError(pf.source + ": pass '" + pf.instance +
+                             "': with records chosen before splatting, glossy vertices are served from the radiance "
+                             "map as well; set [passes.ray_splat] glossy = \"sh_map\"");
     };
     return {spec, [] { return std::make_unique<RadianceCachePass>(); }, preflight};
 }
