@@ -202,17 +202,76 @@ private:
     std::vector<std::vector<std::uint32_t>> rowRecords_;
 };
 
-// Interpolated coefficients c(x) = Σ_k w_k c_k / Σ_k w_k over the records
-// valid at x; false (and `out` untouched) where none is.
-template <class CoefficientsOf>
-bool interpolateCache(const CacheRecordLookup& lookup, int x, int y, const Vec3& position, const Vec3& normal,
-                      const CoefficientsOf& coefficientsOf, CacheCoefficientArray& out) {
+// Translational gradients of a record's coefficients (Ward & Heckbert 1992
+// use them to make the interpolation first-order): per coefficient and
+// channel, a world-space vector in the record's tangent plane.
+using CacheGradientArray = std::array<std::array<Vec3, 3>, 16>;
+
+// Gradients by least squares over the record's neighbours, the other records
+// at whose position and normal it is valid: in the tangent plane of record
+// k, g minimises Σ_j (c_j − c_k − g·(x_j − x_k))². Exact for a field linear
+// over the plane; zero where the neighbours do not span the plane (fewer than
+// two, or all on one line). All records against all: the caches here hold
+// hundreds.
+inline std::vector<CacheGradientArray> neighbourGradients(std::span<const Vec3> positions, std::span<const Vec3> normals,
+                                                          std::span<const float> radii,
+                                                          std::span<const CacheCoefficientArray> coefficients,
+                                                          float error) {
+    std::vector<CacheGradientArray> gradients(positions.size());
+    jobs::parallelFor(positions.size(), 8, [&](std::size_t k) {
+        const Frame frame(normals[k]);
+        double a00 = 0.0, a01 = 0.0, a11 = 0.0;
+        std::array<std::array<double, 6>, 16> b{};  // per coefficient: (s, t) × (r, g, b)
+        for (std::size_t j = 0; j < positions.size(); ++j) {
+            if (j == k || !(wardDenominator(positions[j], normals[j], positions[k], normals[k], radii[k]) < error)) continue;
+            const Vec3 offset = positions[j] - positions[k];
+            const double u = glm::dot(offset, frame.s), v = glm::dot(offset, frame.t);
+            a00 += u * u;
+            a01 += u * v;
+            a11 += v * v;
+            for (std::size_t c = 0; c < 16; ++c)
+                for (int channel = 0; channel < 3; ++channel) {
+                    const double difference = static_cast<double>(coefficients[j][c][channel]) - coefficients[k][c][channel];
+                    b[c][2 * channel] += u * difference;
+                    b[c][2 * channel + 1] += v * difference;
+                }
+        }
+        const double determinant = a00 * a11 - a01 * a01;
+        CacheGradientArray& g = gradients[k];
+        for (auto& perCoefficient : g) perCoefficient.fill(Vec3(0.0f));
+        if (!(determinant > 1e-6 * (a00 + a11) * (a00 + a11))) return;
+        for (std::size_t c = 0; c < 16; ++c)
+            for (int channel = 0; channel < 3; ++channel) {
+                const double bu = b[c][2 * channel], bv = b[c][2 * channel + 1];
+                const double gu = (a11 * bu - a01 * bv) / determinant, gv = (a00 * bv - a01 * bu) / determinant;
+                g[c][static_cast<std::size_t>(channel)] =
+                    static_cast<float>(gu) * frame.s + static_cast<float>(gv) * frame.t;
+            }
+    });
+    return gradients;
+}
+
+// Interpolated coefficients c(x) = Σ_k w_k (c_k + g_k·(x − x_k)) / Σ_k w_k
+// over the records valid at x, g_k = 0 without gradients (`gradientsOf`
+// returns null); false (and `out` untouched) where no record is valid.
+template <class CoefficientsOf, class GradientsOf>
+bool interpolateCache(const CacheRecordLookup& lookup, std::span<const Vec3> recordPositions, int x, int y,
+                      const Vec3& position, const Vec3& normal, const CoefficientsOf& coefficientsOf,
+                      const GradientsOf& gradientsOf, CacheCoefficientArray& out) {
     CacheCoefficientArray sum;
     sum.fill(Rgb(0.0f));
     float weightTotal = 0.0f;
     lookup.forEachValid(x, y, position, normal, [&](std::uint32_t k, float w) {
         const CacheCoefficientArray& c = coefficientsOf(k);
-        for (std::size_t i = 0; i < sum.size(); ++i) sum[i] += w * c[i];
+        const CacheGradientArray* g = gradientsOf(k);
+        const Vec3 offset = position - recordPositions[k];
+        for (std::size_t i = 0; i < sum.size(); ++i) {
+            Rgb value = c[i];
+            if (g)
+                for (int channel = 0; channel < 3; ++channel)
+                    value[channel] += glm::dot((*g)[i][static_cast<std::size_t>(channel)], offset);
+            sum[i] += w * value;
+        }
         weightTotal += w;
     });
     if (!(weightTotal > 0.0f)) return false;

@@ -236,6 +236,10 @@ private:
             windows[k] = recordWindow(camera, recordPosition[k], placed.error * recordRadius[k]);
         });
         const CacheRecordLookup lookup(recordPosition, recordNormal, recordRadius, windows, camera.height, placed.error);
+        const bool useGradients = ctx.params().getString("gradients") == "neighbours";
+        const std::vector<CacheGradientArray> gradients =
+            useGradients ? neighbourGradients(recordPosition, recordNormal, recordRadius, recordCoefficients, placed.error)
+                         : std::vector<CacheGradientArray>{};
 
         const auto pixelOf = eye.column<EyePixel>();
         const auto positionOf = eye.column<EyePosition>();
@@ -251,8 +255,11 @@ private:
             const int x = static_cast<int>(pixelOf[v] % static_cast<std::uint32_t>(camera.width));
             const int y = static_cast<int>(pixelOf[v] / static_cast<std::uint32_t>(camera.width));
             CacheCoefficientArray c;
-            if (!interpolateCache(lookup, x, y, positionOf[v], normalOf[v],
-                                  [&](std::uint32_t k) -> const CacheCoefficientArray& { return recordCoefficients[k]; }, c)) {
+            if (!interpolateCache(
+                    lookup, recordPosition, x, y, positionOf[v], normalOf[v],
+                    [&](std::uint32_t k) -> const CacheCoefficientArray& { return recordCoefficients[k]; },
+                    [&](std::uint32_t k) -> const CacheGradientArray* { return useGradients ? &gradients[k] : nullptr; },
+                    c)) {
                 uncached[v] = 1;
                 return;
             }
@@ -307,6 +314,9 @@ PassRegistration radianceCachePass() {
          "placement passes; each halves the grid spacing (at least 1 pixel)"},
         {"min_records", ParamType::Int, std::int64_t{4}, 1, 64, {},
          "records a pixel should be covered by; grid pixels covered by fewer get a record in the next pass"},
+        {"gradients", ParamType::String, std::string("none"), 0, 0, {"none", "neighbours"},
+         "with records chosen before splatting: interpolate c_k alone, or c_k + g_k·(x − x_k) with g_k fitted by "
+         "least squares to the neighbouring records (exact for linear fields)"},
         {"max_radius", ParamType::Float, 0.25, 1e-4, 10.0, {},
          "bound on a record's radius R_k as a fraction of the scene diagonal (also the radius where no ray arrived)"},
     };

@@ -6,12 +6,16 @@
 // count grows as ε shrinks), and the prs-rc pipeline: the same image on 1 and
 // 2 threads, close to the uncached image in the furnace sphere, the same
 // image from a map of c_00 alone as from all bands, parameters checked
-// (ranges when the job is read, the rest in preflight).
+// (ranges when the job is read, the rest in preflight); the dense mode
+// (records placed by radiance_cache itself from a map of every vertex) the
+// same on 1 and 2 threads and close to the uncached image too.
 #include "passes/prs/radiance_cache.h"
 
 #include "engine/core/error.h"
 #include "engine/scene/scene_loader.h"
+#include "engine/core/job.h"
 #include "passes/passes.h"
+#include "tests/support/pass_helpers.h"
 #include "tests/support/render_helpers.h"
 
 #include <gtest/gtest.h>
@@ -170,6 +174,58 @@ TEST(PrsRadianceCache, CloseToTheUncachedImageInTheFurnace) {
     EXPECT_LT(spreadCached, spreadUncached);
 }
 
+// prs-rc as it was before cache_select: every eye vertex splatted into the
+// map, records placed by radiance_cache from it.
+Pipeline densePipeline() {
+    return parsePipelineFile(R"([pipeline]
+name = "prs-rc-dense"
+results = ["image"]
+[[pipeline.pass]]
+pass = "eye"
+[[pipeline.pass]]
+pass = "photon"
+[[pipeline.pass]]
+pass = "ray_bandwidth"
+[[pipeline.pass]]
+pass = "splat_index"
+[[pipeline.pass]]
+pass = "ray_splat"
+outputs = { radiance = "splatted" }
+[[pipeline.pass]]
+pass = "radiance_cache"
+[[pipeline.pass]]
+pass = "radiance_integrate"
+inputs = { radiance_map = "cached_map" }
+outputs = { radiance = "global" }
+[[pipeline.pass]]
+pass = "composite"
+)",
+                             "prs-rc-dense.toml");
+}
+
+std::vector<Rgb> renderDense(const Scene& scene, const FilmSettings& film, int threads) {
+    const BufferHandle image = test::runPipeline(scene, densePipeline(), builtinRegistry().passes, prsParams(20000), film,
+                                                 "image", 1, threads);
+    return static_cast<const Film*>(image.data.get())->resolve();
+}
+
+TEST(PrsRadianceCache, DenseModeSameOnOneAndTwoThreadsAndCloseToUncached) {
+    const Scene scene = test::furnaceSphereScene();
+    const FilmSettings film = test::smallFilm(48, 48);
+    const std::vector<Rgb> one = renderDense(scene, film, 1);
+    const std::vector<Rgb> two = renderDense(scene, film, 2);
+    ASSERT_EQ(one.size(), two.size());
+    for (std::size_t i = 0; i < one.size(); ++i) ASSERT_EQ(one[i], two[i]) << "pixel " << i;
+    const test::RenderedImage uncached = test::renderPipeline(scene, "prs", prsParams(20000), film);
+    double sumUncached = 0.0, sumDense = 0.0;
+    for (std::size_t i = 0; i < one.size(); ++i) {
+        sumUncached += uncached.pixels[i].y;
+        sumDense += one[i].y;
+    }
+    EXPECT_GT(sumUncached, 0.0);
+    EXPECT_NEAR(sumDense, sumUncached, 0.01 * sumUncached);
+}
+
 TEST(PrsRadianceCache, MapWithC00AloneGivesTheSameImage) {
     // Every vertex of the furnace sphere is Lambertian, so ray_splat keeps
     // c_00 alone (map_bands = used): nothing downstream reads the other
@@ -216,12 +272,22 @@ TEST(PrsRadianceCache, PreflightRefusesGridsTooSmallAndUnmappedLambertianVertice
     splat.set("lambertian", std::string("sh_map"));
     PreflightContext pf{scene, params, "radiance_cache", "job.toml:3", {}, {}, {}, {}};
     pf.producerParams = [&](const std::string&) { return &splat; };
-    pf.producerPass = [](const std::string&) { return std::string("ray_splat"); };
+    std::string recordsProducer;
+    pf.producerPass = [&](const std::string& slot) {
+        return slot == "radiance_map" ? std::string("ray_splat") : slot == "placed_records" ? recordsProducer : std::string();
+    };
     EXPECT_NO_THROW(cache.preflight(pf));
     // Three passes halve the grid twice: 2 pixels cannot be.
     params.set("grid", std::int64_t{2});
     EXPECT_THROW(cache.preflight(pf), InputError);
     params.set("grid", std::int64_t{4});
+    EXPECT_NO_THROW(cache.preflight(pf));
+    // With records chosen before splatting, glossy vertices must be mapped too.
+    splat.set("glossy", std::string("direct"));
+    EXPECT_NO_THROW(cache.preflight(pf));
+    recordsProducer = "cache_select";
+    EXPECT_THROW(cache.preflight(pf), InputError);
+    splat.set("glossy", std::string("sh_map"));
     EXPECT_NO_THROW(cache.preflight(pf));
     // Lambertian vertices must be in the map the cache serves.
     splat.set("lambertian", std::string("film"));
