@@ -9,7 +9,7 @@ Columns as the paper's, in CPU seconds of the passes (the wall clock of a
 shared machine says more about its load than about the method):
   T_E  eye pass and the index over its vertices (eye, splat_index)
   T_L  photons, bandwidths and their order (photon, ray_bandwidth, photon_index)
-  T_S  density estimation (ray_splat, radiance_cache, radiance_integrate; gather for PM;
+  T_S  density estimation (ray_splat, cache_select, radiance_cache, radiance_integrate; gather for PM;
        the splat / gather phase of fg_splat / final_gather, their gather-ray tracing counted in T_E)
   ΣT   their sum (composite and scene loading are left out)
 and the RMSE and relMSE of each image against the scene's reference.
@@ -50,7 +50,7 @@ REFERENCE = os.path.join(SCENE_DIR, "reference", "reference.exr")
 PHASES = {
     "T_E": {"eye", "splat_index", "eye_index"},
     "T_L": {"photon", "ray_bandwidth", "photon_index"},
-    "T_S": {"ray_splat", "radiance_cache", "radiance_integrate", "gather"},
+    "T_S": {"ray_splat", "cache_select", "radiance_cache", "radiance_integrate", "gather"},
 }
 
 # Photon mapping on the same film, eye samples and photons as prs.toml; k as
@@ -192,7 +192,7 @@ def main():
         methods = [
             ("PM (spm, k = 100)", spm_job),
             ("RS (prs, " + (", ".join(args.set_rs) or "C = 0.29, S = 0.4") + ")", os.path.join(SCENE_DIR, "prs.toml")),
-            ("RC (prs-rc, C = 0.29, S = 0.4, ε = 0.7)", os.path.join(SCENE_DIR, "prs-rc.toml")),
+            ("RC (prs-rc, C = 0.29, S = 0.4, ε = 0.7, 7 records)", os.path.join(SCENE_DIR, "prs-rc.toml")),
             ("PM-FG (pm-fg, k = 100, 16 FGRs)", os.path.join(SCENE_DIR, "pm-fg.toml")),
             ("RS-FG (prs-fg, C = 0.6, S = 0.8, 16 FGRs, 1 tile)", os.path.join(SCENE_DIR, "prs-fg.toml")),
         ]
@@ -285,10 +285,11 @@ def main():
     lines += [
         "",
         f"RC's T_S is {rows[2][1]['T_S'] / rows[1][1]['T_S']:.2f} × RS's (the paper: 11.9 / 58.3 = 0.20 on its"
-        f" Cornell box I). RC placed {rc_counters.get('cache_records', 0)} records"
-        f" ({rc_counters.get('records_pass_1', 0)}, {rc_counters.get('records_pass_2', 0)},"
-        f" {rc_counters.get('records_pass_3', 0)} per pass); {rc_counters.get('undercovered_pixels', 0)} pixels"
-        f" were covered by fewer than min_records, {rc_counters.get('uncached_vertices', 0)} vertices by none.",
+        f" Cornell box I). RC placed {rc_counters.get('cache_records', 0)} records before splatting ("
+        + ", ".join(str(rc_counters[f"records_pass_{p}"]) for p in range(1, 13) if f"records_pass_{p}" in rc_counters)
+        + f" per pass); {rc_counters.get('undercovered_pixels', 0)} pixels"
+        f" were covered by fewer than min_records, {rc_counters.get('uncached_vertices', 0)} vertices by none"
+        f" (splatted directly); the rays made {rc_counters.get('vertex_deposits', 0)} deposits.",
         "",
         f"RS-FG's T_S is {rows[4][1]['T_S'] / rows[3][1]['T_S']:.2f} × PM-FG's (the paper: 2714 / 4114 = 0.66 on"
         " its conference room with 600 gather rays).",
