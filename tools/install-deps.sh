@@ -7,6 +7,7 @@ packages=(
   libtomlplusplus-dev libtinyobjloader-dev libpugixml-dev libcli11-dev zlib1g-dev
   openimageio-tools   # oiiotool: tools/render_bdpt_references.sh averages the halves
   libgtest-dev libbenchmark-dev python3 python3-numpy python3-skimage python3-matplotlib
+  python3-sklearn   # tests/tools/check_em_sklearn.py: scikit-learn's EM as the yardstick of em_fit
   embree-tools   # tools/bench_vs_embree.sh: Embree's tutorial path tracer as a yardstick
   slurm-wlm munge   # the Slurm test's local cluster (tools/slurm_local.sh)
   clang libfuzzer-14-dev   # tools/test.sh --sanitize: ASan/UBSan build and fuzz targets (clang 14)
