@@ -31,6 +31,7 @@
 
 #include "passes/pem/pem_common.h"
 #include "engine/buffers/beam_buffers.h"
+#include "engine/gmm/segment_batch.h"
 #include "engine/image/film.h"
 #include "engine/scene/scene.h"
 #include "jobs/parallel.h"
@@ -293,6 +294,7 @@ public:
         std::vector<SegmentResult> results(segmentCount);
         jobs::parallelForChunks(segmentCount, kSegmentGrain, [&](jobs::IndexRange range) {
             std::vector<std::uint32_t> stack;
+            gmm::SegmentBatch batch;
             for (std::size_t i = range.begin; i != range.end; ++i) {
                 if (nodeCount == 0) break;
                 const std::int64_t start = jobs::wallNanos();
@@ -309,22 +311,15 @@ public:
                                                                  : static_cast<double>(tFar[i] - tNear[i]);
                 const SlabRay ray = slabRay(x, w, len);
                 SegmentResult& result = results[i];
-                glm::dvec3 sum(0.0);
+                batch.begin(x, w, len);
                 const auto evaluate = [&](std::uint32_t j) {
                     const RenderGaussian& g = gaussians[j];
-                    if (cullEllipsoids) {
-                        glm::dvec3 integral;
-                        if (!gmm::truncatedSegmentIntegralRgb(g.gaussian, g.radiusSquared, x, w, sigmaT, 0.0, len,
-                                                              integral)) {
-                            ++result.culled;
-                            return;
-                        }
-                        ++result.gaussians;
-                        sum += g.power * integral;
+                    if (cullEllipsoids && !batch.addTruncated(g.gaussian, g.radiusSquared, g.power)) {
+                        ++result.culled;
                         return;
                     }
+                    if (!cullEllipsoids) batch.add(g.gaussian, g.power);
                     ++result.gaussians;
-                    sum += g.power * gmm::segmentIntegralRgb(g.gaussian, x, w, sigmaT, 0.0, len);
                 };
                 if (mode == Mode::Flat) {
                     for (std::uint32_t j = 0; j < nodeCount; ++j) {
@@ -396,7 +391,7 @@ public:
                         }
                     }
                 }
-                const Rgb value = Rgb(sum * (1.0 / (4.0 * M_PI))) * throughput[i];
+                const Rgb value = Rgb(batch.sum(sigmaT) * (1.0 / (4.0 * M_PI))) * throughput[i];
                 result.radiance = isFinite(value) ? value : Rgb(0.0f);
                 result.timeNs = static_cast<float>(jobs::wallNanos() - start);
             }
