@@ -25,7 +25,10 @@
 // tests four boxes at a time, on the pyramid collapsed to four-wide nodes
 // (a segment whose transmittance test could fire takes the binary descent);
 // and a Gaussian whose truncated ellipsoid the segment misses is skipped
-// before Eq. 16 (`cull_ellipsoids`).
+// before Eq. 16 (`cull_ellipsoids`). Eq. 16 itself is evaluated for all of a
+// segment's Gaussians together after the descent (engine/gmm/segment_batch.h,
+// with polynomial exp and erfc within about 1e-7 of the C library's, far
+// below the truncation's delta), summed in the descent's order.
 #include "passes/passes.h"
 #include "engine/core/error.h"
 
