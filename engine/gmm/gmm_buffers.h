@@ -22,6 +22,9 @@ FG_SOA_COLUMN(GmmWeight, double, "weight");
 // Phi_s = sum_A q_A(s) Phi_A: the RGB power of the photons it explains, which
 // Eq. 15 multiplies the normalised density by.
 FG_SOA_COLUMN(GmmPower, glm::dvec3, "power");
+// The summed RGB power a component's truncation is measured against (the
+// W and w_j of gmm_bbh's delta rule).
+inline double energy(const glm::dvec3& power) { return power.x + power.y + power.z; }
 FG_SOA_COLUMN(GmmMean, glm::dvec3, "mean");
 FG_SOA_COLUMN(GmmCovariance, gmm::Sym3, "covariance");
 FG_SOA_COLUMN(GmmCholesky, gmm::Sym3, "cholesky");

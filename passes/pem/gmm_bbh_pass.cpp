@@ -20,8 +20,6 @@ namespace fg {
 
 namespace {
 
-double energy(const glm::dvec3& power) { return power.x + power.y + power.z; }
-
 class GmmBbhPass final : public Pass {
 public:
     void run(PassContext& ctx) override {

@@ -63,8 +63,6 @@ struct Splat {
     int x0 = 0, y0 = 0, x1 = -1, y1 = -1;  // inclusive; empty when x1 < x0
 };
 
-double energy(const glm::dvec3& power) { return power.x + power.y + power.z; }
-
 // ceil(log2 k): the levels above the leaves of a pyramid over k Gaussians (Alg. 3).
 std::int64_t pyramidLevels(std::int64_t k) {
     std::int64_t levels = 0;

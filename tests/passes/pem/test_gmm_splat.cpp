@@ -146,7 +146,6 @@ TEST(GmmSplat, EveryLevelEqualsGmmRenderOfThatLevelInAMediumOnlyScene) {
 // node of the level: what the screen rectangles must not lose.
 double pairsMeetingEllipsoids(const Scene& scene, const GmmPyramid& pyramid, std::uint32_t level, int size) {
     const GmmPyramidBuffer& nodes = pyramid.nodes;
-    const auto energy = [](const glm::dvec3& p) { return p.x + p.y + p.z; };
     const double allowed = 1e-3 * energy(nodes.column<GmmPower>()[0]) / static_cast<double>((nodes.size() + 1) / 2);
     const auto chi3Tail = [](double r) {
         return std::erfc(r / std::sqrt(2.0)) + std::sqrt(2.0 / M_PI) * r * std::exp(-0.5 * r * r);
