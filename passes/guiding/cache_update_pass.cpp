@@ -206,6 +206,7 @@ public:
         settings.em.priorA = params.getFloat("prior_a");
         settings.em.priorB = params.getFloat("prior_b");
         settings.em.priorNu = params.getFloat("prior_nu");
+        settings.em.effectiveCount = params.getString("prior_count") == "effective";
 
         const bool importance = ctx.hasInput("importance_training");
         if (!importance && !(ctx.hasInput("photons") && ctx.hasInput("index")))
@@ -399,6 +400,9 @@ PassRegistration cacheUpdatePass() {
         {"prior_a", ParamType::Float, 2.01, 2.0, 1e6, {}, "a: covariance prior (Eq. 10)"},
         {"prior_b", ParamType::Float, 5e-4, 0.0, 1e6, {}, "b: covariance prior (Eq. 10)"},
         {"prior_nu", ParamType::Float, 1.01, 1.0, 1e6, {}, "nu: mixing-weight prior (Eq. 9)"},
+        {"prior_count", ParamType::String, std::string("effective"), 0, 0, {"particles", "effective"},
+         "n of the priors in Eqs. 9-10: the particles' number (the paper) or their effective count n w^2/mean(w^2), "
+         "which keeps a lobe from collapsing onto a few heavy particles"},
     };
     return {spec, [] { return std::make_unique<CacheUpdatePass>(); }, {}, {}};
 }
