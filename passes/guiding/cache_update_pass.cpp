@@ -89,24 +89,37 @@ struct TrainingParticles {
 
 // The N nearest particles that arrived through the record's hemisphere, as
 // points of its square (in scratch.points). Returns the distance to the
-// furthest particle found.
+// furthest of them (the training radius). Particles from the other side do
+// not count towards N: next to a thin wall lit from behind (veach-ajar's
+// door, the partition of the tests' occluded room) most of the nearest
+// photons lie on the wall's far face, and counting them left a record of the
+// dark side a handful of particles to fit, on which its lobes collapsed, and
+// a training radius, hence a validity radius, of the wall's thickness. The
+// search widens (4x the candidates, up to 64 N) until N have been found.
 float trainingPoints(const TrainingParticles& particles, const Vec3& position, const Vec3& normal,
                      std::uint32_t count, TrainingScratch& scratch) {
     std::vector<std::uint32_t>& ids = scratch.ids;
     std::vector<float>& dist2 = scratch.dist2;
     std::vector<WeightedPoint>& points = scratch.points;
-    ids.resize(count);
-    dist2.resize(count);
-    const std::size_t found = particles.index->nearest(position, count, kInfinity, ids, dist2);
     const Frame frame(normal);
-    points.clear();
-    for (std::size_t k = 0; k < found; ++k) {
-        const std::optional<Vec2> s = hemisphereToSquare(frame.toLocal(particles.incident[ids[k]]));
-        const float weight = particles.weight[ids[k]];
-        if (!s || !(weight > 0.0f)) continue;
-        points.push_back({*s, weight});
+    const std::size_t widest = std::size_t{64} * count;
+    float radius2 = 0.0f;
+    for (std::size_t candidates = count;; candidates *= 4) {
+        ids.resize(candidates);
+        dist2.resize(candidates);
+        const std::size_t found = particles.index->nearest(position, candidates, kInfinity, ids, dist2);
+        points.clear();
+        radius2 = 0.0f;
+        for (std::size_t k = 0; k < found && points.size() < count; ++k) {
+            const std::optional<Vec2> s = hemisphereToSquare(frame.toLocal(particles.incident[ids[k]]));
+            const float weight = particles.weight[ids[k]];
+            if (!s || !(weight > 0.0f)) continue;
+            points.push_back({*s, weight});
+            radius2 = dist2[k];
+        }
+        if (points.size() >= count || found < candidates || candidates >= widest) break;
     }
-    return found > 0 ? std::sqrt(dist2[found - 1]) : 0.0f;
+    return std::sqrt(radius2);
 }
 
 // Where paths query the cache, so where records are made: positions and the
@@ -257,7 +270,6 @@ public:
 
     static void update(GuidingCache& cache, const TrainingParticles& particles, const QueryPoints& queries,
                        const UpdateSettings& settings, PassContext& ctx) {
-        const PointIndex& index = *particles.index;
         const std::size_t existing = cache.records.size();
         // On-line stepwise EM for the records that were there before this map.
         jobs::parallelForChunks(existing, 16, [&](jobs::IndexRange r) {
@@ -302,8 +314,7 @@ public:
             hi = glm::max(hi, p);
         }
         NewRecordGrid grid(std::max(1e-6f, glm::length(hi - lo) / 128.0f));
-        std::vector<std::uint32_t> ids(settings.trainingParticles);
-        std::vector<float> dist2(settings.trainingParticles);
+        TrainingScratch creationScratch;
         struct Fresh {
             Vec3 position, normal;
             float trainingRadius;
@@ -318,8 +329,7 @@ public:
                 return glm::dot(n, fresh[k].normal) > 0.0f && KdTree::distance2(p, fresh[k].position) <= r * r;
             });
             if (covered) continue;
-            const std::size_t found = index.nearest(p, settings.trainingParticles, kInfinity, ids, dist2);
-            const float radius = found > 0 ? std::sqrt(dist2[found - 1]) : 0.0f;
+            const float radius = trainingPoints(particles, p, n, settings.trainingParticles, creationScratch);
             if (!(radius > 0.0f)) continue;
             grid.insert(static_cast<std::uint32_t>(fresh.size()), p, settings.newRecordSpacing * radius);
             fresh.push_back({p, n, radius});
