@@ -95,7 +95,8 @@ struct TrainingParticles {
 // photons lie on the wall's far face, and counting them left a record of the
 // dark side a handful of particles to fit, on which its lobes collapsed, and
 // a training radius, hence a validity radius, of the wall's thickness. The
-// search widens (4x the candidates, up to 64 N) until N have been found.
+// search widens (by the share of candidates found to arrive through the
+// hemisphere, up to 64 N candidates) until N have been found.
 float trainingPoints(const TrainingParticles& particles, const Vec3& position, const Vec3& normal,
                      std::uint32_t count, TrainingScratch& scratch) {
     std::vector<std::uint32_t>& ids = scratch.ids;
@@ -104,7 +105,7 @@ float trainingPoints(const TrainingParticles& particles, const Vec3& position, c
     const Frame frame(normal);
     const std::size_t widest = std::size_t{64} * count;
     float radius2 = 0.0f;
-    for (std::size_t candidates = count;; candidates *= 4) {
+    for (std::size_t candidates = count;;) {
         ids.resize(candidates);
         dist2.resize(candidates);
         const std::size_t found = particles.index->nearest(position, candidates, kInfinity, ids, dist2);
@@ -118,6 +119,10 @@ float trainingPoints(const TrainingParticles& particles, const Vec3& position, c
             radius2 = dist2[k];
         }
         if (points.size() >= count || found < candidates || candidates >= widest) break;
+        // Enough candidates for the share of them found to arrive through the
+        // hemisphere, and a quarter more: most records miss only a few.
+        const std::size_t accepted = std::max<std::size_t>(points.size(), 1);
+        candidates = std::min(widest, std::max(candidates + 16, candidates * count * 5 / (4 * accepted)));
     }
     return std::sqrt(radius2);
 }
