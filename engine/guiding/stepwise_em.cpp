@@ -94,6 +94,7 @@ void accumulate(const MixtureTerms& terms, GmmStatistics& stats, const WeightedP
         u.syy = keep * u.syy + g * y * y;
     }
     stats.meanWeight = keep * stats.meanWeight + eta * w;
+    stats.meanSquaredWeight = keep * stats.meanSquaredWeight + eta * w * w;
 }
 
 // η_i = i^-exponent. pow() was a tenth of the off-line EM's time; the values
@@ -135,6 +136,8 @@ DirectionalGmm initialGmm(std::span<const WeightedPoint> points, const EmSetting
 
 void gmmMaximisation(DirectionalGmm& gmm, const GmmStatistics& stats, double n, const EmSettings& settings) {
     if (!(stats.meanWeight > 0.0) || !(n > 0.0)) return;
+    if (settings.effectiveCount && stats.meanSquaredWeight > 0.0)
+        n = std::max(1.0, n * stats.meanWeight * stats.meanWeight / stats.meanSquaredWeight);
     const DirectionalGmm previous = gmm;
     const double priorWeight = (settings.priorNu - 1.0) / n;
     const double priorCov = settings.priorB / n;
@@ -251,6 +254,7 @@ int batchEm(DirectionalGmm& gmm, std::span<const WeightedPoint> points, double p
                 u.syy += g * y * y;
             }
             stats.meanWeight += w;
+            stats.meanSquaredWeight += double(p.weight) * double(p.weight) * inverseCount;
         }
         gmmMaximisation(gmm, stats, priorCount, settings);
         ++iterations;

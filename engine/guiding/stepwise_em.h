@@ -31,6 +31,9 @@ struct ComponentStatistics {
 struct GmmStatistics {
     std::array<ComponentStatistics, kGmmComponents> components{};
     double meanWeight = 0.0;  // w̄ of Eq. 8
+    // The running average of w² with the same steps: with w̄ it gives the
+    // particles' effective count (EmSettings::effectiveCount).
+    double meanSquaredWeight = 0.0;
     std::uint64_t count = 0;  // i: particles folded in so far
 };
 
@@ -46,6 +49,13 @@ struct EmSettings {
     // them stopped by maxSweeps).
     double tolerance = 1e-3;
     int maxSweeps = 100;
+    // The prior's n of Eqs. 9-10 as the particles' effective count
+    // n w̄² / mean(w²) (Kish's effective sample size) instead of their number n.
+    // Not in the paper, whose n counts particles whatever their weights: a
+    // record fitted to a few heavy photons among many light ones then meets
+    // a prior as weak as for n even ones, and a lobe collapses onto the heavy
+    // photons' directions (Σ -> b / n).
+    bool effectiveCount = false;
 };
 
 // A deterministic starting mixture for a particle set: equal weights, means at

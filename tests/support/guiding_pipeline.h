@@ -1,6 +1,7 @@
 // The guided-pt pipeline as the guiding tests build it: a short training
 // block (importon, photon, index, cache_update) carrying the radiance cache,
-// and the small training parameters they share.
+// or the built-in guided-pt block with the importance cache and guided
+// photons, and the small training parameters they share.
 #pragma once
 
 #include "engine/core/job.h"
@@ -16,34 +17,75 @@ namespace fg::test {
 // (as the built-in guided-pt does) or at the photons (without an importons input).
 enum class RecordsAt { Importons, Photons };
 
-// The guided-pt pipeline with a short training block; `tail` is appended after it.
-inline Pipeline guidedPipeline(int trainingPasses, const std::string& result, RecordsAt at = RecordsAt::Importons,
-                        const std::string& tail = "[[pipeline.pass]]\npass = \"pt\"\ninputs = { radiance_cache = \"radiance_cache\" }\n") {
-    const bool importons = at == RecordsAt::Importons;
-    const std::string text = "[pipeline]\nname = \"guided-pt-test\"\nresults = [\"" + result +
-                             "\"]\n[[pipeline.repeat]]\nname = \"train\"\ncount = " + std::to_string(trainingPasses) +
-                             "\ncarry = { radiance_cache = \"radiance_cache\" }\n" +
-                             (importons ? R"([[pipeline.repeat.pass]]
+inline constexpr const char* kGuidedPtPass = "[[pipeline.pass]]\npass = \"pt\"\ninputs = { radiance_cache = \"radiance_cache\" }\n";
+
+namespace detail {
+
+inline std::string pipelineHead(const std::string& name, const std::string& result, int trainingPasses,
+                                const std::string& carry) {
+    return "[pipeline]\nname = \"" + name + "\"\nresults = [\"" + result +
+           "\"]\n[[pipeline.repeat]]\nname = \"train\"\ncount = " + std::to_string(trainingPasses) + "\ncarry = { " +
+           carry + " }\n";
+}
+
+inline constexpr const char* kImportonPass = R"([[pipeline.repeat.pass]]
 pass = "importon"
 inputs = { radiance_cache = "radiance_cache" }
 outputs = { importons = "training_importons" }
-)"
-                                        : "") +
-                             R"([[pipeline.repeat.pass]]
-pass = "photon"
-outputs = { global_photons = "training_photons" }
-[[pipeline.repeat.pass]]
+)";
+
+inline constexpr const char* kIndexPass = R"([[pipeline.repeat.pass]]
 pass = "photon_index"
 name = "training_index"
 inputs = { photons = "training_photons" }
 outputs = { index = "training_index" }
-[[pipeline.repeat.pass]]
+)";
+
+// The radiance update, with new records at the importons or at the photons.
+inline std::string radianceUpdatePass(RecordsAt at) {
+    return std::string(R"([[pipeline.repeat.pass]]
 pass = "cache_update"
 name = "radiance_update"
-inputs = { photons = "training_photons", index = "training_index", previous = "radiance_cache")" +
-                             (importons ? ", importons = \"training_importons\"" : "") + " }\n" +
-                             "outputs = { cache = \"radiance_cache\" }\n" + tail;
+inputs = { photons = "training_photons", index = "training_index", previous = "radiance_cache")") +
+           (at == RecordsAt::Importons ? ", importons = \"training_importons\"" : "") +
+           " }\noutputs = { cache = \"radiance_cache\" }\n";
+}
+
+}  // namespace detail
+
+// The guided-pt pipeline with a short training block (unguided photons, no
+// importance cache); `tail` is appended after it.
+inline Pipeline guidedPipeline(int trainingPasses, const std::string& result, RecordsAt at = RecordsAt::Importons,
+                               const std::string& tail = kGuidedPtPass) {
+    const std::string text = detail::pipelineHead("guided-pt-test", result, trainingPasses,
+                                                  "radiance_cache = \"radiance_cache\"") +
+                             (at == RecordsAt::Importons ? detail::kImportonPass : "") +
+                             "[[pipeline.repeat.pass]]\npass = \"photon\"\noutputs = { global_photons = \"training_photons\" }\n" +
+                             detail::kIndexPass + detail::radianceUpdatePass(at) + tail;
     return parsePipelineFile(text, "guided-pt-test.toml");
+}
+
+// The built-in guided-pt training block (passes/pipelines/guided-pt.toml):
+// importons, the importance cache, photons guided by it, their index and the
+// radiance cache, `trainingPasses` times; `tail` is appended after it (none:
+// the result is one of the carried buffers).
+inline Pipeline guidedTrainingPipeline(int trainingPasses, const std::string& result, const std::string& tail = "") {
+    const std::string text =
+        detail::pipelineHead("guided-training-test", result, trainingPasses,
+                             "radiance_cache = \"radiance_cache\", importance_cache = \"importance_cache\", "
+                             "training_photons = \"training_photons\"") +
+        detail::kImportonPass + R"([[pipeline.repeat.pass]]
+pass = "cache_update"
+name = "importance_update"
+inputs = { importance_training = "training_importons", photons = "training_photons", previous = "importance_cache" }
+outputs = { cache = "importance_cache" }
+[[pipeline.repeat.pass]]
+pass = "photon"
+inputs = { importance_cache = "importance_cache" }
+outputs = { global_photons = "training_photons" }
+)" + detail::kIndexPass +
+        detail::radianceUpdatePass(RecordsAt::Importons) + tail;
+    return parsePipelineFile(text, "guided-training-test.toml");
 }
 
 inline std::map<std::string, ParamValue> trainingParams(std::int64_t photons, std::int64_t spp) {

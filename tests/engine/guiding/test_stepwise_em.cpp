@@ -185,6 +185,45 @@ TEST(StepwiseEm, LargeCountTendsToMaximumLikelihood) {
     EXPECT_GT(smallShift, 1e-4);
 }
 
+// With the prior's n as the particles' effective count (EmSettings::
+// effectiveCount), two heavy particles among 200 light ones make a lobe the
+// prior keeps wide across their common direction (n_eff is about 2 instead of
+// 200: Σ_yy about b/2 instead of b/200), and even weights change nothing but
+// rounding (n_eff = n).
+TEST(StepwiseEm, EffectiveCountKeepsHeavyParticlesFromCollapsingALobe) {
+    std::vector<WeightedPoint> points = drawPoints(knownMixture(), 200, 5, 0.0f);
+    points[50] = {Vec2(0.5f, 0.5f), 1e4f};
+    points[150] = {Vec2(0.52f, 0.5f), 1e4f};
+    const auto heavyLobe = [&](bool effective) {
+        EmSettings settings;
+        settings.effectiveCount = effective;
+        DirectionalGmm gmm = initialGmm(points, settings);
+        GmmStatistics stats;
+        offlineStepwiseEm(gmm, stats, points, settings);
+        EXPECT_TRUE(gmm.usable());
+        const auto heaviest = std::max_element(gmm.components.begin(), gmm.components.end(),
+                                               [](const GmmComponent& a, const GmmComponent& b) { return a.weight < b.weight; });
+        EXPECT_NEAR(heaviest->mean.y, 0.5f, 0.01f);
+        return *heaviest;
+    };
+    const GmmComponent particles = heavyLobe(false), effective = heavyLobe(true);
+    EXPECT_LT(particles.covYY, 1e-5f);
+    EXPECT_GT(effective.covYY, 10.0f * particles.covYY);
+
+    const std::vector<WeightedPoint> even = drawPoints(knownMixture(), 200, 6, 0.0f);
+    EmSettings settings;
+    DirectionalGmm a = initialGmm(even, settings), b = a;
+    GmmStatistics statsA, statsB;
+    offlineStepwiseEm(a, statsA, even, settings);
+    settings.effectiveCount = true;
+    offlineStepwiseEm(b, statsB, even, settings);
+    for (std::size_t j = 0; j < kGmmComponents; ++j) {
+        EXPECT_NEAR(a.components[j].weight, b.components[j].weight, 1e-4f);
+        EXPECT_NEAR(a.components[j].mean.x, b.components[j].mean.x, 1e-4f);
+        EXPECT_NEAR(a.components[j].covXX, b.components[j].covXX, 1e-3f * a.components[j].covXX + 1e-8f);
+    }
+}
+
 TEST(StepwiseEm, OnlineConvergesToStreamedMixture) {
     const DirectionalGmm truth = knownMixture();
     EmSettings settings;

@@ -15,6 +15,7 @@
 #include "passes/passes.h"
 #include "tests/passes/guiding/ajar_room.h"
 #include "tests/support/cli_helpers.h"
+#include "tests/support/guiding_pipeline.h"
 #include "tests/support/pass_helpers.h"
 #include "tests/support/render_helpers.h"
 
@@ -29,39 +30,6 @@
 
 namespace fg {
 namespace {
-
-// The built-in guided-pt training block (importons, importance cache, guided
-// photons, index, radiance cache), `passes` times, ending with `result`.
-Pipeline trainingPipeline(int passes, const std::string& result) {
-    const std::string text = "[pipeline]\nname = \"guided-photons-test\"\nresults = [\"" + result +
-                             "\"]\n[[pipeline.repeat]]\nname = \"train\"\ncount = " + std::to_string(passes) + R"(
-carry = { radiance_cache = "radiance_cache", importance_cache = "importance_cache", training_photons = "training_photons" }
-[[pipeline.repeat.pass]]
-pass = "importon"
-inputs = { radiance_cache = "radiance_cache" }
-outputs = { importons = "training_importons" }
-[[pipeline.repeat.pass]]
-pass = "cache_update"
-name = "importance_update"
-inputs = { importance_training = "training_importons", photons = "training_photons", previous = "importance_cache" }
-outputs = { cache = "importance_cache" }
-[[pipeline.repeat.pass]]
-pass = "photon"
-inputs = { importance_cache = "importance_cache" }
-outputs = { global_photons = "training_photons" }
-[[pipeline.repeat.pass]]
-pass = "photon_index"
-name = "training_index"
-inputs = { photons = "training_photons" }
-outputs = { index = "training_index" }
-[[pipeline.repeat.pass]]
-pass = "cache_update"
-name = "radiance_update"
-inputs = { photons = "training_photons", index = "training_index", previous = "radiance_cache", importons = "training_importons" }
-outputs = { cache = "radiance_cache" }
-)";
-    return parsePipelineFile(text, "guided-photons-test.toml");
-}
 
 std::map<std::string, ParamValue> trainingParams(std::int64_t photons) {
     return {{"importon.spp", std::int64_t{4}},
@@ -80,7 +48,7 @@ Scene ajarRoom() {
 }
 
 BufferHandle trainedImportanceCache(const Scene& scene, int passes, std::uint64_t seed, int threads = 0) {
-    return test::runPipeline(scene, trainingPipeline(passes, "importance_cache"), builtinRegistry().passes,
+    return test::runPipeline(scene, test::guidedTrainingPipeline(passes, "importance_cache"), builtinRegistry().passes,
                              trainingParams(20000), test::smallFilm(16, 16), "importance_cache", seed, threads);
 }
 
@@ -183,7 +151,7 @@ TEST(GuidedPhotons, IdenticalAtOneAndTwoThreads) {
     const Scene scene = ajarRoom();
     const std::filesystem::path dir = test::scratchDirectory("guided-photons");
     const auto bytes = [&](const std::string& result, int threads) {
-        const BufferHandle buffer = test::runPipeline(scene, trainingPipeline(2, result), builtinRegistry().passes,
+        const BufferHandle buffer = test::runPipeline(scene, test::guidedTrainingPipeline(2, result), builtinRegistry().passes,
                                                       trainingParams(20000), test::smallFilm(16, 16), result, 5, threads);
         const std::filesystem::path path = dir / (result + std::to_string(threads) + ".fgbuf");
         saveBuffer(buffer, path.string(), "");

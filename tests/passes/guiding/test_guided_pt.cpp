@@ -242,9 +242,12 @@ TEST(GuidedPt, CacheWhoseLanesDisagreeWithItsComponentsIsRefused) {
 
 // Records are made where camera paths query the cache (§4.1): in the occluded
 // room, whose light is behind the partition (x > 0.32) and whose camera looks
-// at the near side, most records made at importons lie on the camera's side
-// (the rest where camera paths go through the gap), while records made at
-// photons lie mostly next to the light (measured: 60 % and 14 %).
+// at the near side, records made at importons lie far more often on the
+// camera's side (the rest where camera paths go through the gap) than records
+// made at photons, which lie mostly next to the light (measured: 42 % and 8 %;
+// 60 % and 14 % while a record's training particles counted those on the far
+// face of the partition, whose short training radius made the near side's
+// records small and many).
 TEST(GuidedPt, RecordsFollowCameraPathsInOccludedRoom) {
     const std::filesystem::path dir = test::scratchDirectory("guided-pt");
     test::writeText(dir / "ajar-room.toml", kAjarRoom);
@@ -262,8 +265,8 @@ TEST(GuidedPt, RecordsFollowCameraPathsInOccludedRoom) {
         return share;
     };
     const double importons = cameraSideShare(RecordsAt::Importons), photons = cameraSideShare(RecordsAt::Photons);
-    EXPECT_GT(importons, 0.5);
-    EXPECT_GT(importons, photons + 0.3);
+    EXPECT_GT(importons, 0.3);
+    EXPECT_GT(importons, 3.0 * photons);
 }
 
 }  // namespace
