@@ -536,6 +536,10 @@ EmRun runEm(const EmCells& cells, std::vector<EmComponent>& components, const Em
         ++run.iterations;
         const std::size_t dropped = dropWeakComponents(components, options.minEffectiveCount);
         run.dropped += dropped;
+        if (run.iterations == options.maxIterations && options.skipLastEStep && options.skipLastEStep(components)) {
+            run.lastEStepSkipped = true;
+            return run;
+        }
         const double next = eStep(cells, components, options.tau, run.responsibilities);
         run.bounds.push_back(next);
         const double change = std::abs(next - bound) / n;

@@ -250,10 +250,16 @@ private:
                 cells_ = cellsOf(tree_, cut_);
                 gmm::EmOptions innerOptions = options_;
                 if (outer_ > 0 || seeded_) innerOptions.maxIterations = maxRefitIterations_;
+                // A loop that ends at its cap right before a map leaves out its
+                // last E-step: the map changes the statistics, so the expansion
+                // after it recomputes that E-step anyway (see the file comment).
+                innerOptions.skipLastEStep = [&](const std::vector<gmm::EmComponent>&) {
+                    return streamOpen && photons_ < maxPhotons_ && shortComponents().reachable > 0;
+                };
                 gmm::EmRun inner = gmm::runEm(cells_, components_, innerOptions, haveWarm_ ? &warm_ : nullptr);
                 haveWarm_ = false;
                 lastInner_ = std::move(inner.responsibilities);
-                lastInnerCurrent_ = true;
+                lastInnerCurrent_ = !inner.lastEStepSkipped;
                 inner_ += inner.iterations;
                 ++outer_;
                 dropped_ += inner.dropped;
