@@ -16,7 +16,7 @@ namespace {
 // Fixed block counts: reductions merge in block order, independent of threads.
 constexpr std::size_t kEStepBlocks = 64;
 constexpr std::size_t kMStepBlocks = 32;
-constexpr std::uint32_t kComponentLeafSize = 16;
+constexpr std::uint32_t kComponentLeafSize = 32;
 
 // A hierarchy over the components' means for the sparse E-step. For a cell
 // (mean m, covariance C) and a component s whose mean lies in a node's box,
