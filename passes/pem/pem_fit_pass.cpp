@@ -64,6 +64,12 @@
 // therefore not recomputed. Likewise the cut's part of that E-step is the last
 // inner loop's final one when no map has been blended in since (counted:
 // expansions_reusing_inner_estep).
+// Conversely, an inner loop that ends at its iteration cap right before a
+// map leaves out its last E-step (EmOptions::skipLastEStep): the map changes
+// the statistics, so the expansion after it would recompute that E-step, a
+// quarter of all cell E-steps at k = 4096. Whether a map is wanted is then
+// read from the n_eff the last M-step set the weights from (Eq. 10 with the
+// responsibilities before it), not after it.
 // Components with n_eff < min_n_eff are dropped (counted). After the last
 // expansion one E-step on the final cut gives n_eff and the powers.
 //
