@@ -32,6 +32,7 @@
 #include "engine/gmm/gaussian.h"
 
 #include <cstdint>
+#include <functional>
 #include <vector>
 
 namespace fg::gmm {
@@ -59,6 +60,13 @@ struct EmOptions {
     double epsilon = 1e-4;     // converged when |F/n change| <= epsilon max(1, |F/n|)
     int maxIterations = 100;
     double minEffectiveCount = 1.0;  // components explaining fewer photons are dropped
+    // Asked after the M-step of the last allowed iteration, with the new
+    // components: true leaves out the E-step that would follow. A caller that
+    // will change the cells before it reads the responsibilities again (e.g.
+    // blends in more photons) does not need it. n_eff and the powers are then
+    // those of the responsibilities that M-step used, from which it set the
+    // weights (w_s = n_eff(s) / n).
+    std::function<bool(const std::vector<EmComponent>&)> skipLastEStep;
 };
 
 // Sparse responsibilities, cell by cell: entries [offset[A], offset[A + 1]).
@@ -97,7 +105,8 @@ struct EmRun {
     bool converged = false;
     std::vector<double> bounds;  // F after each E-step, the first for the initial guess
     std::size_t dropped = 0;
-    Responsibilities responsibilities;  // of the final parameters
+    Responsibilities responsibilities;  // of the final parameters, unless lastEStepSkipped
+    bool lastEStepSkipped = false;      // skipLastEStep said so; responsibilities are those before the last M-step
 };
 // Alg. 1: E- and M-steps until F/n settles; components keep n_eff and powers
 // of the final E-step.

@@ -162,6 +162,59 @@ TEST(GmmEm, BoundNeverDecreasesAndNeverExceedsLikelihood) {
     }
 }
 
+// pem_fit leaves out an inner loop's last E-step when a map of photons
+// follows: the parameters must be those of the full run, and n_eff that of
+// the responsibilities the last M-step used (which differs from the full
+// run's, so the skip is seen to have happened).
+TEST(GmmEm, SkippedLastEStepKeepsTheParametersAndTheMStepsEffectiveCounts) {
+    const Sample sample = mixtureSample(20000, 8, 23, 0.5);
+    EmTree tree;
+    tree.build(sample.positions, sample.power);
+    const EmCells cells = cellsOf(tree, tree.cut(512));
+    const std::vector<EmComponent> start = componentsFromCells(cellsOf(tree, tree.cut(32)), 1e-7);
+    for (const double tau : {0.0, 1e-4}) {
+        EmOptions options;
+        options.tau = tau;
+        options.regCovar = 1e-7;
+        options.epsilon = 0.0;
+        options.maxIterations = 3;
+        std::vector<EmComponent> full = start, skipped = start, twoIterations = start;
+        const EmRun fullRun = runEm(cells, full, options);
+        int asked = 0;
+        options.skipLastEStep = [&](const std::vector<EmComponent>& components) {
+            ++asked;
+            EXPECT_EQ(components.size(), start.size());
+            return true;
+        };
+        const EmRun skippedRun = runEm(cells, skipped, options);
+        EXPECT_EQ(asked, 1);
+        EXPECT_TRUE(skippedRun.lastEStepSkipped);
+        EXPECT_FALSE(fullRun.lastEStepSkipped);
+        EXPECT_EQ(skippedRun.iterations, fullRun.iterations);
+        ASSERT_EQ(skippedRun.bounds.size() + 1, fullRun.bounds.size());
+        for (std::size_t i = 0; i < skippedRun.bounds.size(); ++i) EXPECT_EQ(skippedRun.bounds[i], fullRun.bounds[i]);
+        // The responsibilities the last M-step used: those of two iterations' E-step.
+        options.skipLastEStep = nullptr;
+        options.maxIterations = 2;
+        const EmRun twoRun = runEm(cells, twoIterations, options);
+        EXPECT_EQ(skippedRun.responsibilities.q, twoRun.responsibilities.q);
+        ASSERT_EQ(full.size(), skipped.size());
+        double effective = 0.0;
+        bool anyDiffers = false;
+        for (std::size_t c = 0; c < full.size(); ++c) {
+            EXPECT_EQ(full[c].weight, skipped[c].weight);
+            EXPECT_EQ(full[c].gaussian.mean, skipped[c].gaussian.mean);
+            EXPECT_EQ(full[c].gaussian.covariance.v, skipped[c].gaussian.covariance.v);
+            EXPECT_EQ(skipped[c].effectiveCount, twoIterations[c].effectiveCount);
+            EXPECT_NEAR(skipped[c].effectiveCount, skipped[c].weight * cells.totalCount(), 1e-9 * cells.totalCount());
+            anyDiffers = anyDiffers || skipped[c].effectiveCount != full[c].effectiveCount;
+            effective += skipped[c].effectiveCount;
+        }
+        EXPECT_TRUE(anyDiffers);
+        EXPECT_NEAR(effective, cells.totalCount(), 1e-3 * cells.totalCount() * std::max(tau, 1e-9));
+    }
+}
+
 TEST(GmmEmTree, LeavesHoldAtMostFourAndRootHoldsAll) {
     const Sample sample = mixtureSample(5000, 3, 23);
     EmTree tree;
