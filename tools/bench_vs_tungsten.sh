@@ -44,7 +44,7 @@ while [ $# -gt 0 ]; do
     --runs) runs="$2"; shift 2 ;;
     --paths) paths="$2"; shift 2 ;;
     --scene) scene="$2"; shift 2 ;;
-    -h|--help) sed -n 2,32p "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    -h|--help) sed -n 2,30p "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
     *) tungsten="$1"; shift ;;
   esac
 done
