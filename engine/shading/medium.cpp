@@ -41,7 +41,8 @@ PhaseSample HenyeyGreenstein::sample(const Vec3& wo, const Vec2& u) const {
     const float phi = 2.0f * kPi * u.y;
     PhaseSample s;
     s.wi = glm::normalize(Frame(-wo).toWorld(Vec3(sinT * std::cos(phi), sinT * std::sin(phi), cosT)));
-    s.pdf = eval(wo, s.wi);
+    // For g = 0 eval() is 1/(4 pi) exactly, whatever the directions.
+    s.pdf = g_ == 0.0f ? kInv4Pi : eval(wo, s.wi);
     return s;
 }
 
@@ -58,6 +59,8 @@ float channelTransmittance(float sigmaT, float distance) {
 Rgb HomogeneousMedium::transmittance(float distance) const {
     const float d = std::max(distance, 0.0f);
     const Rgb sigmaT = this->sigmaT();
+    // Grey media (the common case) need one exponential, not three: the same value, bit for bit.
+    if (sigmaT.x == sigmaT.y && sigmaT.y == sigmaT.z) return Rgb(channelTransmittance(sigmaT.x, d));
     return {channelTransmittance(sigmaT.x, d), channelTransmittance(sigmaT.y, d), channelTransmittance(sigmaT.z, d)};
 }
 

@@ -106,6 +106,7 @@
 #include "jobs/random.h"
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <cstdint>
 #include <memory>
@@ -169,6 +170,36 @@ struct ChunkResult {
     std::int64_t collapsedGlobal = 0;
     std::int64_t segments = 0;
     std::int64_t guidedEvents = 0;
+};
+
+// Capacity hints for a chunk's record vectors, from the records per path of
+// the chunks traced so far: vectors grown from empty copy every record about
+// once more and reallocate a dozen times per chunk. Only capacities depend on
+// the hints (and on the order chunks finish in), never the records.
+class RecordRates {
+public:
+    void reserve(ChunkResult& out, std::size_t paths) const {
+        const std::uint64_t seen = paths_.load(std::memory_order_relaxed);
+        if (seen == 0) return;
+        const auto hint = [&](const std::atomic<std::uint64_t>& records) {
+            // A quarter more than the mean, so that most chunks never grow.
+            return static_cast<std::size_t>(records.load(std::memory_order_relaxed) * paths * 5 / (4 * seen));
+        };
+        out.caustic.reserve(hint(caustic_));
+        out.global.reserve(hint(global_));
+        out.volume.reserve(hint(volume_));
+        out.rays.reserve(hint(rays_));
+    }
+    void add(const ChunkResult& out, std::size_t paths) {
+        paths_.fetch_add(paths, std::memory_order_relaxed);
+        caustic_.fetch_add(out.caustic.size(), std::memory_order_relaxed);
+        global_.fetch_add(out.global.size(), std::memory_order_relaxed);
+        volume_.fetch_add(out.volume.size(), std::memory_order_relaxed);
+        rays_.fetch_add(out.rays.size(), std::memory_order_relaxed);
+    }
+
+private:
+    std::atomic<std::uint64_t> paths_{0}, caustic_{0}, global_{0}, volume_{0}, rays_{0};
 };
 
 // The photon ray being traced (Herzog et al. 2007, Eq. 7): where it left, and
@@ -529,6 +560,7 @@ private:
         // Paths per volume photon so far, to size the path batches (the photons do not depend on the sizes).
         const double rate = static_cast<double>(targetPhotons) / static_cast<double>(std::max<std::uint64_t>(targetPaths, 1));
         std::int64_t maps = 0, photons = 0, segments = 0;
+        RecordRates rates;
         std::uint64_t lastEmitted = targetPaths;
         const auto handOverFirst = [&](std::size_t count, std::uint64_t emitted) {
             auto map = std::make_shared<VolumePhotonMap>();
@@ -565,7 +597,9 @@ private:
             std::vector<ChunkResult> chunks((count + kGrain - 1) / kGrain);
             jobs::parallelForChunks(count, kGrain, [&](jobs::IndexRange r) {
                 ChunkResult& out = chunks[r.begin / kGrain];
+                rates.reserve(out, r.end - r.begin);
                 for (std::size_t i = r.begin; i != r.end; ++i) tracer.trace(pathsTraced + i, out);
+                rates.add(out, r.end - r.begin);
             });
             for (const ChunkResult& chunk : chunks) {
                 pending.insert(pending.end(), chunk.volume.begin(), chunk.volume.end());
@@ -684,6 +718,7 @@ public:
         const bool laterVolume = targetMode && settings.volumeBatch > 0 && ctx.streamed("volume_photons");
         std::vector<VolumePhotonRecord> laterRecords;
         std::uint64_t pathsTraced = 0;
+        RecordRates rates;
         for (std::uint64_t batchStart = 0; batchStart < settings.photons && !targetReached;) {
             std::uint64_t wanted = settings.batchSize;
             if (targetMode) {
@@ -705,7 +740,9 @@ public:
             std::vector<ChunkResult> chunks((count + kGrain - 1) / kGrain);
             jobs::parallelForChunks(count, kGrain, [&](jobs::IndexRange r) {
                 ChunkResult& out = chunks[r.begin / kGrain];
+                rates.reserve(out, r.end - r.begin);
                 for (std::size_t i = r.begin; i != r.end; ++i) tracer.trace(batchStart + i, out);
+                rates.add(out, r.end - r.begin);
             });
             emitted = batchStart + count;
             // How many records each chunk hands over is decided in chunk order
