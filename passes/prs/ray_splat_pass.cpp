@@ -19,11 +19,13 @@
 // radiance_cache interpolates each coefficient on its own, so the other 15
 // would be summed for no reader (16 multiply-adds of three channels per
 // deposit instead of one; the image is bit for bit the same).
-// The kd search (`traversal = "tight_boxes"`, SplatKdTree::forEachVertexInCone)
-// enters nodes by their vertices' tight boxes rather than Algorithm 1's cells
-// and hands on only the leaf vertices inside the cone, in Algorithm 1's
-// order: the same deposits in the same order, so the same image bit for bit
-// (`"cells"` keeps Algorithm 1).
+// The kd search (`traversal = "tight_boxes"`, SplatKdTree::forEachLeafNearCone)
+// enters nodes by their vertices' tight boxes rather than Algorithm 1's cells,
+// and the leaves' vertices are weighed from the tree's coordinate columns
+// four at a time (SplatFrustum::weights, bit for bit SplatFrustum::weight),
+// in Algorithm 1's order: the same deposits in the same order, so the same
+// image bit for bit (`"cells"` keeps Algorithm 1 and weighs one candidate at
+// a time). Its vertex_candidates are the leaf vertices weighed.
 // Rays are splatted in fixed blocks into per-block films merged in block
 // order, so the image is the same for any thread count.
 #include "passes/passes.h"
@@ -52,6 +54,9 @@ namespace {
 
 // Memory for the per-block films; at least one block, at most 64.
 constexpr std::size_t kAccumulatorBudget = std::size_t{256} << 20;
+
+// Leaf vertices weighed at once (SplatFrustum::weights) before their deposits.
+constexpr std::uint32_t kWeightChunk = 64;
 
 // What every mapped vertex sums, whichever bands the map keeps: 20 bytes
 // side by side, so that a deposit touches one cache line where the
@@ -152,6 +157,7 @@ public:
             const Vec3* const slotPositions = index.tree.slotPositions().data();
             const Vec3* const slotNormals = index.tree.slotNormals().data();
             const Target* const targets = targets_.data();
+            const SplatVertexColumns columns = index.tree.slotColumns();
             Rgb* const pixels = acc.pixels.data();
             for (std::size_t r = range.begin; r != range.end; ++r) {
                 if (rayClass[r] == PhotonRayClass::Direct && !withDirect) continue;
@@ -174,11 +180,8 @@ public:
                 }
                 const Rgb rayPower = power[r];
                 std::int64_t candidates = 0, deposits = 0;
-                const auto deposit = [&](std::uint32_t slot) __attribute__((always_inline)) {
-                    ++candidates;
+                const auto deposit = [&](std::uint32_t slot, float weight) __attribute__((always_inline)) {
                     const Vec3& position = slotPositions[slot];
-                    const float weight = frustum.weight(position, slotNormals[slot]);
-                    if (!(weight > 0.0f)) return;
                     const Target& target = targets[slot];
                     Rgb f;
                     if (target.glossy != kNotGlossy) {
@@ -219,9 +222,26 @@ public:
                 };
                 const SplatCone cone = splatCone(ray, cap);
                 if (tightBoxes) {
-                    acc.leafVertices += static_cast<std::int64_t>(index.tree.forEachVertexInCone(cone, deposit, useCullNodes));
+                    const auto depositLeaf = [&](std::uint32_t first, std::uint32_t count) {
+                        for (std::uint32_t base = first; base < first + count; base += kWeightChunk) {
+                            const std::uint32_t n = std::min(kWeightChunk, first + count - base);
+                            float weights[kWeightChunk];
+                            frustum.weights(columns, base, n, weights);
+                            for (std::uint32_t k = 0; k < n; ++k)
+                                if (weights[k] > 0.0f) deposit(base + k, weights[k]);
+                        }
+                    };
+                    candidates = static_cast<std::int64_t>(index.tree.forEachLeafNearCone(cone, depositLeaf, useCullNodes));
+                    acc.leafVertices += candidates;
                 } else {
-                    index.tree.forEachCandidate(cone, deposit, useCullNodes);
+                    index.tree.forEachCandidate(
+                        cone,
+                        [&](std::uint32_t slot) {
+                            ++candidates;
+                            const float weight = frustum.weight(slotPositions[slot], slotNormals[slot]);
+                            if (weight > 0.0f) deposit(slot, weight);
+                        },
+                        useCullNodes);
                     acc.leafVertices += candidates;
                 }
                 acc.candidates += candidates;
