@@ -227,8 +227,17 @@ public:
                             const std::uint32_t n = std::min(kWeightChunk, first + count - base);
                             float weights[kWeightChunk];
                             frustum.weights(columns, base, n, weights);
-                            for (std::uint32_t k = 0; k < n; ++k)
-                                if (weights[k] > 0.0f) deposit(base + k, weights[k]);
+                            // The feasible ones listed first, without a branch: about a
+                            // third of the vertices weighed deposit, a coin toss for
+                            // the branch predictor.
+                            std::uint32_t feasible[kWeightChunk];
+                            std::uint32_t feasibleCount = 0;
+                            for (std::uint32_t k = 0; k < n; ++k) {
+                                feasible[feasibleCount] = k;
+                                feasibleCount += weights[k] > 0.0f ? 1u : 0u;
+                            }
+                            for (std::uint32_t i = 0; i < feasibleCount; ++i)
+                                deposit(base + feasible[i], weights[feasible[i]]);
                         }
                     };
                     candidates = static_cast<std::int64_t>(index.tree.forEachLeafNearCone(cone, depositLeaf, useCullNodes));
