@@ -12,9 +12,10 @@
 // surfaces are dropped, so that light (L S+ D at the primary) comes only from
 // there.
 //
-// The kd search (`traversal = "tight_boxes"`) is SplatKdTree::
-// forEachVertexInCone, as in ray_splat: nodes entered by their hits' tight
-// boxes, leaf hits tested against the cone, in Algorithm 1's order (§7.2).
+// The kd search (`traversal = "tight_boxes"`) is ray_splat's
+// (forEachWeightedVertex in passes/prs/ray_splat.h): nodes entered by their
+// hits' tight boxes, leaf hits weighed from the tree's columns, in
+// Algorithm 1's order (§7.2); its vertex_candidates are the hits weighed.
 //
 // Rays are splatted in fixed blocks into per-block tile films merged in block
 // order, so the image is the same for any thread count.
@@ -141,11 +142,7 @@ std::vector<Rgb> splatOnto(const Scene& scene, const EyeVertexBuffer::View& vert
             if (!(ray.h0 > 0.0f || ray.dh > 0.0f)) continue;
             const Vec3 incident = -ray.direction;
             const SplatFrustum frustum(ray, cap);
-            const auto deposit = [&](std::uint32_t slot) {
-                ++acc.counts.candidates;
-                const float weight =
-                    frustum.weight(targets.tree.slotPosition(slot), targets.tree.slotNormal(slot));
-                if (!(weight > 0.0f)) return;
+            const auto deposit = [&](std::uint32_t slot, float weight) {
                 const SplatTargets::Target& target = targets.targets[slot];
                 Rgb f;
                 if (target.lambertian) {
@@ -159,10 +156,21 @@ std::vector<Rgb> splatOnto(const Scene& scene, const EyeVertexBuffer::View& vert
                 acc.pixels[target.pixel] += value;
                 ++acc.counts.deposits;
             };
-            if (tightBoxes)
-                targets.tree.forEachVertexInCone(splatCone(ray, cap), deposit, useCullNodes);
-            else
-                targets.tree.forEachCandidate(splatCone(ray, cap), deposit, useCullNodes);
+            const SplatCone cone = splatCone(ray, cap);
+            if (tightBoxes) {
+                acc.counts.candidates +=
+                    static_cast<std::int64_t>(forEachWeightedVertex(targets.tree, frustum, cone, deposit, useCullNodes));
+            } else {
+                targets.tree.forEachCandidate(
+                    cone,
+                    [&](std::uint32_t slot) {
+                        ++acc.counts.candidates;
+                        const float weight =
+                            frustum.weight(targets.tree.slotPosition(slot), targets.tree.slotNormal(slot));
+                        if (weight > 0.0f) deposit(slot, weight);
+                    },
+                    useCullNodes);
+            }
         }
     });
     std::vector<Rgb> total(pixelCount, Rgb(0.0f));
@@ -290,8 +298,8 @@ PassRegistration finalGatherSplatPass() {
          "footprint beyond the hit point, as ray_splat's"},
         {"cull_nodes", ParamType::Bool, true, 0, 0, {}, "use the kd-trees' backface-culling nodes"},
         {"traversal", ParamType::String, std::string("tight_boxes"), 0, 0, {"tight_boxes", "cells"},
-         "kd search: nodes by their vertices' tight boxes and leaf vertices by the cone (SplatKdTree::"
-         "forEachVertexInCone), or Algorithm 1's cell clipping (same deposits in the same order)"},
+         "kd search: nodes by their vertices' tight boxes and leaf vertices weighed from columns, or Algorithm 1's "
+         "cell clipping (same deposits in the same order)"},
         {"leaf_size", ParamType::Int, std::int64_t{16}, 1, 1 << 20, {},
          "kd-tree nodes with fewer hits become leaves (§7.1: 16)"},
     };

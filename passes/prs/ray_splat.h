@@ -183,6 +183,39 @@ struct SplatFrustum {
     bool hasOriginSurface;
 };
 
+// Leaf vertices weighed at once (SplatFrustum::weights) before their deposits.
+inline constexpr std::uint32_t kWeightChunk = 64;
+
+// Calls deposit(slot, weight) for every vertex of `tree` that the frustum
+// gives a positive weight, in Algorithm 1's order (§7.2): the leaves come
+// from SplatKdTree::forEachLeafNearCone and their vertices are weighed from
+// the tree's columns by SplatFrustum::weights, so the deposits and their
+// weights are those of SplatFrustum::weight over forEachCandidate, bit for
+// bit. Returns how many leaf vertices were weighed.
+template <class Deposit>
+std::uint64_t forEachWeightedVertex(const SplatKdTree& tree, const SplatFrustum& frustum, const SplatCone& cone,
+                                    Deposit&& deposit, bool useCullNodes) {
+    const SplatVertexColumns columns = tree.slotColumns();
+    const auto depositLeaf = [&](std::uint32_t first, std::uint32_t count) {
+        for (std::uint32_t base = first; base < first + count; base += kWeightChunk) {
+            const std::uint32_t n = std::min(kWeightChunk, first + count - base);
+            float weights[kWeightChunk];
+            frustum.weights(columns, base, n, weights);
+            // The feasible ones listed first, without a branch: about a third
+            // of the vertices weighed deposit, a coin toss for the branch
+            // predictor.
+            std::uint32_t feasible[kWeightChunk];
+            std::uint32_t feasibleCount = 0;
+            for (std::uint32_t k = 0; k < n; ++k) {
+                feasible[feasibleCount] = k;
+                feasibleCount += weights[k] > 0.0f ? 1u : 0u;
+            }
+            for (std::uint32_t i = 0; i < feasibleCount; ++i) deposit(base + feasible[i], weights[feasible[i]]);
+        }
+    };
+    return tree.forEachLeafNearCone(cone, depositLeaf, useCullNodes);
+}
+
 // The same for one vertex (tests, and callers with a single vertex per ray).
 inline float splatWeight(const SplatRay& ray, SplatEndCap cap, const Vec3& x, const Vec3& n) {
     return SplatFrustum(ray, cap).weight(x, n);

@@ -55,9 +55,6 @@ namespace {
 // Memory for the per-block films; at least one block, at most 64.
 constexpr std::size_t kAccumulatorBudget = std::size_t{256} << 20;
 
-// Leaf vertices weighed at once (SplatFrustum::weights) before their deposits.
-constexpr std::uint32_t kWeightChunk = 64;
-
 // What every mapped vertex sums, whichever bands the map keeps: 20 bytes
 // side by side, so that a deposit touches one cache line where the
 // coefficients of all bands span four.
@@ -157,7 +154,6 @@ public:
             const Vec3* const slotPositions = index.tree.slotPositions().data();
             const Vec3* const slotNormals = index.tree.slotNormals().data();
             const Target* const targets = targets_.data();
-            const SplatVertexColumns columns = index.tree.slotColumns();
             Rgb* const pixels = acc.pixels.data();
             for (std::size_t r = range.begin; r != range.end; ++r) {
                 if (rayClass[r] == PhotonRayClass::Direct && !withDirect) continue;
@@ -222,25 +218,8 @@ public:
                 };
                 const SplatCone cone = splatCone(ray, cap);
                 if (tightBoxes) {
-                    const auto depositLeaf = [&](std::uint32_t first, std::uint32_t count) {
-                        for (std::uint32_t base = first; base < first + count; base += kWeightChunk) {
-                            const std::uint32_t n = std::min(kWeightChunk, first + count - base);
-                            float weights[kWeightChunk];
-                            frustum.weights(columns, base, n, weights);
-                            // The feasible ones listed first, without a branch: about a
-                            // third of the vertices weighed deposit, a coin toss for
-                            // the branch predictor.
-                            std::uint32_t feasible[kWeightChunk];
-                            std::uint32_t feasibleCount = 0;
-                            for (std::uint32_t k = 0; k < n; ++k) {
-                                feasible[feasibleCount] = k;
-                                feasibleCount += weights[k] > 0.0f ? 1u : 0u;
-                            }
-                            for (std::uint32_t i = 0; i < feasibleCount; ++i)
-                                deposit(base + feasible[i], weights[feasible[i]]);
-                        }
-                    };
-                    candidates = static_cast<std::int64_t>(index.tree.forEachLeafNearCone(cone, depositLeaf, useCullNodes));
+                    candidates =
+                        static_cast<std::int64_t>(forEachWeightedVertex(index.tree, frustum, cone, deposit, useCullNodes));
                     acc.leafVertices += candidates;
                 } else {
                     index.tree.forEachCandidate(
