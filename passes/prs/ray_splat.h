@@ -184,7 +184,7 @@ struct SplatFrustum {
 };
 
 // Leaf vertices weighed at once (SplatFrustum::weights) before their deposits.
-inline constexpr std::uint32_t kWeightChunk = 64;
+inline constexpr std::uint32_t kWeightChunk = 128;
 
 // Calls deposit(slot, weight) for every vertex of `tree` that the frustum
 // gives a positive weight, in Algorithm 1's order (§7.2): the leaves come
