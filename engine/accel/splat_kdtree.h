@@ -54,6 +54,16 @@ struct SplatCone {
     float radius(float t) const { return h0 + dh * std::min(t, tCap); }
 };
 
+// Positions and normals of vertices in slot order, one column per coordinate.
+struct SplatVertexColumns {
+    const float* x = nullptr;
+    const float* y = nullptr;
+    const float* z = nullptr;
+    const float* nx = nullptr;
+    const float* ny = nullptr;
+    const float* nz = nullptr;
+};
+
 struct SplatKdTreeOptions {
     std::uint32_t maxLeafSize = 16;   // leaves hold fewer than this many vertices (§7.1)
     float minCellDiagonal = 0.0f;     // cells smaller than this become leaves (§7.1: 0.1 % of the scene diagonal)
@@ -103,6 +113,10 @@ public:
     std::span<const std::uint32_t> ids() const { return ids_; }
     std::span<const Vec3> slotPositions() const { return positions_; }
     std::span<const Vec3> slotNormals() const { return normals_; }
+    // The same as columns, for tests of many vertices at once.
+    SplatVertexColumns slotColumns() const {
+        return {xs_.data(), ys_.data(), zs_.data(), nxs_.data(), nys_.data(), nzs_.data()};
+    }
 
     // A tree as saved (buffer codecs), checked so that every query on it stays
     // inside its arrays: ids a permutation, children after their parents and
@@ -290,13 +304,22 @@ public:
     // vertices were tested against the cone.
     template <class Visit>
     std::uint64_t forEachVertexInCone(const SplatCone& cone, Visit&& visit, bool useCullNodes = true) const {
+        const float slack = coneSlack(cone);
+        return forEachLeafNearCone(
+            cone,
+            [&](std::uint32_t first, std::uint32_t count) { visitVerticesInCone(cone, slack, first, count, visit); },
+            useCullNodes);
+    }
+
+    // The search of forEachVertexInCone down to the leaves: calls
+    // visitLeaf(first, count) with the slots [first, first + count) of every
+    // leaf whose vertices may lie in the cone, in the same order, for callers
+    // that test the vertices themselves. Returns how many leaf vertices were
+    // handed on.
+    template <class VisitLeaf>
+    std::uint64_t forEachLeafNearCone(const SplatCone& cone, VisitLeaf&& visitLeaf, bool useCullNodes = true) const {
         if (nodes_.empty()) return 0;
-        // Slack for rounding, relative to the coordinates: far above float
-        // rounding (6e-8), far below any radius that matters.
-        const Vec3 end = cone.origin + cone.tMax * cone.direction;
-        const float scale = std::max({std::abs(cone.origin.x), std::abs(cone.origin.y), std::abs(cone.origin.z),
-                                      std::abs(end.x), std::abs(end.y), std::abs(end.z)});
-        const float slack = 1e-5f * (1.0f + scale);
+        const float slack = coneSlack(cone);
         Vec3 inverse;
         for (int a = 0; a < 3; ++a) inverse[a] = cone.direction[a] != 0.0f ? 1.0f / cone.direction[a] : kInfinity;
         // The part [t0, t1] of [0, tMax] where the ray runs through `box` grown by `grow`.
@@ -348,7 +371,7 @@ public:
                 if (glm::dot(offset, offset) > reach * reach) break;
                 const std::uint32_t count = node.b >> 2;
                 tested += count;
-                visitVerticesInCone(cone, slack, node.a, count, visit);
+                visitLeaf(node.a, count);
                 break;
             }
             case SplatKdNode::Cull: {
@@ -372,6 +395,15 @@ public:
     }
 
 private:
+    // Slack for rounding in the cone searches, relative to the coordinates:
+    // far above float rounding (6e-8), far below any radius that matters.
+    static float coneSlack(const SplatCone& cone) {
+        const Vec3 end = cone.origin + cone.tMax * cone.direction;
+        const float scale = std::max({std::abs(cone.origin.x), std::abs(cone.origin.y), std::abs(cone.origin.z),
+                                      std::abs(end.x), std::abs(end.y), std::abs(end.z)});
+        return 1e-5f * (1.0f + scale);
+    }
+
     // The tight bounding box of a node's vertices (empty nodes: lo > hi).
     struct NodeBox {
         Vec3 lo{kInfinity};
@@ -544,10 +576,16 @@ private:
         xs_.resize(positions_.size());
         ys_.resize(positions_.size());
         zs_.resize(positions_.size());
+        nxs_.resize(positions_.size());
+        nys_.resize(positions_.size());
+        nzs_.resize(positions_.size());
         for (std::size_t s = 0; s < positions_.size(); ++s) {
             xs_[s] = positions_[s].x;
             ys_[s] = positions_[s].y;
             zs_[s] = positions_[s].z;
+            nxs_[s] = normals_[s].x;
+            nys_[s] = normals_[s].y;
+            nzs_[s] = normals_[s].z;
         }
     }
 
@@ -583,7 +621,8 @@ private:
     std::vector<Vec4> leafSpheres_;
     std::vector<NodeBox> boxes_;
     std::vector<Vec4> cullPlanes_;  // culling nodes: the decoded reference normal and C_max
-    std::vector<float> xs_, ys_, zs_;  // slot positions as columns
+    std::vector<float> xs_, ys_, zs_;     // slot positions as columns
+    std::vector<float> nxs_, nys_, nzs_;  // slot normals as columns
     std::vector<std::uint32_t> ids_;
     std::vector<Vec3> positions_, normals_;
     Vec3 lo_{0.0f}, hi_{0.0f};

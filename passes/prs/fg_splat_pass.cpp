@@ -12,6 +12,11 @@
 // surfaces are dropped, so that light (L S+ D at the primary) comes only from
 // there.
 //
+// The kd search (`traversal = "tight_boxes"`) is ray_splat's
+// (forEachWeightedVertex in passes/prs/ray_splat.h): nodes entered by their
+// hits' tight boxes, leaf hits weighed from the tree's columns, in
+// Algorithm 1's order (§7.2); its vertex_candidates are the hits weighed.
+//
 // Rays are splatted in fixed blocks into per-block tile films merged in block
 // order, so the image is the same for any thread count.
 #include "passes/caustics/photon_estimate.h"
@@ -51,11 +56,6 @@ std::int64_t cpuMicrosecondsSince(std::clock_t start) {
 // tree order, what a deposit needs. f_s at a Lambertian vertex is one
 // constant, folded into `weight` with the throughput once per vertex.
 struct SplatTargets {
-    // The tight bounding box of each node's vertices (empty nodes: lo > hi).
-    struct NodeBox {
-        Vec3 lo{kInfinity};
-        Vec3 hi{-kInfinity};
-    };
     struct Target {
         Vec3 geometricNormal{0.0f};
         Rgb weight{0.0f};
@@ -64,138 +64,8 @@ struct SplatTargets {
         bool lambertian = false;
     };
     SplatKdTree tree;
-    std::vector<NodeBox> boxes;
     std::vector<Target> targets;
 };
-
-// Tight boxes, children before parents (a node's children follow it in the
-// node array, so one backward sweep sees them first).
-std::vector<SplatTargets::NodeBox> nodeBoxes(const SplatKdTree& tree) {
-    const std::span<const SplatKdNode> nodes = tree.nodes();
-    std::vector<SplatTargets::NodeBox> boxes(nodes.size());
-    for (std::size_t i = nodes.size(); i-- > 0;) {
-        SplatTargets::NodeBox& box = boxes[i];
-        const SplatKdNode node = nodes[i];
-        switch (node.kind()) {
-        case SplatKdNode::Empty:
-            break;
-        case SplatKdNode::Leaf:
-            for (std::uint32_t s = node.a; s < node.a + (node.b >> 2); ++s) {
-                box.lo = glm::min(box.lo, tree.slotPosition(s));
-                box.hi = glm::max(box.hi, tree.slotPosition(s));
-            }
-            break;
-        case SplatKdNode::Cull:
-            box = boxes[i + 1];
-            break;
-        case SplatKdNode::Interior: {
-            const SplatTargets::NodeBox& left = boxes[i + 1];
-            const SplatTargets::NodeBox& right = boxes[i + (node.b >> 4)];
-            box.lo = glm::min(left.lo, right.lo);
-            box.hi = glm::max(left.hi, right.hi);
-            break;
-        }
-        }
-    }
-    return boxes;
-}
-
-// Algorithm 1 (§7.2) clips the ray against the kd cells, which with the
-// sliding-midpoint rule reach far into the empty space between the walls: a
-// ray crossing the box visits every cell along its way down to the leaves
-// (on the Cornell box about half of fg_splat's time went to the traversal).
-// Here a node is entered only if the ray's segment [0, tMax] meets the tight
-// box of its vertices grown by the largest radius, R(tMax): a vertex within
-// R(t_p) <= R(tMax) of the ray lies in every box that holds it grown by
-// that much, so no vertex the splat would accept is lost. Children are
-// visited nearest first by the sign of dir[axis], as Algorithm 1 does, and
-// the culling nodes are tested the same way, so the vertices that deposit
-// are met in the same order and the image is the same bit for bit; only
-// leaves that cannot deposit are skipped.
-template <class Visit>
-void forEachCandidateInBoxes(const SplatTargets& targets, const SplatCone& cone, Visit&& visit, bool useCullNodes) {
-    const std::span<const SplatKdNode> nodes = targets.tree.nodes();
-    if (nodes.empty()) return;
-    // Slack for rounding in the slab test: relative to the coordinates, far
-    // above float rounding (6e-8), far below any radius that matters.
-    const Vec3 end = cone.origin + cone.tMax * cone.direction;
-    const float scale = std::max({std::abs(cone.origin.x), std::abs(cone.origin.y), std::abs(cone.origin.z),
-                                  std::abs(end.x), std::abs(end.y), std::abs(end.z)});
-    const float slack = 1e-5f * (1.0f + scale);
-    Vec3 inverse;
-    for (int a = 0; a < 3; ++a) inverse[a] = cone.direction[a] != 0.0f ? 1.0f / cone.direction[a] : kInfinity;
-    // The part [t0, t1] of [0, tMax] where the ray runs through the box grown by `grow`.
-    const auto clip = [&](const SplatTargets::NodeBox& box, float grow, float& t0, float& t1) {
-        t0 = 0.0f;
-        t1 = cone.tMax;
-        for (int a = 0; a < 3; ++a) {
-            const float lo = box.lo[a] - grow, hi = box.hi[a] + grow;
-            if (!(lo <= hi)) return false;  // empty
-            const float o = cone.origin[a];
-            if (cone.direction[a] == 0.0f) {
-                if (o < lo || o > hi) return false;
-                continue;
-            }
-            float ta = (lo - o) * inverse[a], tb = (hi - o) * inverse[a];
-            if (ta > tb) std::swap(ta, tb);
-            t0 = std::max(t0, ta);
-            t1 = std::min(t1, tb);
-            if (t0 > t1) return false;
-        }
-        return true;
-    };
-    // A vertex that deposits at t_p lies within R(t_p) of the ray there, so
-    // t_p falls in the part of the ray clipped by every grown box that holds
-    // the vertex; R grows with t, so a child's boxes need growing only by R
-    // at the end of its parent's clipped part.
-    const auto grown = [&](float t) { return cone.radius(t) * 1.0001f + slack; };
-    struct Entry {
-        std::uint32_t node;
-        float grow;
-    };
-    Entry stack[128];
-    int top = 0;
-    stack[top++] = {0, grown(cone.tMax)};
-    while (top > 0) {
-        const Entry e = stack[--top];
-        const std::uint32_t i = e.node;
-        const SplatTargets::NodeBox& box = targets.boxes[i];
-        float t0 = 0.0f, t1 = 0.0f;
-        if (!clip(box, e.grow, t0, t1)) continue;
-        const float childGrow = grown(t1);
-        const SplatKdNode node = nodes[i];
-        switch (node.kind()) {
-        case SplatKdNode::Empty:
-            break;
-        case SplatKdNode::Leaf: {
-            // Within the box's sphere: the ray's point nearest its centre on
-            // [t0, t1] is no farther from the centre than the point at t_p.
-            const Vec3 centre = 0.5f * (box.lo + box.hi);
-            const float tc = std::clamp(glm::dot(centre - cone.origin, cone.direction), t0, t1);
-            const Vec3 offset = centre - (cone.origin + tc * cone.direction);
-            const float reach = 0.5f * glm::length(box.hi - box.lo) * 1.0001f + childGrow;
-            if (glm::dot(offset, offset) > reach * reach) break;
-            for (std::uint32_t s = node.a; s < node.a + (node.b >> 2); ++s) visit(s);
-            break;
-        }
-        case SplatKdNode::Cull:
-            if (useCullNodes && glm::dot(cone.direction, SplatKdTree::decodeNormal(node.a)) >
-                                    SplatKdTree::decodeFloat(node.b & ~3u))
-                break;
-            stack[top++] = {i + 1, childGrow};
-            break;
-        case SplatKdNode::Interior: {
-            const int axis = static_cast<int>((node.b >> 2) & 3u);
-            const std::uint32_t left = i + 1, right = i + (node.b >> 4);
-            // As Algorithm 1's order: left first when the ray runs along the axis or parallel to the plane.
-            const bool rightFirst = std::abs(cone.direction[axis]) >= 1e-12f && cone.direction[axis] < 0.0f;
-            stack[top++] = {rightFirst ? left : right, childGrow};
-            stack[top++] = {rightFirst ? right : left, childGrow};
-            break;
-        }
-        }
-    }
-}
 
 // A rectangle of the film: pixels x in [x0, x1), y in [y0, y1).
 struct PixelRect {
@@ -217,7 +87,6 @@ SplatTargets indexTargets(const Scene& scene, const EyeVertexBuffer::View& verti
     options.maxLeafSize = leafSize;
     options.minCellDiagonal = 0.001f * glm::length(scene.boundsMax - scene.boundsMin);
     out.tree.build(vertices.column<EyePosition>(), vertices.column<EyeNormal>(), options);
-    out.boxes = nodeBoxes(out.tree);
     out.targets.assign(vertices.size(), SplatTargets::Target{});
     jobs::parallelFor(vertices.size(), 4096, [&](std::size_t slot) {
         SplatTargets::Target& t = out.targets[slot];
@@ -273,11 +142,7 @@ std::vector<Rgb> splatOnto(const Scene& scene, const EyeVertexBuffer::View& vert
             if (!(ray.h0 > 0.0f || ray.dh > 0.0f)) continue;
             const Vec3 incident = -ray.direction;
             const SplatFrustum frustum(ray, cap);
-            const auto deposit = [&](std::uint32_t slot) {
-                ++acc.counts.candidates;
-                const float weight =
-                    frustum.weight(targets.tree.slotPosition(slot), targets.tree.slotNormal(slot));
-                if (!(weight > 0.0f)) return;
+            const auto deposit = [&](std::uint32_t slot, float weight) {
                 const SplatTargets::Target& target = targets.targets[slot];
                 Rgb f;
                 if (target.lambertian) {
@@ -291,10 +156,21 @@ std::vector<Rgb> splatOnto(const Scene& scene, const EyeVertexBuffer::View& vert
                 acc.pixels[target.pixel] += value;
                 ++acc.counts.deposits;
             };
-            if (tightBoxes)
-                forEachCandidateInBoxes(targets, splatCone(ray, cap), deposit, useCullNodes);
-            else
-                targets.tree.forEachCandidate(splatCone(ray, cap), deposit, useCullNodes);
+            const SplatCone cone = splatCone(ray, cap);
+            if (tightBoxes) {
+                acc.counts.candidates +=
+                    static_cast<std::int64_t>(forEachWeightedVertex(targets.tree, frustum, cone, deposit, useCullNodes));
+            } else {
+                targets.tree.forEachCandidate(
+                    cone,
+                    [&](std::uint32_t slot) {
+                        ++acc.counts.candidates;
+                        const float weight =
+                            frustum.weight(targets.tree.slotPosition(slot), targets.tree.slotNormal(slot));
+                        if (weight > 0.0f) deposit(slot, weight);
+                    },
+                    useCullNodes);
+            }
         }
     });
     std::vector<Rgb> total(pixelCount, Rgb(0.0f));
@@ -422,8 +298,8 @@ PassRegistration finalGatherSplatPass() {
          "footprint beyond the hit point, as ray_splat's"},
         {"cull_nodes", ParamType::Bool, true, 0, 0, {}, "use the kd-trees' backface-culling nodes"},
         {"traversal", ParamType::String, std::string("tight_boxes"), 0, 0, {"tight_boxes", "cells"},
-         "search: kd nodes entered where the ray meets their vertices' box grown by the largest radius, or "
-         "Algorithm 1's cell clipping (same deposits in the same order)"},
+         "kd search: nodes by their vertices' tight boxes and leaf vertices weighed from columns, or Algorithm 1's "
+         "cell clipping (same deposits in the same order)"},
         {"leaf_size", ParamType::Int, std::int64_t{16}, 1, 1 << 20, {},
          "kd-tree nodes with fewer hits become leaves (§7.1: 16)"},
     };

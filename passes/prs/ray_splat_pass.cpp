@@ -19,11 +19,13 @@
 // radiance_cache interpolates each coefficient on its own, so the other 15
 // would be summed for no reader (16 multiply-adds of three channels per
 // deposit instead of one; the image is bit for bit the same).
-// The kd search (`traversal = "tight_boxes"`, SplatKdTree::forEachVertexInCone)
-// enters nodes by their vertices' tight boxes rather than Algorithm 1's cells
-// and hands on only the leaf vertices inside the cone, in Algorithm 1's
-// order: the same deposits in the same order, so the same image bit for bit
-// (`"cells"` keeps Algorithm 1).
+// The kd search (`traversal = "tight_boxes"`, SplatKdTree::forEachLeafNearCone)
+// enters nodes by their vertices' tight boxes rather than Algorithm 1's cells,
+// and the leaves' vertices are weighed from the tree's coordinate columns
+// four at a time (SplatFrustum::weights, bit for bit SplatFrustum::weight),
+// in Algorithm 1's order: the same deposits in the same order, so the same
+// image bit for bit (`"cells"` keeps Algorithm 1 and weighs one candidate at
+// a time). Its vertex_candidates are the leaf vertices weighed.
 // Rays are splatted in fixed blocks into per-block films merged in block
 // order, so the image is the same for any thread count.
 #include "passes/passes.h"
@@ -174,11 +176,8 @@ public:
                 }
                 const Rgb rayPower = power[r];
                 std::int64_t candidates = 0, deposits = 0;
-                const auto deposit = [&](std::uint32_t slot) __attribute__((always_inline)) {
-                    ++candidates;
+                const auto deposit = [&](std::uint32_t slot, float weight) __attribute__((always_inline)) {
                     const Vec3& position = slotPositions[slot];
-                    const float weight = frustum.weight(position, slotNormals[slot]);
-                    if (!(weight > 0.0f)) return;
                     const Target& target = targets[slot];
                     Rgb f;
                     if (target.glossy != kNotGlossy) {
@@ -219,9 +218,18 @@ public:
                 };
                 const SplatCone cone = splatCone(ray, cap);
                 if (tightBoxes) {
-                    acc.leafVertices += static_cast<std::int64_t>(index.tree.forEachVertexInCone(cone, deposit, useCullNodes));
+                    candidates =
+                        static_cast<std::int64_t>(forEachWeightedVertex(index.tree, frustum, cone, deposit, useCullNodes));
+                    acc.leafVertices += candidates;
                 } else {
-                    index.tree.forEachCandidate(cone, deposit, useCullNodes);
+                    index.tree.forEachCandidate(
+                        cone,
+                        [&](std::uint32_t slot) {
+                            ++candidates;
+                            const float weight = frustum.weight(slotPositions[slot], slotNormals[slot]);
+                            if (weight > 0.0f) deposit(slot, weight);
+                        },
+                        useCullNodes);
                     acc.leafVertices += candidates;
                 }
                 acc.candidates += candidates;

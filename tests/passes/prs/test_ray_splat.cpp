@@ -18,7 +18,9 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <filesystem>
 #include <map>
@@ -182,6 +184,64 @@ TEST(PrsShortRayOntoPlane, FootprintIsCutAtTheRayOrigin) {
                 EXPECT_LT(deposited, 0.99) << "the cut must show, L = " << length;
             }
         }
+}
+
+// SplatFrustum::weights weighs many vertices from columns with masks where
+// weight() branches; both must give the same bits for every vertex, feasible
+// or not: rays with and without an origin surface, escaping or hitting, both
+// end caps, dh = 0, and vertices scattered around and beyond the frustum
+// (behind the origin, past the hit, on either side of both surfaces, normals
+// facing either way).
+TEST(PrsFrustumWeights, ColumnsGiveTheBitsOfTheOneVertexTest) {
+    std::uint32_t state = 12345u;
+    const auto uniform = [&] {
+        state = state * 1664525u + 1013904223u;
+        return static_cast<float>(state >> 8) / 16777216.0f;
+    };
+    const auto unitVector = [&] {
+        const float z = 2.0f * uniform() - 1.0f, phi = 2.0f * kPi * uniform();
+        const float s = std::sqrt(std::max(0.0f, 1.0f - z * z));
+        return Vec3(s * std::cos(phi), s * std::sin(phi), z);
+    };
+    constexpr std::uint32_t kVertices = 61;
+    std::vector<float> x(kVertices), y(kVertices), z(kVertices), nx(kVertices), ny(kVertices), nz(kVertices);
+    std::int64_t feasible = 0, infeasible = 0;
+    for (int trial = 0; trial < 400; ++trial) {
+        SplatRay ray;
+        ray.origin = Vec3(uniform(), uniform(), uniform()) * 2.0f - 1.0f;
+        ray.direction = unitVector();
+        ray.length = 0.2f + 2.0f * uniform();
+        ray.h0 = 0.05f + 0.3f * uniform();
+        ray.dh = trial % 4 == 0 ? 0.0f : 0.2f * uniform();
+        if (trial % 3 != 0) ray.originNormal = glm::normalize(ray.direction + 0.8f * unitVector());
+        if (trial % 5 != 0) ray.endNormal = glm::normalize(-ray.direction + 0.9f * unitVector());
+        const SplatEndCap cap = trial % 2 == 0 ? SplatEndCap::TangentPlane : SplatEndCap::Hemisphere;
+        const SplatFrustum frustum(ray, cap);
+        const float reach = splatReach(ray, cap);
+        std::vector<Vec3> positions(kVertices), normals(kVertices);
+        for (std::uint32_t k = 0; k < kVertices; ++k) {
+            const float t = -0.3f + (reach + 0.6f) * uniform();
+            const float radius = (ray.h0 + ray.dh * std::min(t, ray.length)) * 1.5f * uniform();
+            Vec3 side = glm::cross(ray.direction, unitVector());
+            side = glm::length(side) > 1e-3f ? glm::normalize(side) : Vec3(0.0f);
+            positions[k] = ray.origin + t * ray.direction + radius * side;
+            normals[k] = unitVector();
+            x[k] = positions[k].x, y[k] = positions[k].y, z[k] = positions[k].z;
+            nx[k] = normals[k].x, ny[k] = normals[k].y, nz[k] = normals[k].z;
+        }
+        const SplatVertexColumns columns{x.data(), y.data(), z.data(), nx.data(), ny.data(), nz.data()};
+        std::vector<float> weights(kVertices, -1.0f);
+        const std::uint32_t first = static_cast<std::uint32_t>(trial % 3);
+        frustum.weights(columns, first, kVertices - first, weights.data());
+        for (std::uint32_t k = first; k < kVertices; ++k) {
+            const float expected = frustum.weight(positions[k], normals[k]);
+            ASSERT_EQ(std::bit_cast<std::uint32_t>(weights[k - first]), std::bit_cast<std::uint32_t>(expected))
+                << "trial " << trial << ", vertex " << k;
+            (expected > 0.0f ? feasible : infeasible) += 1;
+        }
+    }
+    EXPECT_GT(feasible, 2000);
+    EXPECT_GT(infeasible, 2000);
 }
 
 TEST(PrsPipeline, SameImageOnOneAndTwoThreads) {
