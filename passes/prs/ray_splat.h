@@ -127,11 +127,12 @@ struct SplatFrustum {
     // bit: the same operations in the same order, with every test turned
     // into a mask, so that the compiler weighs four vertices at once from the
     // columns where weight() takes one vertex at a time through branches.
-    // Not inlined: inside the kd traversal GCC 12 leaves such loops scalar.
-    // An AVX2 clone weighs eight at once where the processor has it (chosen
-    // at load time); AVX2 without FMA rounds every operation as SSE does, so
-    // the bits are the same either way.
-    [[gnu::noinline, gnu::target_clones("avx2", "default")]] void weights(const SplatVertexColumns& vertices, std::uint32_t first, std::uint32_t count,
+    // A call of its own (target clones go through the load-time dispatcher
+    // and are never inlined): inside the kd traversal GCC 12 leaves such
+    // loops scalar. The AVX2 clone weighs eight at once where the processor
+    // has it; AVX2 without FMA rounds every operation as SSE does, so the
+    // bits are the same either way.
+    [[gnu::target_clones("avx2", "default")]] void weights(const SplatVertexColumns& vertices, std::uint32_t first, std::uint32_t count,
                                    float* out) const {
         const float ox = origin.x, oy = origin.y, oz = origin.z;
         const float dx = direction.x, dy = direction.y, dz = direction.z;
