@@ -25,8 +25,9 @@
 // tests four boxes at a time, on the pyramid collapsed to four-wide nodes
 // (a segment whose transmittance test could fire takes the binary descent);
 // and a Gaussian whose truncated ellipsoid the segment misses is skipped
-// before Eq. 16 (`cull_ellipsoids`). Eq. 16 itself is evaluated for all of a
-// segment's Gaussians together after the descent (engine/gmm/segment_batch.h,
+// before Eq. 16 (`cull_ellipsoids`). The descent only lists a segment's
+// Gaussians; their ellipsoid tests and Eq. 16 are evaluated after it, two at
+// a time in SSE2 lanes (engine/gmm/segment_batch.h,
 // with polynomial exp and erfc within about 1e-7 of the C library's, far
 // below the truncation's delta), summed in the descent's order.
 #include "passes/passes.h"
@@ -184,13 +185,6 @@ private:
     std::vector<WideNode> nodes_;
 };
 
-// What Eq. 15 reads of a node.
-struct RenderGaussian {
-    gmm::SegmentGaussian gaussian;
-    double radiusSquared = 0.0;  // truncation, r_j^2 (gmm_bbh)
-    glm::dvec3 power{0.0};
-};
-
 class GmmRenderPass final : public Pass {
 public:
     void run(PassContext& ctx) override {
@@ -228,9 +222,10 @@ public:
         const auto nodeLevel = pyramid.nodes.column<GmmLevel>();
         const auto sphere = bbh.nodes.column<BbhSphere>();
         const auto truncation = bbh.nodes.column<BbhRadius>();
-        std::vector<RenderGaussian> gaussians(nodeCount);
+        std::vector<gmm::PackedGaussian> gaussians(nodeCount);
         for (std::size_t j = 0; j < nodeCount; ++j)
-            gaussians[j] = {gmm::SegmentGaussian(gaussianAt(pyramid.nodes, j)), truncation[j] * truncation[j], power[j]};
+            gaussians[j] = gmm::PackedGaussian(gmm::SegmentGaussian(gaussianAt(pyramid.nodes, j)),
+                                               truncation[j] * truncation[j], power[j]);
 
         // The descent's boxes bound the truncated ellipsoids of a node's leaves,
         // not the node's own: the BBH's box of an inner node also holds that
@@ -296,7 +291,7 @@ public:
 
         std::vector<SegmentResult> results(segmentCount);
         jobs::parallelForChunks(segmentCount, kSegmentGrain, [&](jobs::IndexRange range) {
-            std::vector<std::uint32_t> stack;
+            std::vector<std::uint32_t> stack, candidates;
             gmm::SegmentBatch batch;
             for (std::size_t i = range.begin; i != range.end; ++i) {
                 if (nodeCount == 0) break;
@@ -315,15 +310,10 @@ public:
                 const SlabRay ray = slabRay(x, w, len);
                 SegmentResult& result = results[i];
                 batch.begin(x, w, len);
-                const auto evaluate = [&](std::uint32_t j) {
-                    const RenderGaussian& g = gaussians[j];
-                    if (cullEllipsoids && !batch.addTruncated(g.gaussian, g.radiusSquared, g.power)) {
-                        ++result.culled;
-                        return;
-                    }
-                    if (!cullEllipsoids) batch.add(g.gaussian, g.power);
-                    ++result.gaussians;
-                };
+                // The descent lists the nodes to evaluate; their ellipsoid tests
+                // and Eq. 16 terms are then computed two at a time.
+                candidates.clear();
+                const auto evaluate = [&](std::uint32_t j) { candidates.push_back(j); };
                 if (mode == Mode::Flat) {
                     for (std::uint32_t j = 0; j < nodeCount; ++j) {
                         if (right[j] != kNoGmmNode) continue;
@@ -394,6 +384,8 @@ public:
                         }
                     }
                 }
+                result.gaussians = static_cast<std::int64_t>(batch.addAll(gaussians, candidates, cullEllipsoids));
+                result.culled = static_cast<std::int64_t>(candidates.size()) - result.gaussians;
                 const Rgb value = Rgb(batch.sum(sigmaT) * (1.0 / (4.0 * M_PI))) * throughput[i];
                 result.radiance = isFinite(value) ? value : Rgb(0.0f);
                 result.timeNs = static_cast<float>(jobs::wallNanos() - start);
