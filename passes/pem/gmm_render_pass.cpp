@@ -373,13 +373,27 @@ public:
                             }
                             auto hits = static_cast<unsigned>(_mm_movemask_ps(_mm_cmple_ps(t0, t1)));
                             result.nodes += node.count;
+                            const auto evaluateHere = [&](std::size_t e) {
+                                return node.children[e] == kNoWideNode ||
+                                       ((node.mayStop >> e) & 1u && solidAngleStops(node.node[e], eye));
+                            };
+                            // Entries to evaluate before the first one descended
+                            // into come next in depth-first order anyway: they go
+                            // to the list directly, the rest through the stack.
+                            bool descends = false;
+                            while (hits != 0) {
+                                const auto e = static_cast<std::size_t>(__builtin_ctz(hits));
+                                descends = !evaluateHere(e);
+                                if (descends) break;
+                                hits &= hits - 1;
+                                evaluate(node.node[e]);
+                            }
                             while (hits != 0) {
                                 const auto e = static_cast<std::size_t>(31 - __builtin_clz(hits));
                                 hits &= ~(1u << e);
                                 const std::uint32_t j = node.node[e];
-                                const bool evaluateHere = node.children[e] == kNoWideNode ||
-                                                          ((node.mayStop >> e) & 1u && solidAngleStops(j, eye));
-                                stack.push_back(evaluateHere ? (j << 1) | 1u : node.children[e] << 1);
+                                const bool here = (hits == 0 && descends) ? false : evaluateHere(e);
+                                stack.push_back(here ? (j << 1) | 1u : node.children[e] << 1);
                             }
                         }
                     }
