@@ -22,8 +22,10 @@
 // Departures that keep the flat image within the truncation (§7.1's delta):
 // the descent tests the boxes of a node's leaves' truncated ellipsoids rather
 // than the BBH's box, which also holds the node's own, wider ellipsoid; it
-// tests four boxes at a time, on the pyramid collapsed to four-wide nodes
-// (a segment whose transmittance test could fire takes the binary descent);
+// tests four boxes per SSE register, on the pyramid collapsed to nodes of up
+// to sixteen entries (narrower, deeper nodes cost more in stack traffic and
+// branches than the boxes they spare; a segment whose transmittance test
+// could fire takes the binary descent);
 // and a Gaussian whose truncated ellipsoid the segment misses is skipped
 // before Eq. 16 (`cull_ellipsoids`). The descent only lists a segment's
 // Gaussians; their ellipsoid tests and Eq. 16 are evaluated after it, two at
@@ -54,7 +56,7 @@ namespace fg {
 namespace {
 
 constexpr std::size_t kSegmentGrain = 64;
-constexpr std::size_t kWide = 4;
+constexpr std::size_t kWide = 16;
 constexpr std::uint32_t kNoWideNode = std::numeric_limits<std::uint32_t>::max();
 
 enum class Mode { Hierarchical, Flat, Level };
@@ -119,7 +121,7 @@ SlabInterval slabInterval(const SlabRay& ray, const Vec3& lo, const Vec3& hi) {
 // test is made as in the binary descent. Entries keep the pyramid's depth-
 // first order, and so does the traversal, so the Gaussians are summed in the
 // same order as by the binary descent. Unused entries have empty boxes.
-static_assert(kWide == 4, "the wide traversal tests four boxes in one SSE register");
+static_assert(kWide % 4 == 0 && kWide <= 32, "the wide traversal tests four boxes per SSE register");
 struct WideNode {
     std::array<std::array<float, kWide>, 3> lo{}, hi{};
     std::array<std::uint32_t, kWide> node{};
@@ -362,16 +364,22 @@ public:
                                 continue;
                             }
                             const WideNode& node = wideNodes[item >> 1];
-                            // slabInterval on the kWide boxes at once.
-                            __m128 t0 = _mm_setzero_ps(), t1 = _mm_set1_ps(ray.length);
-                            for (std::size_t a = 0; a < 3; ++a) {
-                                const float* nearPlane = ray.negative[a] ? node.hi[a].data() : node.lo[a].data();
-                                const float* farPlane = ray.negative[a] ? node.lo[a].data() : node.hi[a].data();
-                                const __m128 o = _mm_set1_ps(ray.origin[a]), inverse = _mm_set1_ps(ray.inverse[a]);
-                                t0 = _mm_max_ps(t0, _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(nearPlane), o), inverse));
-                                t1 = _mm_min_ps(t1, _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(farPlane), o), inverse));
+                            // slabInterval on the boxes, four at once.
+                            unsigned hits = 0;
+                            for (std::size_t group = 0; group < node.count; group += 4) {
+                                __m128 t0 = _mm_setzero_ps(), t1 = _mm_set1_ps(ray.length);
+                                for (std::size_t a = 0; a < 3; ++a) {
+                                    const float* nearPlane =
+                                        (ray.negative[a] ? node.hi[a].data() : node.lo[a].data()) + group;
+                                    const float* farPlane =
+                                        (ray.negative[a] ? node.lo[a].data() : node.hi[a].data()) + group;
+                                    const __m128 o = _mm_set1_ps(ray.origin[a]);
+                                    const __m128 inverse = _mm_set1_ps(ray.inverse[a]);
+                                    t0 = _mm_max_ps(t0, _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(nearPlane), o), inverse));
+                                    t1 = _mm_min_ps(t1, _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(farPlane), o), inverse));
+                                }
+                                hits |= static_cast<unsigned>(_mm_movemask_ps(_mm_cmple_ps(t0, t1))) << group;
                             }
-                            auto hits = static_cast<unsigned>(_mm_movemask_ps(_mm_cmple_ps(t0, t1)));
                             result.nodes += node.count;
                             const auto evaluateHere = [&](std::size_t e) {
                                 return node.children[e] == kNoWideNode ||
