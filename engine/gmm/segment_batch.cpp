@@ -161,9 +161,11 @@ void SegmentBatch::integrate(double sigmaT) {
     // where P erf(|z|) = P - E (P e^{-z^2} = e^{l}) unless |z| is small.
     // Mostly a segment crosses a Gaussian from well before its peak to well
     // after it (both erf are 1, the integral is 2P times the factor): a first
-    // pass computes that, two Gaussians at a time, and lists the others,
-    // which a second pass evaluates in full, every case computed for both
-    // lanes and the right one selected.
+    // pass computes that, two Gaussians at a time, and lists the others. Of
+    // those, the ones whose peak lies inside with one end well away from it
+    // (that end's erf is 1) need only the other end's erfc: a second pass
+    // evaluates them, one end per lane; a third evaluates the rest in full,
+    // every case computed for both lanes and the right one selected.
     struct Lanes {
         Double2 halfInverseRoot, shift, zEnd, logStart, logPeak;
     };
@@ -177,23 +179,60 @@ void SegmentBatch::integrate(double sigmaT) {
         return l;
     };
     pending_.clear();
+    oneEnd_.clear();
     for (std::size_t i = 0; i < n; i += 2) {
         const Lanes l = lanes(_mm_loadu_pd(wPd_.data() + i),
                               _mm_loadu_pd(rootC2_.data() + i), _mm_loadu_pd(logNormaliser_.data() + i),
                               _mm_loadu_pd(halfDPd_.data() + i));
-        const Double2 crossed = _mm_and_pd(_mm_cmple_pd(l.shift, _mm_sub_pd(zero, erfIsOne)),
-                                           _mm_cmpge_pd(l.zEnd, erfIsOne));
+        const Double2 startFar = _mm_cmple_pd(l.shift, _mm_sub_pd(zero, erfIsOne));
+        const Double2 endFar = _mm_cmpge_pd(l.zEnd, erfIsOne);
+        const int crossed = _mm_movemask_pd(_mm_and_pd(startFar, endFar));
+        const int nearStart = _mm_movemask_pd(_mm_andnot_pd(startFar, _mm_and_pd(endFar, _mm_cmplt_pd(l.shift, zero))));
+        const int nearEnd = _mm_movemask_pd(_mm_andnot_pd(endFar, _mm_and_pd(startFar, _mm_cmpgt_pd(l.zEnd, zero))));
         const Double2 peak = exp(l.logPeak);
         _mm_storeu_pd(peak_.data() + i, peak);
         _mm_storeu_pd(integral_.data() + i,
                       _mm_mul_pd(_mm_mul_pd(broadcast(kSqrtPi), l.halfInverseRoot), _mm_add_pd(peak, peak)));
-        const int mask = _mm_movemask_pd(crossed);
-        if ((mask & 1) == 0) pending_.push_back(static_cast<std::uint32_t>(i));
-        if ((mask & 2) == 0) pending_.push_back(static_cast<std::uint32_t>(i + 1));
+        for (int lane = 0; lane < 2; ++lane) {
+            const auto row = static_cast<std::uint32_t>(i) + static_cast<std::uint32_t>(lane);
+            if (row >= count_ || ((crossed >> lane) & 1)) continue;  // the pad, or done
+            if ((nearStart >> lane) & 1)
+                oneEnd_.push_back(row << 1);
+            else if ((nearEnd >> lane) & 1)
+                oneEnd_.push_back((row << 1) | 1u);
+            else
+                pending_.push_back(row);
+        }
     }
     const auto gather = [](const std::vector<double>& column, std::uint32_t first, std::uint32_t second) {
         return _mm_set_pd(column[second], column[first]);
     };
+    // P erf(|z|) at the near end, plus P for the far one.
+    for (std::size_t k = 0; k < oneEnd_.size(); k += 2) {
+        const std::uint32_t firstItem = oneEnd_[k];
+        const std::uint32_t secondItem = k + 1 < oneEnd_.size() ? oneEnd_[k + 1] : firstItem;
+        const std::uint32_t first = firstItem >> 1, second = secondItem >> 1;
+        const Double2 atEnd = _mm_castsi128_pd(_mm_set_epi64x(-static_cast<std::int64_t>(secondItem & 1u),
+                                                              -static_cast<std::int64_t>(firstItem & 1u)));
+        const Double2 c2 = gather(c2_, first, second);
+        const Double2 wPd = gather(wPd_, first, second);
+        const Lanes l = lanes(wPd, gather(rootC2_, first, second), gather(logNormaliser_, first, second),
+                              gather(halfDPd_, first, second));
+        const Double2 logEnd = _mm_sub_pd(
+            _mm_sub_pd(l.logStart, _mm_mul_pd(length, _mm_add_pd(wPd, _mm_mul_pd(c2, length)))),
+            _mm_mul_pd(sigma, length));
+        const Double2 u = _mm_andnot_pd(signBit, select(atEnd, l.zEnd, l.shift));
+        const Double2 t = erfcVariable(u);
+        const Double2 e = _mm_mul_pd(t, exp(_mm_add_pd(select(atEnd, logEnd, l.logStart), erfcExponentPolynomial(t))));
+        const Double2 peak = gather(peak_, first, second);
+        Double2 part = _mm_sub_pd(peak, e);
+        const Double2 small = _mm_cmplt_pd(u, seriesBelow);
+        if (_mm_movemask_pd(small) != 0) part = select(small, _mm_mul_pd(peak, erfSeries(u)), part);
+        alignas(16) double result[2];
+        _mm_store_pd(result, _mm_mul_pd(_mm_mul_pd(broadcast(kSqrtPi), l.halfInverseRoot), _mm_add_pd(peak, part)));
+        integral_[first] = result[0];
+        integral_[second] = result[1];
+    }
     for (std::size_t k = 0; k < pending_.size(); k += 2) {
         const std::uint32_t first = pending_[k];
         const std::uint32_t second = k + 1 < pending_.size() ? pending_[k + 1] : first;

@@ -71,6 +71,7 @@ private:
     std::vector<double> c2_, rootC2_, wPd_, halfDPd_, logNormaliser_, powerRed_, powerGreen_, powerBlue_;
     std::vector<double> integral_, peak_;  // per channel: the integral, P (see integrate)
     std::vector<std::uint32_t> pending_;  // Gaussians integrate evaluates in full
+    std::vector<std::uint32_t> oneEnd_;   // those it evaluates at one end: row << 1 | (1 at the segment's end)
 };
 
 }  // namespace fg::gmm
