@@ -110,7 +110,6 @@ std::size_t SegmentBatch::addAll(std::span<const PackedGaussian> records, std::s
             kept = _mm_movemask_pd(_mm_andnot_pd(missed, lineMeets));
         }
         if (k + 1 >= indices.size()) kept &= 1;
-        if (kept == 0) continue;
         const Double2 rootC2 = _mm_sqrt_pd(c2);
         // Both lanes are written; the second goes where the first's would,
         // and count_ moves past a lane only if it is kept.
