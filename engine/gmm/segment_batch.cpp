@@ -6,6 +6,7 @@
 
 #include <array>
 #include <cmath>
+#include <cstddef>
 #include <cstdint>
 #include <limits>
 
@@ -20,69 +21,118 @@ void SegmentBatch::begin(const Vec3d& origin, const Vec3d& direction, double len
     count_ = 0;
 }
 
-void SegmentBatch::keep(const SegmentGaussian& g, double c2, double wPd, double halfDPd, const Vec3d& power) {
-    // Room for one more and for the pad sum may add.
-    if (count_ + 2 > c2_.size()) {
-        const std::size_t capacity = 2 * (count_ + 2);
-        for (std::vector<double>* column : {&c2_, &rootC2_, &wPd_, &halfDPd_, &logNormaliser_, &powerRed_,
-                                            &powerGreen_, &powerBlue_, &integral_, &peak_})
-            column->resize(capacity);
-    }
-    c2_[count_] = c2;
-    // Here rather than in integrate: SSE2 has a square root, but doing it
-    // once per Gaussian costs no more.
-    rootC2_[count_] = std::sqrt(c2);
-    wPd_[count_] = wPd;
-    halfDPd_[count_] = halfDPd;
-    logNormaliser_[count_] = g.logNormaliser;
-    powerRed_[count_] = power.x;
-    powerGreen_[count_] = power.y;
-    powerBlue_[count_] = power.z;
-    ++count_;
+void SegmentBatch::reserve(std::size_t more) {
+    if (count_ + more + 1 <= c2_.size()) return;
+    const std::size_t capacity = 2 * (count_ + more + 1);
+    for (std::vector<double>* column : {&c2_, &rootC2_, &wPd_, &halfDPd_, &logNormaliser_, &powerRed_, &powerGreen_,
+                                        &powerBlue_, &integral_, &peak_})
+        column->resize(capacity);
 }
-
-namespace {
-
-// d = origin - mean, Sigma^-1 w, C2, w^T Sigma^-1 d and d^T Sigma^-1 d / 2,
-// written out so that they inline (Sym3's operators live in gaussian.cpp).
-struct SegmentTerms {
-    double c2, wPd, halfDPd;
-};
-SegmentTerms segmentTerms(const SegmentGaussian& g, const Vec3d& origin, const Vec3d& w) {
-    const std::array<double, 6>& p = g.precision.v;
-    const Vec3d d = origin - g.mean;
-    const Vec3d pw(p[0] * w.x + p[1] * w.y + p[2] * w.z, p[1] * w.x + p[3] * w.y + p[4] * w.z,
-                   p[2] * w.x + p[4] * w.y + p[5] * w.z);
-    const Vec3d pd(p[0] * d.x + p[1] * d.y + p[2] * d.z, p[1] * d.x + p[3] * d.y + p[4] * d.z,
-                   p[2] * d.x + p[4] * d.y + p[5] * d.z);
-    return {0.5 * glm::dot(w, pw), glm::dot(pw, d), 0.5 * glm::dot(pd, d)};
-}
-
-}  // namespace
 
 void SegmentBatch::add(const SegmentGaussian& g, const Vec3d& power) {
-    if (empty_) return;
-    const SegmentTerms terms = segmentTerms(g, origin_, direction_);
-    keep(g, terms.c2, terms.wPd, terms.halfDPd, power);
+    const PackedGaussian record(g, 0.0, power);
+    const std::uint32_t first = 0;
+    addAll({&record, 1}, {&first, 1}, false);
 }
 
 bool SegmentBatch::addTruncated(const SegmentGaussian& g, double radiusSquared, const Vec3d& power) {
-    if (empty_) return false;
-    const SegmentTerms terms = segmentTerms(g, origin_, direction_);
-    const double c2 = terms.c2, wPd = terms.wPd;
-    // As in truncatedSegmentIntegralRgb: q(t) = c2 t^2 + wPd t + outside is
-    // half the Mahalanobis distance squared beyond the truncation; the line
-    // misses the ellipsoid when min q > 0, [0, length] misses the chord when
-    // q's minimum lies outside it and q > 0 at the nearer end.
-    const double outside = terms.halfDPd - 0.5 * radiusSquared;
-    if (!(4.0 * c2 * outside <= wPd * wPd)) return false;
-    if (-wPd < 0.0) {
-        if (outside > 0.0) return false;
-    } else if (-wPd > 2.0 * c2 * length_ && (c2 * length_ + wPd) * length_ + outside > 0.0) {
-        return false;
+    const PackedGaussian record(g, radiusSquared, power);
+    const std::uint32_t first = 0;
+    return addAll({&record, 1}, {&first, 1}, true) == 1;
+}
+
+std::size_t SegmentBatch::addAll(std::span<const PackedGaussian> records, std::span<const std::uint32_t> indices,
+                                 bool truncate) {
+    using namespace simd;
+    if (empty_ || indices.empty()) return 0;
+    reserve(indices.size() + 1);
+    const std::size_t before = count_;
+    const Vec3d& o = origin_;
+    const Vec3d& w = direction_;
+    // C2 = w^T Sigma^-1 w / 2 as the six precision entries dotted with the
+    // direction's products (one multiplication and addition per entry instead
+    // of the nine and six of Sigma^-1 w and the three and two of the dot).
+    const Double2 wxx = broadcast(0.5 * w.x * w.x), wyy = broadcast(0.5 * w.y * w.y), wzz = broadcast(0.5 * w.z * w.z);
+    const Double2 wxy = broadcast(w.x * w.y), wxz = broadcast(w.x * w.z), wyz = broadcast(w.y * w.z);
+    const Double2 wx = broadcast(w.x), wy = broadcast(w.y), wz = broadcast(w.z);
+    const Double2 ox = broadcast(o.x), oy = broadcast(o.y), oz = broadcast(o.z);
+    const Double2 length = broadcast(length_);
+    const Double2 zero = _mm_setzero_pd();
+    const Double2 half = broadcast(0.5);
+    // Transposes field pair `offset` (in doubles) of two records into a pair
+    // of lanes: (first's, second's) of the pair's first and second field.
+    const auto pair = [](const PackedGaussian& a, const PackedGaussian& b, std::size_t offset, Double2& first,
+                         Double2& second) {
+        const Double2 fromA = _mm_loadu_pd(reinterpret_cast<const double*>(&a) + offset);
+        const Double2 fromB = _mm_loadu_pd(reinterpret_cast<const double*>(&b) + offset);
+        first = _mm_unpacklo_pd(fromA, fromB);
+        second = _mm_unpackhi_pd(fromA, fromB);
+    };
+    static_assert(offsetof(PackedGaussian, meanX) == 0 && offsetof(PackedGaussian, meanZ) == 16 &&
+                  offsetof(PackedGaussian, radiusSquared) == 24 && offsetof(PackedGaussian, precision) == 32);
+    for (std::size_t k = 0; k < indices.size(); k += 2) {
+        const PackedGaussian& a = records[indices[k]];
+        const PackedGaussian& b = records[indices[k + 1 < indices.size() ? k + 1 : k]];
+        Double2 mx, my, mz, radiusSquared, p0, p1, p2, p3, p4, p5;
+        pair(a, b, 0, mx, my);
+        pair(a, b, 2, mz, radiusSquared);
+        pair(a, b, 4, p0, p1);
+        pair(a, b, 6, p2, p3);
+        pair(a, b, 8, p4, p5);
+        const Double2 dx = _mm_sub_pd(ox, mx), dy = _mm_sub_pd(oy, my), dz = _mm_sub_pd(oz, mz);
+        const Double2 pdx = _mm_add_pd(_mm_add_pd(_mm_mul_pd(p0, dx), _mm_mul_pd(p1, dy)), _mm_mul_pd(p2, dz));
+        const Double2 pdy = _mm_add_pd(_mm_add_pd(_mm_mul_pd(p1, dx), _mm_mul_pd(p3, dy)), _mm_mul_pd(p4, dz));
+        const Double2 pdz = _mm_add_pd(_mm_add_pd(_mm_mul_pd(p2, dx), _mm_mul_pd(p4, dy)), _mm_mul_pd(p5, dz));
+        const Double2 wPd = _mm_add_pd(_mm_add_pd(_mm_mul_pd(wx, pdx), _mm_mul_pd(wy, pdy)), _mm_mul_pd(wz, pdz));
+        const Double2 halfDPd = _mm_mul_pd(
+            half, _mm_add_pd(_mm_add_pd(_mm_mul_pd(dx, pdx), _mm_mul_pd(dy, pdy)), _mm_mul_pd(dz, pdz)));
+        const Double2 c2 = _mm_add_pd(
+            _mm_add_pd(_mm_add_pd(_mm_mul_pd(p0, wxx), _mm_mul_pd(p3, wyy)), _mm_mul_pd(p5, wzz)),
+            _mm_add_pd(_mm_add_pd(_mm_mul_pd(p1, wxy), _mm_mul_pd(p2, wxz)), _mm_mul_pd(p4, wyz)));
+        int kept = 3;
+        if (truncate) {
+            // As in truncatedSegmentIntegralRgb: q(t) = c2 t^2 + wPd t + outside
+            // is half the Mahalanobis distance squared beyond the truncation;
+            // the line misses the ellipsoid when min q > 0, [0, length] misses
+            // the chord when q's minimum lies outside it and q > 0 at the
+            // nearer end (with an infinite length minimumBeyond is false).
+            const Double2 outside = _mm_sub_pd(halfDPd, _mm_mul_pd(half, radiusSquared));
+            const Double2 lineMeets =
+                _mm_cmple_pd(_mm_mul_pd(_mm_mul_pd(broadcast(4.0), c2), outside), _mm_mul_pd(wPd, wPd));
+            const Double2 minimumBehind = _mm_cmpgt_pd(wPd, zero);
+            const Double2 startOutside = _mm_cmpgt_pd(outside, zero);
+            const Double2 minimumBeyond =
+                _mm_cmpgt_pd(_mm_sub_pd(zero, wPd), _mm_mul_pd(_mm_add_pd(c2, c2), length));
+            const Double2 endOutside = _mm_cmpgt_pd(
+                _mm_add_pd(_mm_mul_pd(_mm_add_pd(_mm_mul_pd(c2, length), wPd), length), outside), zero);
+            const Double2 missed = _mm_or_pd(_mm_and_pd(minimumBehind, startOutside),
+                                             _mm_andnot_pd(minimumBehind, _mm_and_pd(minimumBeyond, endOutside)));
+            kept = _mm_movemask_pd(_mm_andnot_pd(missed, lineMeets));
+        }
+        if (k + 1 >= indices.size()) kept &= 1;
+        const Double2 rootC2 = _mm_sqrt_pd(c2);
+        // Both lanes are written; the second goes where the first's would,
+        // and count_ moves past a lane only if it is kept.
+        const auto store = [&](int lane, const PackedGaussian& g) {
+            double* row[] = {&c2_[count_], &rootC2_[count_], &wPd_[count_], &halfDPd_[count_]};
+            const Double2 values[] = {c2, rootC2, wPd, halfDPd};
+            for (std::size_t v = 0; v < 4; ++v) {
+                if (lane == 0)
+                    _mm_storel_pd(row[v], values[v]);
+                else
+                    _mm_storeh_pd(row[v], values[v]);
+            }
+            logNormaliser_[count_] = g.logNormaliser;
+            powerRed_[count_] = g.powerRed;
+            powerGreen_[count_] = g.powerGreen;
+            powerBlue_[count_] = g.powerBlue;
+        };
+        store(0, a);
+        count_ += static_cast<std::size_t>(kept & 1);
+        store(1, b);
+        count_ += static_cast<std::size_t>(kept >> 1);
     }
-    keep(g, c2, wPd, terms.halfDPd, power);
-    return true;
+    return count_ - before;
 }
 
 void SegmentBatch::integrate(double sigmaT) {
@@ -110,9 +160,11 @@ void SegmentBatch::integrate(double sigmaT) {
     // where P erf(|z|) = P - E (P e^{-z^2} = e^{l}) unless |z| is small.
     // Mostly a segment crosses a Gaussian from well before its peak to well
     // after it (both erf are 1, the integral is 2P times the factor): a first
-    // pass computes that, two Gaussians at a time, and lists the others,
-    // which a second pass evaluates in full, every case computed for both
-    // lanes and the right one selected.
+    // pass computes that, two Gaussians at a time, and lists the others. Of
+    // those, the ones whose peak lies inside with one end well away from it
+    // (that end's erf is 1) need only the other end's erfc: a second pass
+    // evaluates them, one end per lane; a third evaluates the rest in full,
+    // every case computed for both lanes and the right one selected.
     struct Lanes {
         Double2 halfInverseRoot, shift, zEnd, logStart, logPeak;
     };
@@ -126,23 +178,60 @@ void SegmentBatch::integrate(double sigmaT) {
         return l;
     };
     pending_.clear();
+    oneEnd_.clear();
     for (std::size_t i = 0; i < n; i += 2) {
         const Lanes l = lanes(_mm_loadu_pd(wPd_.data() + i),
                               _mm_loadu_pd(rootC2_.data() + i), _mm_loadu_pd(logNormaliser_.data() + i),
                               _mm_loadu_pd(halfDPd_.data() + i));
-        const Double2 crossed = _mm_and_pd(_mm_cmple_pd(l.shift, _mm_sub_pd(zero, erfIsOne)),
-                                           _mm_cmpge_pd(l.zEnd, erfIsOne));
+        const Double2 startFar = _mm_cmple_pd(l.shift, _mm_sub_pd(zero, erfIsOne));
+        const Double2 endFar = _mm_cmpge_pd(l.zEnd, erfIsOne);
+        const int crossed = _mm_movemask_pd(_mm_and_pd(startFar, endFar));
+        const int nearStart = _mm_movemask_pd(_mm_andnot_pd(startFar, _mm_and_pd(endFar, _mm_cmplt_pd(l.shift, zero))));
+        const int nearEnd = _mm_movemask_pd(_mm_andnot_pd(endFar, _mm_and_pd(startFar, _mm_cmpgt_pd(l.zEnd, zero))));
         const Double2 peak = exp(l.logPeak);
         _mm_storeu_pd(peak_.data() + i, peak);
         _mm_storeu_pd(integral_.data() + i,
                       _mm_mul_pd(_mm_mul_pd(broadcast(kSqrtPi), l.halfInverseRoot), _mm_add_pd(peak, peak)));
-        const int mask = _mm_movemask_pd(crossed);
-        if ((mask & 1) == 0) pending_.push_back(static_cast<std::uint32_t>(i));
-        if ((mask & 2) == 0) pending_.push_back(static_cast<std::uint32_t>(i + 1));
+        for (int lane = 0; lane < 2; ++lane) {
+            const auto row = static_cast<std::uint32_t>(i) + static_cast<std::uint32_t>(lane);
+            if (row >= count_ || ((crossed >> lane) & 1)) continue;  // the pad, or done
+            if ((nearStart >> lane) & 1)
+                oneEnd_.push_back(row << 1);
+            else if ((nearEnd >> lane) & 1)
+                oneEnd_.push_back((row << 1) | 1u);
+            else
+                pending_.push_back(row);
+        }
     }
     const auto gather = [](const std::vector<double>& column, std::uint32_t first, std::uint32_t second) {
         return _mm_set_pd(column[second], column[first]);
     };
+    // P erf(|z|) at the near end, plus P for the far one.
+    for (std::size_t k = 0; k < oneEnd_.size(); k += 2) {
+        const std::uint32_t firstItem = oneEnd_[k];
+        const std::uint32_t secondItem = k + 1 < oneEnd_.size() ? oneEnd_[k + 1] : firstItem;
+        const std::uint32_t first = firstItem >> 1, second = secondItem >> 1;
+        const Double2 atEnd = _mm_castsi128_pd(_mm_set_epi64x(-static_cast<std::int64_t>(secondItem & 1u),
+                                                              -static_cast<std::int64_t>(firstItem & 1u)));
+        const Double2 c2 = gather(c2_, first, second);
+        const Double2 wPd = gather(wPd_, first, second);
+        const Lanes l = lanes(wPd, gather(rootC2_, first, second), gather(logNormaliser_, first, second),
+                              gather(halfDPd_, first, second));
+        const Double2 logEnd = _mm_sub_pd(
+            _mm_sub_pd(l.logStart, _mm_mul_pd(length, _mm_add_pd(wPd, _mm_mul_pd(c2, length)))),
+            _mm_mul_pd(sigma, length));
+        const Double2 u = _mm_andnot_pd(signBit, select(atEnd, l.zEnd, l.shift));
+        const Double2 t = erfcVariable(u);
+        const Double2 e = _mm_mul_pd(t, exp(_mm_add_pd(select(atEnd, logEnd, l.logStart), erfcExponentPolynomial(t))));
+        const Double2 peak = gather(peak_, first, second);
+        Double2 part = _mm_sub_pd(peak, e);
+        const Double2 small = _mm_cmplt_pd(u, seriesBelow);
+        if (_mm_movemask_pd(small) != 0) part = select(small, _mm_mul_pd(peak, erfSeries(u)), part);
+        alignas(16) double result[2];
+        _mm_store_pd(result, _mm_mul_pd(_mm_mul_pd(broadcast(kSqrtPi), l.halfInverseRoot), _mm_add_pd(peak, part)));
+        integral_[first] = result[0];
+        integral_[second] = result[1];
+    }
     for (std::size_t k = 0; k < pending_.size(); k += 2) {
         const std::uint32_t first = pending_[k];
         const std::uint32_t second = k + 1 < pending_.size() ? pending_[k + 1] : first;
@@ -187,11 +276,22 @@ Vec3d SegmentBatch::sum(const Vec3d& sigmaT) {
     Vec3d total(0.0);
     if (n == 0) return total;
     if (n % 2 != 0) {
-        keep(SegmentGaussian(), 0.5, 0.0, 0.0, Vec3d(0.0));  // a harmless second lane
-        --count_;
+        // A harmless second lane (reserve left room for it).
+        c2_[n] = 0.5;
+        rootC2_[n] = std::sqrt(0.5);
+        wPd_[n] = halfDPd_[n] = logNormaliser_[n] = 0.0;
     }
-    // Grey media (all three coefficients equal) integrate once.
     integrate(sigmaT.x);
+    // Grey media (all three coefficients equal) integrate once and sum the
+    // three channels in one loop, each in the same order as apart.
+    if (sigmaT.y == sigmaT.x && sigmaT.z == sigmaT.x) {
+        for (std::size_t i = 0; i < n; ++i) {
+            total.x += powerRed_[i] * integral_[i];
+            total.y += powerGreen_[i] * integral_[i];
+            total.z += powerBlue_[i] * integral_[i];
+        }
+        return total;
+    }
     for (std::size_t i = 0; i < n; ++i) total.x += powerRed_[i] * integral_[i];
     if (sigmaT.y != sigmaT.x) integrate(sigmaT.y);
     for (std::size_t i = 0; i < n; ++i) total.y += powerGreen_[i] * integral_[i];

@@ -22,11 +22,14 @@
 // Departures that keep the flat image within the truncation (§7.1's delta):
 // the descent tests the boxes of a node's leaves' truncated ellipsoids rather
 // than the BBH's box, which also holds the node's own, wider ellipsoid; it
-// tests four boxes at a time, on the pyramid collapsed to four-wide nodes
-// (a segment whose transmittance test could fire takes the binary descent);
+// tests four boxes per SSE register, on the pyramid collapsed to nodes of up
+// to sixteen entries (narrower, deeper nodes cost more in stack traffic and
+// branches than the boxes they spare; a segment whose transmittance test
+// could fire takes the binary descent);
 // and a Gaussian whose truncated ellipsoid the segment misses is skipped
-// before Eq. 16 (`cull_ellipsoids`). Eq. 16 itself is evaluated for all of a
-// segment's Gaussians together after the descent (engine/gmm/segment_batch.h,
+// before Eq. 16 (`cull_ellipsoids`). The descent only lists a segment's
+// Gaussians; their ellipsoid tests and Eq. 16 are evaluated after it, two at
+// a time in SSE2 lanes (engine/gmm/segment_batch.h,
 // with polynomial exp and erfc within about 1e-7 of the C library's, far
 // below the truncation's delta), summed in the descent's order.
 #include "passes/passes.h"
@@ -53,7 +56,7 @@ namespace fg {
 namespace {
 
 constexpr std::size_t kSegmentGrain = 64;
-constexpr std::size_t kWide = 4;
+constexpr std::size_t kWide = 16;
 constexpr std::uint32_t kNoWideNode = std::numeric_limits<std::uint32_t>::max();
 
 enum class Mode { Hierarchical, Flat, Level };
@@ -118,7 +121,7 @@ SlabInterval slabInterval(const SlabRay& ray, const Vec3& lo, const Vec3& hi) {
 // test is made as in the binary descent. Entries keep the pyramid's depth-
 // first order, and so does the traversal, so the Gaussians are summed in the
 // same order as by the binary descent. Unused entries have empty boxes.
-static_assert(kWide == 4, "the wide traversal tests four boxes in one SSE register");
+static_assert(kWide % 4 == 0 && kWide <= 32, "the wide traversal tests four boxes per SSE register");
 struct WideNode {
     std::array<std::array<float, kWide>, 3> lo{}, hi{};
     std::array<std::uint32_t, kWide> node{};
@@ -184,13 +187,6 @@ private:
     std::vector<WideNode> nodes_;
 };
 
-// What Eq. 15 reads of a node.
-struct RenderGaussian {
-    gmm::SegmentGaussian gaussian;
-    double radiusSquared = 0.0;  // truncation, r_j^2 (gmm_bbh)
-    glm::dvec3 power{0.0};
-};
-
 class GmmRenderPass final : public Pass {
 public:
     void run(PassContext& ctx) override {
@@ -228,9 +224,10 @@ public:
         const auto nodeLevel = pyramid.nodes.column<GmmLevel>();
         const auto sphere = bbh.nodes.column<BbhSphere>();
         const auto truncation = bbh.nodes.column<BbhRadius>();
-        std::vector<RenderGaussian> gaussians(nodeCount);
+        std::vector<gmm::PackedGaussian> gaussians(nodeCount);
         for (std::size_t j = 0; j < nodeCount; ++j)
-            gaussians[j] = {gmm::SegmentGaussian(gaussianAt(pyramid.nodes, j)), truncation[j] * truncation[j], power[j]};
+            gaussians[j] = gmm::PackedGaussian(gmm::SegmentGaussian(gaussianAt(pyramid.nodes, j)),
+                                               truncation[j] * truncation[j], power[j]);
 
         // The descent's boxes bound the truncated ellipsoids of a node's leaves,
         // not the node's own: the BBH's box of an inner node also holds that
@@ -296,7 +293,7 @@ public:
 
         std::vector<SegmentResult> results(segmentCount);
         jobs::parallelForChunks(segmentCount, kSegmentGrain, [&](jobs::IndexRange range) {
-            std::vector<std::uint32_t> stack;
+            std::vector<std::uint32_t> stack, candidates;
             gmm::SegmentBatch batch;
             for (std::size_t i = range.begin; i != range.end; ++i) {
                 if (nodeCount == 0) break;
@@ -315,15 +312,10 @@ public:
                 const SlabRay ray = slabRay(x, w, len);
                 SegmentResult& result = results[i];
                 batch.begin(x, w, len);
-                const auto evaluate = [&](std::uint32_t j) {
-                    const RenderGaussian& g = gaussians[j];
-                    if (cullEllipsoids && !batch.addTruncated(g.gaussian, g.radiusSquared, g.power)) {
-                        ++result.culled;
-                        return;
-                    }
-                    if (!cullEllipsoids) batch.add(g.gaussian, g.power);
-                    ++result.gaussians;
-                };
+                // The descent lists the nodes to evaluate; their ellipsoid tests
+                // and Eq. 16 terms are then computed two at a time.
+                candidates.clear();
+                const auto evaluate = [&](std::uint32_t j) { candidates.push_back(j); };
                 if (mode == Mode::Flat) {
                     for (std::uint32_t j = 0; j < nodeCount; ++j) {
                         if (right[j] != kNoGmmNode) continue;
@@ -372,28 +364,50 @@ public:
                                 continue;
                             }
                             const WideNode& node = wideNodes[item >> 1];
-                            // slabInterval on the kWide boxes at once.
-                            __m128 t0 = _mm_setzero_ps(), t1 = _mm_set1_ps(ray.length);
-                            for (std::size_t a = 0; a < 3; ++a) {
-                                const float* nearPlane = ray.negative[a] ? node.hi[a].data() : node.lo[a].data();
-                                const float* farPlane = ray.negative[a] ? node.lo[a].data() : node.hi[a].data();
-                                const __m128 o = _mm_set1_ps(ray.origin[a]), inverse = _mm_set1_ps(ray.inverse[a]);
-                                t0 = _mm_max_ps(t0, _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(nearPlane), o), inverse));
-                                t1 = _mm_min_ps(t1, _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(farPlane), o), inverse));
+                            // slabInterval on the boxes, four at once.
+                            unsigned hits = 0;
+                            for (std::size_t group = 0; group < node.count; group += 4) {
+                                __m128 t0 = _mm_setzero_ps(), t1 = _mm_set1_ps(ray.length);
+                                for (std::size_t a = 0; a < 3; ++a) {
+                                    const float* nearPlane =
+                                        (ray.negative[a] ? node.hi[a].data() : node.lo[a].data()) + group;
+                                    const float* farPlane =
+                                        (ray.negative[a] ? node.lo[a].data() : node.hi[a].data()) + group;
+                                    const __m128 o = _mm_set1_ps(ray.origin[a]);
+                                    const __m128 inverse = _mm_set1_ps(ray.inverse[a]);
+                                    t0 = _mm_max_ps(t0, _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(nearPlane), o), inverse));
+                                    t1 = _mm_min_ps(t1, _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(farPlane), o), inverse));
+                                }
+                                hits |= static_cast<unsigned>(_mm_movemask_ps(_mm_cmple_ps(t0, t1))) << group;
                             }
-                            auto hits = static_cast<unsigned>(_mm_movemask_ps(_mm_cmple_ps(t0, t1)));
                             result.nodes += node.count;
+                            const auto evaluateHere = [&](std::size_t e) {
+                                return node.children[e] == kNoWideNode ||
+                                       ((node.mayStop >> e) & 1u && solidAngleStops(node.node[e], eye));
+                            };
+                            // Entries to evaluate before the first one descended
+                            // into come next in depth-first order anyway: they go
+                            // to the list directly, the rest through the stack.
+                            bool descends = false;
+                            while (hits != 0) {
+                                const auto e = static_cast<std::size_t>(__builtin_ctz(hits));
+                                descends = !evaluateHere(e);
+                                if (descends) break;
+                                hits &= hits - 1;
+                                evaluate(node.node[e]);
+                            }
                             while (hits != 0) {
                                 const auto e = static_cast<std::size_t>(31 - __builtin_clz(hits));
                                 hits &= ~(1u << e);
                                 const std::uint32_t j = node.node[e];
-                                const bool evaluateHere = node.children[e] == kNoWideNode ||
-                                                          ((node.mayStop >> e) & 1u && solidAngleStops(j, eye));
-                                stack.push_back(evaluateHere ? (j << 1) | 1u : node.children[e] << 1);
+                                const bool here = (hits == 0 && descends) ? false : evaluateHere(e);
+                                stack.push_back(here ? (j << 1) | 1u : node.children[e] << 1);
                             }
                         }
                     }
                 }
+                result.gaussians = static_cast<std::int64_t>(batch.addAll(gaussians, candidates, cullEllipsoids));
+                result.culled = static_cast<std::int64_t>(candidates.size()) - result.gaussians;
                 const Rgb value = Rgb(batch.sum(sigmaT) * (1.0 / (4.0 * M_PI))) * throughput[i];
                 result.radiance = isFinite(value) ? value : Rgb(0.0f);
                 result.timeNs = static_cast<float>(jobs::wallNanos() - start);

@@ -13,6 +13,7 @@
 #include <cmath>
 #include <limits>
 #include <random>
+#include <span>
 #include <vector>
 
 namespace fg::gmm {
@@ -291,6 +292,55 @@ TEST(GmmSegmentIntegral, BatchedSumKeepsWhatTheTruncatedFormKeeps) {
     }
     EXPECT_GT(kept, 100);
     EXPECT_GT(skipped, 100);
+}
+
+// addAll tests and keeps two records at a time: every lane, an odd count's
+// last one and repeated indices give the rows, counts and sums of the same
+// records added one at a time, bit for bit, with and without truncation.
+TEST(GmmSegmentIntegral, PairedAddAllEqualsOneAtATime) {
+    std::mt19937_64 rng(17);
+    std::uniform_real_distribution<double> unit(0.0, 1.0);
+    std::vector<PackedGaussian> records;
+    std::vector<SegmentGaussian> compact;
+    for (int i = 0; i < 300; ++i) {
+        compact.emplace_back(randomGaussian(rng, 0.001, 0.05));
+        records.emplace_back(compact.back(), 16.0, Vec3d(unit(rng), unit(rng), unit(rng)));
+    }
+    std::vector<std::uint32_t> indices;
+    for (int i = 0; i < 301; ++i) indices.push_back(static_cast<std::uint32_t>(rng() % records.size()));
+    const Vec3d origin(-1.5, 0.05, -0.02);
+    const Vec3d w = glm::normalize(Vec3d(1.0, 0.1, 0.05));
+    SegmentBatch paired, single;
+    int keptAndSkipped[2] = {0, 0};
+    for (const bool truncate : {true, false}) {
+        for (const double length : {2.7, std::numeric_limits<double>::infinity()}) {
+            for (const std::size_t count : {indices.size(), std::size_t{1}, std::size_t{2}, std::size_t{300}}) {
+                const std::span<const std::uint32_t> some(indices.data(), count);
+                paired.begin(origin, w, length);
+                single.begin(origin, w, length);
+                const std::size_t kept = paired.addAll(records, some, truncate);
+                std::size_t keptSingly = 0;
+                for (const std::uint32_t j : some) {
+                    const Vec3d power(records[j].powerRed, records[j].powerGreen, records[j].powerBlue);
+                    if (truncate) {
+                        const bool hit = single.addTruncated(compact[j], 16.0, power);
+                        keptSingly += hit ? 1 : 0;
+                        ++keptAndSkipped[hit ? 0 : 1];
+                    } else {
+                        single.add(compact[j], power);
+                        ++keptSingly;
+                    }
+                }
+                ASSERT_EQ(kept, keptSingly);
+                ASSERT_EQ(paired.size(), single.size());
+                const Vec3d sigmaT(0.3);
+                const Vec3d a = paired.sum(sigmaT), b = single.sum(sigmaT);
+                for (int channel = 0; channel < 3; ++channel) EXPECT_EQ(a[channel], b[channel]);
+            }
+        }
+    }
+    EXPECT_GT(keptAndSkipped[0], 50);
+    EXPECT_GT(keptAndSkipped[1], 50);
 }
 
 TEST(GmmGaussian, FactorsMatchDirectInverseAndDeterminant) {
