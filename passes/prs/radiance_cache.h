@@ -24,7 +24,9 @@
 #pragma once
 
 #include "engine/buffers/radiance_cache_buffers.h"
+#include "engine/core/error.h"
 #include "engine/core/math.h"
+#include "engine/core/pass.h"
 #include "engine/scene/scene.h"
 #include "jobs/parallel.h"
 
@@ -33,6 +35,7 @@
 #include <cmath>
 #include <cstdint>
 #include <span>
+#include <string>
 #include <vector>
 
 namespace fg {
@@ -156,6 +159,18 @@ RadianceCachePlacement placeCacheRecords(std::vector<CachePixelSample>& samples,
         if (samples[pixel].valid && placement.coverage[pixel] < static_cast<std::uint32_t>(settings.minRecords))
             placement.undercoveredPixels.push_back(static_cast<std::uint32_t>(pixel));
     return placement;
+}
+
+// Preflight of the placement's `grid` and `passes` parameters (cache_select,
+// radiance_cache): each pass halves the grid spacing, which must stay at
+// least one pixel.
+inline void checkPlacementGrid(const PreflightContext& pf) {
+    const auto grid = pf.params.getInt("grid");
+    const auto passes = pf.params.getInt("passes");
+    if ((grid >> (passes - 1)) < 1)
+        throw InputError(pf.source + ": pass '" + pf.instance + "': grid " + std::to_string(grid) + " cannot be halved " +
+                         std::to_string(passes - 1) + " times; use a grid of at least " +
+                         std::to_string(std::int64_t{1} << (passes - 1)) + " or fewer passes");
 }
 
 // The same with every sample's radius known beforehand.

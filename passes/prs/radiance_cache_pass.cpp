@@ -321,12 +321,7 @@ PassRegistration radianceCachePass() {
          "bound on a record's radius R_k as a fraction of the scene diagonal (also the radius where no ray arrived)"},
     };
     const auto preflight = [](const PreflightContext& pf) {
-        const auto grid = pf.params.getInt("grid");
-        const auto passes = pf.params.getInt("passes");
-        if ((grid >> (passes - 1)) < 1)
-            throw InputError(pf.source + ": pass '" + pf.instance + "': grid " + std::to_string(grid) + " cannot be halved " +
-                             std::to_string(passes - 1) + " times; use a grid of at least " +
-                             std::to_string(std::int64_t{1} << (passes - 1)) + " or fewer passes");
+        checkPlacementGrid(pf);
         const PassParams* splat = pf.producerParams("radiance_map");
         if (!splat || pf.producerPass("radiance_map") != "ray_splat") return;
         if (splat->getString("lambertian") != "sh_map")
