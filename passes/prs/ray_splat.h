@@ -35,6 +35,7 @@
 #include <bit>
 #include <cmath>
 #include <cstdint>
+#include <immintrin.h>
 
 namespace fg {
 
@@ -200,18 +201,23 @@ std::uint64_t forEachWeightedVertex(const SplatKdTree& tree, const SplatFrustum&
     const auto depositLeaf = [&](std::uint32_t first, std::uint32_t count) {
         for (std::uint32_t base = first; base < first + count; base += kWeightChunk) {
             const std::uint32_t n = std::min(kWeightChunk, first + count - base);
-            float weights[kWeightChunk];
+            alignas(16) float weights[kWeightChunk];
             frustum.weights(columns, base, n, weights);
-            // The feasible ones listed first, without a branch: about a third
-            // of the vertices weighed deposit, a coin toss for the branch
-            // predictor.
-            std::uint32_t feasible[kWeightChunk];
-            std::uint32_t feasibleCount = 0;
-            for (std::uint32_t k = 0; k < n; ++k) {
-                feasible[feasibleCount] = k;
-                feasibleCount += weights[k] > 0.0f ? 1u : 0u;
+            // The feasible ones as bits, four per comparison, taken lowest
+            // first: about a third of the vertices weighed deposit, a coin
+            // toss for a branch per vertex.
+            std::uint64_t feasible[kWeightChunk / 64] = {};
+            for (std::uint32_t k = 0; k < n; k += 4) {
+                const auto bits = static_cast<std::uint64_t>(
+                    _mm_movemask_ps(_mm_cmpgt_ps(_mm_load_ps(weights + k), _mm_setzero_ps())));
+                feasible[k / 64] |= bits << (k % 64);
             }
-            for (std::uint32_t i = 0; i < feasibleCount; ++i) deposit(base + feasible[i], weights[feasible[i]]);
+            if (n % 64 != 0) feasible[(n - 1) / 64] &= ~std::uint64_t(0) >> (64 - n % 64);
+            for (std::uint32_t word = 0; word * 64 < n; ++word)
+                for (std::uint64_t bits = feasible[word]; bits != 0; bits &= bits - 1) {
+                    const std::uint32_t k = word * 64 + static_cast<std::uint32_t>(std::countr_zero(bits));
+                    deposit(base + k, weights[k]);
+                }
         }
     };
     return tree.forEachLeafNearCone(cone, depositLeaf, useCullNodes);

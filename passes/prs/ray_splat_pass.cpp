@@ -21,6 +21,7 @@
 // deposit instead of one; the image is bit for bit the same).
 // The kd search (`traversal = "tight_boxes"`, SplatKdTree::forEachLeafNearCone)
 // enters nodes by their vertices' tight boxes rather than Algorithm 1's cells,
+// four subtrees' boxes at a time (the binary tree collapsed into four-wide nodes),
 // and the leaves' vertices are weighed from the tree's coordinate columns
 // four at a time (SplatFrustum::weights, bit for bit SplatFrustum::weight),
 // in Algorithm 1's order: the same deposits in the same order, so the same

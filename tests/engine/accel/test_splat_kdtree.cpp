@@ -10,6 +10,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cstring>
 #include <set>
 #include <vector>
 
@@ -263,6 +264,86 @@ TEST(SplatKdTree, GrazingRaysAreNotCulledOffFlatWalls) {
             }
     }
     EXPECT_EQ(cases, 27);
+}
+
+// The cone search runs on four-wide nodes collapsed from the binary tree; its
+// leaves must come in Algorithm 1's order whatever the shape: leaves of one
+// vertex (deep trees, many interior nodes collapsed) to leaves of up to 96
+// (shallow ones, wide nodes with unexpanded leaf slots).
+TEST(SplatKdTree, ConeSearchKeepsAlgorithmOnesOrderForAnyLeafSize) {
+    std::vector<Vec3> p, n;
+    makeVertices(p, n, 4000);
+    for (const std::uint32_t leafSize : {2u, 5u, 96u}) {
+        const SplatKdTree tree(p, n, {leafSize, 0.0f, 45.0f});
+        std::int64_t feasibleTotal = 0;
+        for (std::uint64_t i = 0; i < 2000; ++i) {
+            const SplatRay ray = randomRay(i);
+            const SplatEndCap cap = i % 2 ? SplatEndCap::Hemisphere : SplatEndCap::TangentPlane;
+            std::vector<std::uint32_t> expected, found;
+            tree.forEachCandidate(splatCone(ray, cap), [&](std::uint32_t slot) {
+                const std::uint32_t v = tree.vertexOf(slot);
+                if (splatWeight(ray, cap, p[v], n[v]) > 0.0f) expected.push_back(v);
+            });
+            std::vector<int> seen(tree.size(), 0);
+            tree.forEachLeafNearCone(splatCone(ray, cap), [&](std::uint32_t first, std::uint32_t count) {
+                for (std::uint32_t slot = first; slot < first + count; ++slot) {
+                    ++seen[slot];
+                    const std::uint32_t v = tree.vertexOf(slot);
+                    if (splatWeight(ray, cap, p[v], n[v]) > 0.0f) found.push_back(v);
+                }
+            });
+            ASSERT_EQ(found, expected) << "leaf size " << leafSize << ", ray " << i;
+            ASSERT_LE(*std::max_element(seen.begin(), seen.end()), 1) << "leaf size " << leafSize << ", ray " << i;
+            feasibleTotal += static_cast<std::int64_t>(found.size());
+        }
+        EXPECT_GT(feasibleTotal, 2000) << "leaf size " << leafSize;
+    }
+}
+
+// A saved tree may hold a culling node right under another (the builder
+// places none so, restore() accepts it): the cone search must honour both.
+// Vertices on z = 0 facing +z; rays running up through them reach none.
+// Whichever of the two nodes culls rays with dir . (0, 0, 1) > 0.5 (the other
+// never culls: C_max 1.5), no leaf may be visited.
+TEST(SplatKdTree, ConeSearchHonoursNestedCullingNodes) {
+    std::vector<Vec3> p, n;
+    for (std::uint64_t i = 0; i < 500; ++i) {
+        jobs::Rng rng(3, 4, i);
+        const Vec2 u = rng.uniform2();
+        p.emplace_back(u.x, u.y, 0.0f);
+        n.emplace_back(0.0f, 0.0f, 1.0f);
+    }
+    const SplatKdTree plain(p, n, {16, 0.0f, 0.0f});
+    ASSERT_EQ(plain.nodes()[0].kind(), SplatKdNode::Interior);
+    const auto cullNode = [](std::uint32_t packedNormal, float cMax) {
+        std::uint32_t bits;
+        std::memcpy(&bits, &cMax, sizeof bits);
+        return SplatKdNode{packedNormal, (bits & ~3u) | SplatKdNode::Cull};
+    };
+    const std::uint32_t up = 32768u | (32768u << 16), down = 65535u | (65535u << 16);
+    ASSERT_GT(SplatKdTree::decodeNormal(up).z, 0.9999f);
+    ASSERT_LT(SplatKdTree::decodeNormal(down).z, -0.9999f);
+    SplatRay ray;
+    ray.origin = Vec3(0.5f, 0.5f, -0.5f);
+    ray.direction = glm::normalize(Vec3(0.1f, 0.05f, 1.0f));
+    ray.h0 = 0.2f;
+    ray.length = 1.0f;
+    const SplatCone cone = splatCone(ray, SplatEndCap::TangentPlane);
+    for (const bool innerCulls : {false, true}) {
+        std::vector<SplatKdNode> nodes{innerCulls ? cullNode(down, 1.5f) : cullNode(up, 0.5f),
+                                       innerCulls ? cullNode(up, 0.5f) : cullNode(down, 1.5f)};
+        nodes.insert(nodes.end(), plain.nodes().begin(), plain.nodes().end());
+        const SplatKdTree tree = SplatKdTree::restore(
+            plain.options(), plain.boundsMin(), plain.boundsMax(), nodes,
+            std::vector<std::uint32_t>(plain.ids().begin(), plain.ids().end()),
+            std::vector<Vec3>(plain.slotPositions().begin(), plain.slotPositions().end()),
+            std::vector<Vec3>(plain.slotNormals().begin(), plain.slotNormals().end()));
+        int leaves = 0, leavesUnculled = 0;
+        tree.forEachLeafNearCone(cone, [&](std::uint32_t, std::uint32_t) { ++leaves; });
+        tree.forEachLeafNearCone(cone, [&](std::uint32_t, std::uint32_t) { ++leavesUnculled; }, false);
+        EXPECT_EQ(leaves, 0) << (innerCulls ? "inner" : "outer") << " node culls";
+        EXPECT_GT(leavesUnculled, 3) << (innerCulls ? "inner" : "outer") << " node culls";
+    }
 }
 
 }  // namespace
