@@ -51,6 +51,55 @@
 
 namespace fg {
 
+// SplatFrustum::weights, out of line here for the reason ray_splat.h gives.
+// Clang 14 names a cloned function's dispatcher so that callers in other
+// translation units do not find it; its builds (sanitizers, fuzzing) take
+// the baseline code, which gives the same bits.
+#if defined(__clang__)
+#define FG_SPLAT_WEIGHT_CLONES
+#else
+#define FG_SPLAT_WEIGHT_CLONES [[gnu::target_clones("avx2", "default")]]
+#endif
+FG_SPLAT_WEIGHT_CLONES void SplatFrustum::weights(const SplatVertexColumns& vertices, std::uint32_t first,
+                                                                     std::uint32_t count, float* out) const {
+    const float ox = origin.x, oy = origin.y, oz = origin.z;
+    const float dx = direction.x, dy = direction.y, dz = direction.z;
+    const float onx = originNormal.x, ony = originNormal.y, onz = originNormal.z;
+    const float enx = endNormal.x, eny = endNormal.y, enz = endNormal.z;
+    const float ex = end.x, ey = end.y, ez = end.z;
+    const int hemisphere = cap == SplatEndCap::Hemisphere ? 1 : 0;
+    const int anyOriginSide = hasOriginSurface ? 0 : 1;
+    const float hitPlaneLimit = -tolerance;
+    const float* xs = vertices.x + first;
+    const float* ys = vertices.y + first;
+    const float* zs = vertices.z + first;
+    const float* nxs = vertices.nx + first;
+    const float* nys = vertices.ny + first;
+    const float* nzs = vertices.nz + first;
+    for (std::uint32_t k = 0; k < count; ++k) {
+        const float x = xs[k] - ox, y = ys[k] - oy, z = zs[k] - oz;
+        const float tp = x * dx + y * dy + z * dz;
+        const float px = x - tp * dx, py = y - tp * dy, pz = z - tp * dz;
+        const float d2 = px * px + py * py + pz * pz;
+        const float radius = maskedSelect(tp <= length ? 1 : 0, h0 + dh * tp, hitRadius);
+        const float r2 = radius * radius;
+        const float cosine = -(dx * nxs[k] + dy * nys[k] + dz * nzs[k]);
+        const float originSide = x * onx + y * ony + z * onz;
+        const float hx = xs[k] - ex, hy = ys[k] - ey, hz = zs[k] - ez;
+        const float hitDistance2 = hx * hx + hy * hy + hz * hz;
+        const float hitSide = hx * enx + hy * eny + hz * enz;
+        const int insideCap = (hemisphere & (hitDistance2 > r2 ? 0 : 1)) |
+                              ((hemisphere ^ 1) & (hitSide < hitPlaneLimit ? 0 : 1));
+        const int feasible = (tp < 0.0f ? 0 : 1) & (tp > reach ? 0 : 1) & (radius > 0.0f ? 1 : 0) &
+                             (d2 < r2 ? 1 : 0) & (cosine > 0.0f ? 1 : 0) &
+                             (anyOriginSide | (originSide > 0.0f ? 1 : 0)) &
+                             ((tp > length ? 0 : 1) | insideCap);
+        const float weight = 2.0f * kInvPi / r2 * (1.0f - d2 / r2) * cosine;
+        out[k] = maskedSelect(feasible, weight, 0.0f);
+    }
+}
+
+
 namespace {
 
 // Memory for the per-block films; at least one block, at most 64.
