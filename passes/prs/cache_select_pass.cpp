@@ -151,14 +151,8 @@ PassRegistration cacheSelectPass() {
         {"record_vertices", "EyeVertices",
          "the vertices to splat onto: the records' in record order, then those no record is valid at, in eye order"},
     };
-    spec.params = {
-        {"error", ParamType::Float, 0.7, 0.01, 1.0, {},
-         "ε: a record is used where its Ward weight exceeds 1/ε (smaller: more, smaller records)"},
-        {"grid", ParamType::Int, std::int64_t{32}, 1, 4096, {}, "pixel spacing of the first placement pass"},
-        {"passes", ParamType::Int, std::int64_t{3}, 1, 12, {},
-         "placement passes; each halves the grid spacing (at least 1 pixel)"},
-        {"min_records", ParamType::Int, std::int64_t{4}, 1, 64, {},
-         "records a pixel should be covered by; grid pixels covered by fewer get a record in the next pass"},
+    spec.params = placementParams();
+    spec.params.insert(spec.params.end(), {
         {"distance_strata", ParamType::Int, std::int64_t{8}, 1, 64, {},
          "the harmonic mean distance traces distance_strata² cosine-distributed rays per record"},
         {"min_radius", ParamType::Float, 0.0, 0.0, 10.0, {},
@@ -166,7 +160,7 @@ PassRegistration cacheSelectPass() {
         {"max_radius", ParamType::Float, 0.25, 1e-4, 10.0, {},
          "upper bound on a record's radius R_k as a fraction of the scene diagonal (also the radius where every "
          "ray escapes)"},
-    };
+    });
     return {spec, [] { return std::make_unique<CacheSelectPass>(); }, checkPlacementGrid};
 }
 

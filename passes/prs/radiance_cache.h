@@ -161,6 +161,20 @@ RadianceCachePlacement placeCacheRecords(std::vector<CachePixelSample>& samples,
     return placement;
 }
 
+// The placement's parameters, which cache_select and radiance_cache both
+// declare (first, in this order).
+inline std::vector<ParamSpec> placementParams() {
+    return {
+        {"error", ParamType::Float, 0.7, 0.01, 1.0, {},
+         "ε: a record is used where its Ward weight exceeds 1/ε (smaller: more, smaller records)"},
+        {"grid", ParamType::Int, std::int64_t{32}, 1, 4096, {}, "pixel spacing of the first placement pass"},
+        {"passes", ParamType::Int, std::int64_t{3}, 1, 12, {},
+         "placement passes; each halves the grid spacing (at least 1 pixel)"},
+        {"min_records", ParamType::Int, std::int64_t{4}, 1, 64, {},
+         "records a pixel should be covered by; grid pixels covered by fewer get a record in the next pass"},
+    };
+}
+
 // Preflight of the placement's `grid` and `passes` parameters (cache_select,
 // radiance_cache): each pass halves the grid spacing, which must stay at
 // least one pixel.

@@ -306,20 +306,14 @@ PassRegistration radianceCachePass() {
          "coefficients interpolated from the cache records at every eye vertex (sparse) or at the map's vertices (dense)"},
         {"cache_records", "CacheRecords", "the records: position, normal, radius R_k, pixel, SH coefficients"},
     };
-    spec.params = {
-        {"error", ParamType::Float, 0.7, 0.01, 1.0, {},
-         "ε: a record is used where its Ward weight exceeds 1/ε (smaller: more, smaller records)"},
-        {"grid", ParamType::Int, std::int64_t{32}, 1, 4096, {}, "pixel spacing of the first placement pass"},
-        {"passes", ParamType::Int, std::int64_t{3}, 1, 12, {},
-         "placement passes; each halves the grid spacing (at least 1 pixel)"},
-        {"min_records", ParamType::Int, std::int64_t{4}, 1, 64, {},
-         "records a pixel should be covered by; grid pixels covered by fewer get a record in the next pass"},
+    spec.params = placementParams();
+    spec.params.insert(spec.params.end(), {
         {"gradients", ParamType::String, std::string("none"), 0, 0, {"none", "neighbours"},
          "with records chosen before splatting: interpolate c_k alone, or c_k + g_k·(x − x_k) with g_k fitted by "
          "least squares to the neighbouring records (exact for linear fields)"},
         {"max_radius", ParamType::Float, 0.25, 1e-4, 10.0, {},
          "bound on a record's radius R_k as a fraction of the scene diagonal (also the radius where no ray arrived)"},
-    };
+    });
     const auto preflight = [](const PreflightContext& pf) {
         checkPlacementGrid(pf);
         const PassParams* splat = pf.producerParams("radiance_map");
