@@ -4,6 +4,7 @@
 #include "engine/core/pass.h"
 
 #include "engine/core/interrupt.h"
+#include "engine/scene/scene.h"
 #include "jobs/random.h"
 
 #include <algorithm>
@@ -78,6 +79,13 @@ PassContext::PassContext(const Scene& scene, const RayQuery* rays, const FilmSet
 const RayQuery& PassContext::rays() const {
     if (!rays_) throw std::logic_error("pass '" + instance_ + "' traces rays, but the run has no ray queries");
     return *rays_;
+}
+
+Camera PassContext::filmCamera() const {
+    Camera camera = scene_.camera;
+    camera.width = film_.width;
+    camera.height = film_.height;
+    return camera;
 }
 
 void PassContext::reportProgress(double fraction) const {

@@ -23,6 +23,7 @@
 
 namespace fg {
 
+struct Camera;
 struct Scene;
 class RayQuery;
 
@@ -138,6 +139,9 @@ public:
     // Throws std::logic_error when the context was made without ray queries.
     const RayQuery& rays() const;
     const FilmSettings& filmSettings() const { return film_; }
+    // The scene's camera with the film's size: the job's [film] may override
+    // the resolution the scene file gives.
+    Camera filmCamera() const;
     std::uint64_t seed() const { return seed_; }
     const PassParams& params() const { return params_; }
     const std::string& instanceName() const { return instance_; }

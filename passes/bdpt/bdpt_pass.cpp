@@ -434,9 +434,7 @@ public:
         settings.waveSize = static_cast<std::size_t>(params.getInt("wave_size"));
 
         const FilmSettings& filmSettings = ctx.filmSettings();
-        Camera camera = scene.camera;
-        camera.width = filmSettings.width;
-        camera.height = filmSettings.height;
+        const Camera camera = ctx.filmCamera();
         const BdptScene bs(scene, ctx.rays(), camera);
         const StrategyTable table(settings.strategyLength);
 

@@ -107,9 +107,7 @@ public:
         const bool directLight = ctx.params().getBool("direct_light");
         const float sampleWeight = 1.0f / static_cast<float>(spp);
 
-        Camera camera = scene.camera;
-        camera.width = ctx.filmSettings().width;
-        camera.height = ctx.filmSettings().height;
+        const Camera camera = ctx.filmCamera();
         const PathTracerScene pts(scene, ctx.rays());
 
         Film& film = ctx.createOutput<Film>("direct", ctx.filmSettings());

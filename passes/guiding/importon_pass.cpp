@@ -50,9 +50,7 @@ public:
         limits.maxDepth = static_cast<int>(params.getInt("max_depth"));
         limits.rrDepth = static_cast<int>(params.getInt("rr_depth"));
 
-        Camera camera = scene.camera;
-        camera.width = ctx.filmSettings().width;
-        camera.height = ctx.filmSettings().height;
+        const Camera camera = ctx.filmCamera();
         PathTracerScene pts(scene, ctx.rays());
         if (ctx.hasInput("radiance_cache")) {
             guideByRadianceCache(pts, ctx.input<GuidingCache>("radiance_cache"), params);

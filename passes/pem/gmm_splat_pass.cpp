@@ -258,9 +258,7 @@ public:
         }
         Level level(pyramid.nodes, levelIndex, params.getFloat("delta"));
 
-        Camera camera = scene.camera;
-        camera.width = ctx.filmSettings().width;
-        camera.height = ctx.filmSettings().height;
+        const Camera camera = ctx.filmCamera();
         const bool needsRays = depthClip || !scattering(scene, camera.medium);
         const RayQuery* rays = needsRays ? &ctx.rays() : nullptr;
 

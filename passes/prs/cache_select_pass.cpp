@@ -52,9 +52,7 @@ public:
         const std::vector<Vec3> directions =
             harmonicMeanDistanceDirections(static_cast<int>(ctx.params().getInt("distance_strata")));
 
-        Camera camera = scene.camera;
-        camera.width = ctx.filmSettings().width;
-        camera.height = ctx.filmSettings().height;
+        const Camera camera = ctx.filmCamera();
         const std::size_t pixelCount = static_cast<std::size_t>(camera.width) * static_cast<std::size_t>(camera.height);
 
         const auto pixelOf = eye.column<EyePixel>();

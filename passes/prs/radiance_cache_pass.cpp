@@ -63,9 +63,7 @@ public:
         const float maxRadius =
             static_cast<float>(ctx.params().getFloat("max_radius")) * glm::length(scene.boundsMax - scene.boundsMin);
 
-        Camera camera = scene.camera;
-        camera.width = ctx.filmSettings().width;
-        camera.height = ctx.filmSettings().height;
+        const Camera camera = ctx.filmCamera();
         const std::size_t pixelCount = static_cast<std::size_t>(camera.width) * static_cast<std::size_t>(camera.height);
 
         // Map entries grouped by pixel, each pixel's in eye-vertex order.
@@ -193,9 +191,7 @@ private:
         const CacheRecords& placed = ctx.input<CacheRecords>("placed_records");
         const std::size_t splatVertexCount = ctx.input<EyeVertices>("record_vertices").vertices.size();
         const RadianceMapBuffer& map = ctx.input<RadianceMap>("radiance_map").vertices;
-        Camera camera = ctx.scene().camera;
-        camera.width = ctx.filmSettings().width;
-        camera.height = ctx.filmSettings().height;
+        const Camera camera = ctx.filmCamera();
         const std::size_t pixelCount = static_cast<std::size_t>(camera.width) * static_cast<std::size_t>(camera.height);
         const std::size_t recordCount = placed.records.size();
         if (recordCount > splatVertexCount)

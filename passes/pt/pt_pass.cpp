@@ -249,9 +249,7 @@ public:
         settings.waveSize = static_cast<std::size_t>(params.getInt("wave_size"));
         settings.wavefront = params.getString("schedule") == "wavefront";
 
-        Camera camera = scene.camera;
-        camera.width = ctx.filmSettings().width;
-        camera.height = ctx.filmSettings().height;
+        const Camera camera = ctx.filmCamera();
         PathTracerScene pts(scene, ctx.rays());
         const std::string& guiding = params.getString("guiding");
         if (guiding == "gmm" || (guiding == "auto" && ctx.hasInput("radiance_cache"))) {

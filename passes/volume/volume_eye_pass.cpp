@@ -143,9 +143,7 @@ public:
         const int spp = static_cast<int>(ctx.params().getInt("spp"));
         const int maxSpecularDepth = static_cast<int>(ctx.params().getInt("max_specular_depth"));
 
-        Camera camera = scene.camera;
-        camera.width = ctx.filmSettings().width;
-        camera.height = ctx.filmSettings().height;
+        const Camera camera = ctx.filmCamera();
         const PathTracerScene pts(scene, ctx.rays());
         const VolumeEyeTracer tracer(pts, maxSpecularDepth, 1.0f / static_cast<float>(spp));
 
