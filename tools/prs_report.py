@@ -23,10 +23,22 @@ the saved eye vertices and photon map (the gather pass reports no radius).
 With --seeds the PM and RS rows are rendered again with those photon seeds
 for the mean signed error in the concave corners (crops 20,20,16,16 and
 92,20,16,16, percent of the reference's mean there, ± its standard error);
-with --scaling RS's and PM's T_S at 1, 2 and 4 times the photons.
+with --scaling RS's and PM's T_S at 1, 2 and 4 times the photons. Every row
+also gets the shares of its pixels in Fig. 10's classes of relative error
+against the reference (|image - reference| / reference of the channel mean:
+below 5 %, below 15 %, 30 % and above).
+
+With --footprint RS is rendered --repeats times alternating the frustum with
+footprint = "sphere" (§9: frustum 1.5-2x the sphere's time), ray_splat's CPU
+seconds, medians. With --memory prs.toml is rendered at 500 x 500 x 1 with
+500k photon paths (and with as many paths as give 500k stored rays): the
+bytes of the photon rays (ray_bandwidth's output), the splat index
+(kd-tree, four-wide nodes and vertex columns) and the radiance film and
+map (ray_splat's outputs), from --stats, and the process's peak RSS.
 
     python3 tools/prs_report.py [--threads 1] [--photons 200000] [--out results/prs]
-                                [--seeds 11 12 13 14] [--scaling] [--set-rs KEY=VALUE ...]
+                                [--seeds 11 12 13 14] [--scaling] [--footprint] [--memory]
+                                [--repeats 3] [--set-rs KEY=VALUE ...]
 """
 import argparse
 import collections
@@ -75,14 +87,20 @@ k_global = 100
 """
 
 
-def render(binary, job, out_dir, threads, photons, extra=()):
+def render(binary, job, out_dir, threads, photons, extra=(), peak=None):
     stats = os.path.join(out_dir, "stats.json")
     command = [binary, "render", job, "--out", out_dir, "--threads", str(threads), "--stats", stats] + list(extra)
     if photons:
         command += ["--set", f"passes.photon.photons={photons}"]
+    if peak is not None:  # the peak resident set in kB, from GNU time
+        command = ["/usr/bin/time", "-f", "%M", "-o", os.path.join(out_dir, "peak.txt")] + command
     subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
+    if peak is not None:
+        with open(os.path.join(out_dir, "peak.txt")) as f:
+            peak.append(int(f.read().split()[-1]))
     with open(stats) as f:
         passes = json.load(f)["passes"]
+    output_bytes = {p["pass"]: p.get("output_bytes", 0) for p in passes}
     times = {phase: sum(p["cpu_seconds"] for p in passes if p["pass"] in names) for phase, names in PHASES.items()}
     counters = {}
     for p in passes:
@@ -91,8 +109,26 @@ def render(binary, job, out_dir, threads, photons, extra=()):
             c = p["counters"]
             times["T_E"] += c["trace_cpu_us"] / 1e6
             times["T_S"] += c.get("splat_cpu_us", c.get("gather_cpu_us", 0)) / 1e6
+    counters["output_bytes"] = output_bytes
     images = [name for name in os.listdir(out_dir) if name.endswith(".exr")]
     return times, counters, os.path.join(out_dir, images[0])
+
+
+def error_classes(pixels, reference):
+    """Shares of the pixels whose relative error against the reference (channel means) is below 5 %, below 15 %
+    and 30 % or above (Fig. 10's classes); pixels the reference has black are left out."""
+    errors = []
+    for p, r in zip(pixels, reference):
+        truth = sum(r) / 3.0
+        if truth > 0.0:
+            errors.append(abs(sum(p) / 3.0 - truth) / truth)
+    n = max(1, len(errors))
+    return (sum(e < 0.05 for e in errors) / n, sum(e < 0.15 for e in errors) / n, sum(e >= 0.30 for e in errors) / n)
+
+
+def median(values):
+    ordered = sorted(values)
+    return ordered[len(ordered) // 2] if len(ordered) % 2 else 0.5 * (ordered[len(ordered) // 2 - 1] + ordered[len(ordered) // 2])
 
 
 def buffer_columns(path):
@@ -174,6 +210,9 @@ def main():
     parser.add_argument("--seeds", type=int, nargs="*", default=[],
                         help="photon seeds for the corner-crop error of PM and RS (e.g. 11 12 13 14)")
     parser.add_argument("--scaling", action="store_true", help="PM's and RS's T_S at 1, 2 and 4 times the photons")
+    parser.add_argument("--footprint", action="store_true", help="RS's T_S with the frustum against the sphere")
+    parser.add_argument("--memory", action="store_true", help="memory of RS at 500 x 500 with 500k photons")
+    parser.add_argument("--repeats", type=int, default=3, help="alternating runs of --footprint")
     parser.add_argument("--set-rs", nargs="*", default=[],
                         help="extra --set for the RS row (e.g. passes.ray_bandwidth.smoothness=1.0)")
     args = parser.parse_args()
@@ -210,6 +249,7 @@ def main():
                 radius, diagonal = mean_gather_radius(f"{out_dir}/eye.fgbuf", f"{out_dir}/global.fgbuf", 100)
                 counters["mean_gather_radius_ppm"] = round(1e6 * radius / diagonal)
             rmse, relmse = compare(args.binary, image)
+            counters["error_classes"] = error_classes(read_exr_rgb(image), reference)
             rows.append((label, times, counters, rmse, relmse))
 
         corners = {}
@@ -237,6 +277,29 @@ def main():
                                             rs_settings(label))
                 scaling.setdefault(label, []).append((factor * base_photons, times["T_S"], counters))
 
+        footprints = {}
+        for run in range(args.repeats if args.footprint else 0):
+            for footprint in ("frustum", "sphere"):
+                out_dir = os.path.join(scratch, f"footprint-{footprint}-{run}")
+                os.makedirs(out_dir)
+                print(f"rendering RS with the {footprint} footprint, run {run + 1} ...", file=sys.stderr)
+                _, counters, _ = render(args.binary, methods[1][1], out_dir, args.threads, args.photons,
+                                        ["--set", f"passes.ray_splat.footprint={footprint}"] + rs_settings("RS "))
+                with open(os.path.join(out_dir, "stats.json")) as f:
+                    splat = [p for p in json.load(f)["passes"] if p["pass"] == "ray_splat"][0]
+                footprints.setdefault(footprint, []).append((splat["cpu_seconds"], counters))
+
+        memory = []
+        for paths in (500000, 136000) if args.memory else ():
+            out_dir = os.path.join(scratch, f"memory-{paths}")
+            os.makedirs(out_dir)
+            print(f"rendering RS at 500 x 500 x 1 with {paths} photon paths ...", file=sys.stderr)
+            peak = []
+            _, counters, _ = render(args.binary, methods[1][1], out_dir, args.threads, paths,
+                                    ["--set", "film.width=500", "--set", "film.height=500", "--set",
+                                     "passes.eye.spp=1"] + rs_settings("RS "), peak=peak)
+            memory.append((paths, counters, peak[0]))
+
     load = os.getloadavg()[0]
     lines = [
         "# Photon ray splatting: Table 2 of Herzog et al. 2007 on the Cornell box",
@@ -249,13 +312,15 @@ def main():
         " 128 × 128 × 1, 50k, as their jobs); RMSE and"
         " relMSE against `data/cornell-box/reference/reference.exr`.",
         "",
-        "| Method | T_E | T_L | T_S | ΣT | RMSE | relMSE |",
-        "|---|---:|---:|---:|---:|---:|---:|",
+        "| Method | T_E | T_L | T_S | ΣT | RMSE | relMSE | < 5 % | < 15 % | ≥ 30 % |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for label, times, counters, rmse, relmse in rows:
         total = sum(times.values())
+        classes = " | ".join(f"{100 * share:.1f} %" for share in counters["error_classes"])
         lines.append(
-            f"| {label} | {times['T_E']:.2f} | {times['T_L']:.2f} | {times['T_S']:.2f} | {total:.2f} | {rmse:.4f} | {relmse:.4f} |"
+            f"| {label} | {times['T_E']:.2f} | {times['T_L']:.2f} | {times['T_S']:.2f} | {total:.2f} | {rmse:.4f} |"
+            f" {relmse:.4f} | {classes} |"
         )
     pm_counters, rs_counters = rows[0][2], rows[1][2]
     pm_radius, rs_radius = pm_counters["mean_gather_radius_ppm"], rs_counters["mean_hit_radius_ppm"]
@@ -281,6 +346,25 @@ def main():
                   "|---|" + "---:|" * 3]
         for label, runs in scaling.items():
             lines.append(f"| {label} | " + " | ".join(f"{t:.2f}" for _, t, _ in runs) + " |")
+    if footprints:
+        frustum = [t for t, _ in footprints["frustum"]]
+        sphere = [t for t, _ in footprints["sphere"]]
+        sphere_counters = footprints["sphere"][0][1]
+        lines += ["", f"ray_splat's CPU seconds, {args.repeats} alternating runs: frustum "
+                  + ", ".join(f"{t:.2f}" for t in frustum) + f" (median {median(frustum):.2f}), sphere "
+                  + ", ".join(f"{t:.2f}" for t in sphere) + f" (median {median(sphere):.2f}): the frustum takes"
+                  f" {median(frustum) / median(sphere):.2f} × the sphere's time (the paper: 1.5–2). The sphere made"
+                  f" {sphere_counters['vertex_deposits']} deposits from {sphere_counters['leaf_vertices']} leaf"
+                  f" vertices, the frustum {footprints['frustum'][0][1]['vertex_deposits']} from"
+                  f" {footprints['frustum'][0][1]['leaf_vertices']}."]
+    for paths, counters, peak in memory:
+        b = counters["output_bytes"]
+        rays, index, film = b.get("ray_bandwidth", 0), b.get("splat_index", 0), b.get("ray_splat", 0)
+        lines += ["", f"Memory at 500 × 500 × 1, {paths} photon paths ({counters['global_rays'] + counters['caustic_rays']}"
+                  f" indirect and {counters['direct_rays']} direct rays stored): photon rays {rays / 1e6:.1f} MB, splat"
+                  f" index {index / 1e6:.1f} MB, radiance film and map {film / 1e6:.1f} MB, together"
+                  f" {(rays + index + film) / 1e6:.1f} MB (the paper: 100–160 MB at 500k photons); peak RSS"
+                  f" {peak / 1e3:.0f} MB."]
     rc_counters = rows[2][2]
     lines += [
         "",
