@@ -22,7 +22,12 @@ global photon, averaged over 3000 eye vertices drawn with a fixed seed from
 the saved eye vertices and photon map (the gather pass reports no radius).
 With --seeds the PM and RS rows are rendered again with those photon seeds
 for the mean signed error in the concave corners (crops 20,20,16,16 and
-92,20,16,16, percent of the reference's mean there, ± its standard error);
+92,20,16,16, and the whole image, percent of the reference's mean there, ± its
+standard error);
+with --indirect those renders leave the direct light out (eye pass
+direct_light = false) and are compared with the reference less a one-bounce
+pt image of --direct-spp samples, so that the eye pass's direct-light noise,
+common to both, does not enter the corner figures;
 with --scaling RS's and PM's T_S at 1, 2 and 4 times the photons. Every row
 also gets the shares of its pixels in Fig. 10's classes of relative error
 against the reference (|image - reference| / reference of the channel mean:
@@ -37,7 +42,7 @@ bytes of the photon rays (ray_bandwidth's output), the splat index
 map (ray_splat's outputs), from --stats, and the process's peak RSS.
 
     python3 tools/prs_report.py [--threads 1] [--photons 200000] [--out results/prs]
-                                [--seeds 11 12 13 14] [--scaling] [--footprint] [--memory]
+                                [--seeds 11 12 13 14 [--indirect [--direct-spp 1024]]] [--scaling] [--footprint] [--memory]
                                 [--repeats 3] [--set-rs KEY=VALUE ...]
 """
 import argparse
@@ -54,7 +59,7 @@ import tempfile
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from caustics_report import read_exr_rgb  # noqa: E402
-from prs_fg_report import CROPS, crop_mean, mean_and_error  # noqa: E402
+from prs_fg_report import CROPS, crop_mean, indirect_reference, mean_and_error  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SCENE_DIR = os.path.join(ROOT, "data", "cornell-box")
@@ -166,9 +171,9 @@ def points(raw):
     return [struct.unpack_from("<3f", raw, 12 * i) for i in range(len(raw) // 12)]
 
 
-def mean_gather_radius(eye_file, photon_file, k, sample=3000):
-    """Mean distance from an eye vertex to its k-th nearest global photon, over `sample` vertices, and the
-    diagonal of the box around vertices and photons."""
+def mean_gather_radius(eye_file, photon_file, k, sample=3000, among=None):
+    """Mean distance from an eye vertex to its k-th nearest global photon, over `sample` vertices (of `among`,
+    if given), and the diagonal of the box around vertices and photons."""
     photons = points(buffer_columns(photon_file)["photons.position"])
     vertices = points(buffer_columns(eye_file)["vertices.position"])
     lo = [min(p[a] for p in photons + vertices) for a in range(3)]
@@ -179,7 +184,8 @@ def mean_gather_radius(eye_file, photon_file, k, sample=3000):
     for p in photons:
         grid[tuple(int((p[a] - lo[a]) // cell) for a in range(3))].append(p)
     radii = []
-    for v in random.Random(7).sample(vertices, min(sample, len(vertices))):
+    candidates = vertices if among is None else among
+    for v in random.Random(7).sample(candidates, min(sample, len(candidates))):
         c = tuple(int((v[a] - lo[a]) // cell) for a in range(3))
         ring = 0
         while True:  # grow the cube of cells until the k-th distance lies within it
@@ -193,6 +199,31 @@ def mean_gather_radius(eye_file, photon_file, k, sample=3000):
             ring += 1
         radii.append(r)
     return sum(radii) / len(radii), diagonal
+
+
+def crop_bandwidths(eye_file, photon_file, rays_file, k, sample=300):
+    """Per corner crop: PM's mean k-nearest radius over (up to `sample` of) the crop's eye vertices, and RS's
+    mean R(t_hit) over the indirect rays whose hit lies in the box of those vertices, both in millionths of
+    the diagonal of the box around vertices and photons (as mean_gather_radius)."""
+    eye = buffer_columns(eye_file)
+    vertices = points(eye["vertices.position"])
+    pixels = struct.unpack(f"<{len(eye['vertices.pixel']) // 4}I", eye["vertices.pixel"])
+    rays = buffer_columns(rays_file)
+    n = len(rays["rays.length"]) // 4
+    origin, direction = points(rays["rays.origin"]), points(rays["rays.direction"])
+    length, h0, dh = (struct.unpack(f"<{n}f", rays[f"rays.{c}"]) for c in ("length", "h0", "dh"))
+    end_normal = points(rays["rays.end_normal"])
+    hits = [(tuple(origin[i][a] + length[i] * direction[i][a] for a in range(3)), h0[i] + dh[i] * length[i])
+            for i in range(n) if rays["rays.class"][i] != 0 and end_normal[i] != (0.0, 0.0, 0.0)]
+    result = []
+    for x0, y0, w, h in CROPS:
+        inside = [v for v, p in zip(vertices, pixels) if x0 <= p % 128 < x0 + w and y0 <= p // 128 < y0 + h]
+        lo = [min(v[a] for v in inside) for a in range(3)]
+        hi = [max(v[a] for v in inside) for a in range(3)]
+        radius, diagonal = mean_gather_radius(eye_file, photon_file, k, sample, inside)
+        splat = [r for p, r in hits if all(lo[a] <= p[a] <= hi[a] for a in range(3))]
+        result.append((round(1e6 * radius / diagonal), round(1e6 * sum(splat) / max(1, len(splat)) / diagonal)))
+    return result
 
 
 def compare(binary, image):
@@ -209,6 +240,10 @@ def main():
     parser.add_argument("--binary", default=os.path.join(ROOT, "build", "fluxgraph"))
     parser.add_argument("--seeds", type=int, nargs="*", default=[],
                         help="photon seeds for the corner-crop error of PM and RS (e.g. 11 12 13 14)")
+    parser.add_argument("--indirect", action="store_true", help="corner crops of the indirect light alone")
+    parser.add_argument("--direct-spp", type=int, default=1024, help="samples of --indirect's one-bounce pt image")
+    parser.add_argument("--crop-bandwidth", action="store_true",
+                        help="PM's and RS's mean bandwidth in the corner crops (from the saved buffers)")
     parser.add_argument("--scaling", action="store_true", help="PM's and RS's T_S at 1, 2 and 4 times the photons")
     parser.add_argument("--footprint", action="store_true", help="RS's T_S with the frustum against the sphere")
     parser.add_argument("--memory", action="store_true", help="memory of RS at 500 x 500 with 500k photons")
@@ -217,7 +252,9 @@ def main():
                         help="extra --set for the RS row (e.g. passes.ray_bandwidth.smoothness=1.0)")
     args = parser.parse_args()
     reference = read_exr_rgb(REFERENCE)
-    ref_means = [crop_mean(reference, 128, c) for c in CROPS]
+    # The corner crops, then the whole image for comparison.
+    corner_crops = list(CROPS) + [(0, 0, 128, 128)]
+    ref_means = [crop_mean(reference, 128, c) for c in corner_crops]
 
     def rs_settings(label):
         return [a for setting in args.set_rs for a in ("--set", setting)] if label.startswith("RS ") else []
@@ -244,25 +281,36 @@ def main():
             saves = []
             if label.startswith("PM "):
                 saves = ["--save", f"eye_vertices={out_dir}/eye.fgbuf", "--save", f"global_photons={out_dir}/global.fgbuf"]
+                pm_buffers = (f"{out_dir}/eye.fgbuf", f"{out_dir}/global.fgbuf")
+            if label.startswith("RS ") and args.crop_bandwidth:
+                saves = ["--save", f"splat_rays={out_dir}/rays.fgbuf"]
             times, counters, image = render(args.binary, job, out_dir, args.threads, photons, saves + rs_settings(label))
-            if saves:
+            if label.startswith("PM "):
                 radius, diagonal = mean_gather_radius(f"{out_dir}/eye.fgbuf", f"{out_dir}/global.fgbuf", 100)
                 counters["mean_gather_radius_ppm"] = round(1e6 * radius / diagonal)
+            if label.startswith("RS ") and args.crop_bandwidth:
+                counters["crop_bandwidths"] = crop_bandwidths(*pm_buffers, f"{out_dir}/rays.fgbuf", 100)
             rmse, relmse = compare(args.binary, image)
             counters["error_classes"] = error_classes(read_exr_rgb(image), reference)
             rows.append((label, times, counters, rmse, relmse))
 
         corners = {}
+        corner_settings = []
+        if args.seeds and args.indirect:
+            from pathlib import Path
+            target = indirect_reference(args.binary, Path(scratch), reference, args.direct_spp)
+            ref_means = [crop_mean(target, 128, c) for c in corner_crops]
+            corner_settings = ["--set", "passes.eye.direct_light=false"]
         for label, job in methods[:2] if args.seeds else ():
-            errors = [[] for _ in CROPS]
+            errors = [[] for _ in corner_crops]
             for seed in args.seeds:
                 out_dir = os.path.join(scratch, f"seed-{len(rows)}-{seed}-{len(corners)}")
                 os.makedirs(out_dir)
                 print(f"rendering {label}, photon seed {seed} ...", file=sys.stderr)
                 _, _, image = render(args.binary, job, out_dir, args.threads, args.photons,
-                                     ["--set", f"passes.photon.seed={seed}"] + rs_settings(label))
+                                     ["--set", f"passes.photon.seed={seed}"] + corner_settings + rs_settings(label))
                 pixels = read_exr_rgb(image)
-                for i, crop in enumerate(CROPS):
+                for i, crop in enumerate(corner_crops):
                     errors[i].append(100.0 * (crop_mean(pixels, 128, crop) - ref_means[i]) / ref_means[i])
             corners[label] = [mean_and_error(e) for e in errors]
 
@@ -334,10 +382,16 @@ def main():
         f" ({rs_counters['leaf_vertices']} leaf vertices tested against the cones); PM used"
         f" {pm_counters.get('photon_contributions', 0)} photons.",
     ]
+    if "crop_bandwidths" in rs_counters:
+        lines += ["", "Mean bandwidth in the corner crops (ppm of the diagonal; PM: k-nearest radius at the crop's eye"
+                  " vertices, RS: R at the hits of the rays ending in the box of those vertices): "
+                  + "; ".join(f"crop {','.join(map(str, c))}: PM {pm}, RS {rs} ({rs / pm:.2f} ×)"
+                              for c, (pm, rs) in zip(CROPS, rs_counters["crop_bandwidths"])) + "."]
     if corners:
-        lines += ["", f"Corner crops, mean signed error over photon seeds {args.seeds}:", "",
-                  "| Method | " + " | ".join(f"crop {','.join(map(str, c))}" for c in CROPS) + " |",
-                  "|---|" + "---:|" * len(CROPS)]
+        what = "of the indirect light against the reference less one-bounce pt" if args.indirect else ""
+        lines += ["", f"Corner crops, mean signed error {what} over photon seeds {args.seeds}:", "",
+                  "| Method | " + " | ".join(f"crop {','.join(map(str, c))}" for c in corner_crops) + " |",
+                  "|---|" + "---:|" * len(corner_crops)]
         for label, cells in corners.items():
             lines.append(f"| {label} | " + " | ".join(f"{m:+.1f} % ± {e:.1f}" for m, e in cells) + " |")
     if scaling:
