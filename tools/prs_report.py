@@ -43,7 +43,7 @@ map (ray_splat's outputs), from --stats, and the process's peak RSS.
 
     python3 tools/prs_report.py [--threads 1] [--photons 200000] [--out results/prs]
                                 [--seeds 11 12 13 14 [--indirect [--direct-spp 1024]]] [--scaling] [--footprint] [--memory]
-                                [--repeats 3] [--set-rs KEY=VALUE ...]
+                                [--repeats 3] [--set-pm KEY=VALUE ...] [--set-rs KEY=VALUE ...]
 """
 import argparse
 import collections
@@ -248,6 +248,7 @@ def main():
     parser.add_argument("--footprint", action="store_true", help="RS's T_S with the frustum against the sphere")
     parser.add_argument("--memory", action="store_true", help="memory of RS at 500 x 500 with 500k photons")
     parser.add_argument("--repeats", type=int, default=3, help="alternating runs of --footprint")
+    parser.add_argument("--set-pm", nargs="*", default=[], help="extra --set for the PM row (e.g. passes.gather.k_global=25)")
     parser.add_argument("--set-rs", nargs="*", default=[],
                         help="extra --set for the RS row (e.g. passes.ray_bandwidth.smoothness=1.0)")
     args = parser.parse_args()
@@ -257,7 +258,8 @@ def main():
     ref_means = [crop_mean(reference, 128, c) for c in corner_crops]
 
     def rs_settings(label):
-        return [a for setting in args.set_rs for a in ("--set", setting)] if label.startswith("RS ") else []
+        chosen = args.set_rs if label.startswith("RS ") else args.set_pm if label.startswith("PM ") else []
+        return [a for setting in chosen for a in ("--set", setting)]
 
     os.makedirs(args.out, exist_ok=True)
     rows = []
@@ -266,7 +268,7 @@ def main():
         with open(spm_job, "w") as f:
             f.write(SPM_JOB.format(scene=os.path.join(SCENE_DIR, "cornell-box.xml")))
         methods = [
-            ("PM (spm, k = 100)", spm_job),
+            ("PM (spm, " + (", ".join(args.set_pm) or "k = 100") + ")", spm_job),
             ("RS (prs, " + (", ".join(args.set_rs) or "C = 0.29, S = 0.4") + ")", os.path.join(SCENE_DIR, "prs.toml")),
             ("RC (prs-rc, C = 0.29, S = 0.4, ε = 0.7, 7 records)", os.path.join(SCENE_DIR, "prs-rc.toml")),
             ("PM-FG (pm-fg, k = 100, 16 FGRs)", os.path.join(SCENE_DIR, "pm-fg.toml")),
