@@ -22,11 +22,28 @@ global photon, averaged over 3000 eye vertices drawn with a fixed seed from
 the saved eye vertices and photon map (the gather pass reports no radius).
 With --seeds the PM and RS rows are rendered again with those photon seeds
 for the mean signed error in the concave corners (crops 20,20,16,16 and
-92,20,16,16, percent of the reference's mean there, ± its standard error);
-with --scaling RS's and PM's T_S at 1, 2 and 4 times the photons.
+92,20,16,16, and the whole image, percent of the reference's mean there, ± its
+standard error);
+with --indirect those renders leave the direct light out (eye pass
+direct_light = false) and are compared with the reference less a one-bounce
+pt image of --direct-spp samples, so that the eye pass's direct-light noise,
+common to both, does not enter the corner figures;
+with --scaling RS's and PM's T_S at 1, 2 and 4 times the photons. Every row
+also gets the shares of its pixels in Fig. 10's classes of relative error
+against the reference (|image - reference| / reference of the channel mean:
+below 5 %, below 15 %, 30 % and above).
+
+With --footprint RS is rendered --repeats times alternating the frustum with
+footprint = "sphere" (§9: frustum 1.5-2x the sphere's time), ray_splat's CPU
+seconds, medians. With --memory prs.toml is rendered at 500 x 500 x 1 with
+500k photon paths (and with as many paths as give 500k stored rays): the
+bytes of the photon rays (ray_bandwidth's output), the splat index
+(kd-tree, four-wide nodes and vertex columns) and the radiance film and
+map (ray_splat's outputs), from --stats, and the process's peak RSS.
 
     python3 tools/prs_report.py [--threads 1] [--photons 200000] [--out results/prs]
-                                [--seeds 11 12 13 14] [--scaling] [--set-rs KEY=VALUE ...]
+                                [--seeds 11 12 13 14 [--indirect [--direct-spp 1024]]] [--scaling] [--footprint] [--memory]
+                                [--repeats 3] [--set-pm KEY=VALUE ...] [--set-rs KEY=VALUE ...]
 """
 import argparse
 import collections
@@ -42,7 +59,7 @@ import tempfile
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from caustics_report import read_exr_rgb  # noqa: E402
-from prs_fg_report import CROPS, crop_mean, mean_and_error  # noqa: E402
+from prs_fg_report import CROPS, crop_mean, indirect_reference, mean_and_error  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SCENE_DIR = os.path.join(ROOT, "data", "cornell-box")
@@ -75,14 +92,20 @@ k_global = 100
 """
 
 
-def render(binary, job, out_dir, threads, photons, extra=()):
+def render(binary, job, out_dir, threads, photons, extra=(), peak=None):
     stats = os.path.join(out_dir, "stats.json")
     command = [binary, "render", job, "--out", out_dir, "--threads", str(threads), "--stats", stats] + list(extra)
     if photons:
         command += ["--set", f"passes.photon.photons={photons}"]
+    if peak is not None:  # the peak resident set in kB, from GNU time
+        command = ["/usr/bin/time", "-f", "%M", "-o", os.path.join(out_dir, "peak.txt")] + command
     subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
+    if peak is not None:
+        with open(os.path.join(out_dir, "peak.txt")) as f:
+            peak.append(int(f.read().split()[-1]))
     with open(stats) as f:
         passes = json.load(f)["passes"]
+    output_bytes = {p["pass"]: p.get("output_bytes", 0) for p in passes}
     times = {phase: sum(p["cpu_seconds"] for p in passes if p["pass"] in names) for phase, names in PHASES.items()}
     counters = {}
     for p in passes:
@@ -91,8 +114,26 @@ def render(binary, job, out_dir, threads, photons, extra=()):
             c = p["counters"]
             times["T_E"] += c["trace_cpu_us"] / 1e6
             times["T_S"] += c.get("splat_cpu_us", c.get("gather_cpu_us", 0)) / 1e6
+    counters["output_bytes"] = output_bytes
     images = [name for name in os.listdir(out_dir) if name.endswith(".exr")]
     return times, counters, os.path.join(out_dir, images[0])
+
+
+def error_classes(pixels, reference):
+    """Shares of the pixels whose relative error against the reference (channel means) is below 5 %, below 15 %
+    and 30 % or above (Fig. 10's classes); pixels the reference has black are left out."""
+    errors = []
+    for p, r in zip(pixels, reference):
+        truth = sum(r) / 3.0
+        if truth > 0.0:
+            errors.append(abs(sum(p) / 3.0 - truth) / truth)
+    n = max(1, len(errors))
+    return (sum(e < 0.05 for e in errors) / n, sum(e < 0.15 for e in errors) / n, sum(e >= 0.30 for e in errors) / n)
+
+
+def median(values):
+    ordered = sorted(values)
+    return ordered[len(ordered) // 2] if len(ordered) % 2 else 0.5 * (ordered[len(ordered) // 2 - 1] + ordered[len(ordered) // 2])
 
 
 def buffer_columns(path):
@@ -130,9 +171,9 @@ def points(raw):
     return [struct.unpack_from("<3f", raw, 12 * i) for i in range(len(raw) // 12)]
 
 
-def mean_gather_radius(eye_file, photon_file, k, sample=3000):
-    """Mean distance from an eye vertex to its k-th nearest global photon, over `sample` vertices, and the
-    diagonal of the box around vertices and photons."""
+def mean_gather_radius(eye_file, photon_file, k, sample=3000, among=None):
+    """Mean distance from an eye vertex to its k-th nearest global photon, over `sample` vertices (of `among`,
+    if given), and the diagonal of the box around vertices and photons."""
     photons = points(buffer_columns(photon_file)["photons.position"])
     vertices = points(buffer_columns(eye_file)["vertices.position"])
     lo = [min(p[a] for p in photons + vertices) for a in range(3)]
@@ -143,7 +184,8 @@ def mean_gather_radius(eye_file, photon_file, k, sample=3000):
     for p in photons:
         grid[tuple(int((p[a] - lo[a]) // cell) for a in range(3))].append(p)
     radii = []
-    for v in random.Random(7).sample(vertices, min(sample, len(vertices))):
+    candidates = vertices if among is None else among
+    for v in random.Random(7).sample(candidates, min(sample, len(candidates))):
         c = tuple(int((v[a] - lo[a]) // cell) for a in range(3))
         ring = 0
         while True:  # grow the cube of cells until the k-th distance lies within it
@@ -157,6 +199,31 @@ def mean_gather_radius(eye_file, photon_file, k, sample=3000):
             ring += 1
         radii.append(r)
     return sum(radii) / len(radii), diagonal
+
+
+def crop_bandwidths(eye_file, photon_file, rays_file, k, sample=300):
+    """Per corner crop: PM's mean k-nearest radius over (up to `sample` of) the crop's eye vertices, and RS's
+    mean R(t_hit) over the indirect rays whose hit lies in the box of those vertices, both in millionths of
+    the diagonal of the box around vertices and photons (as mean_gather_radius)."""
+    eye = buffer_columns(eye_file)
+    vertices = points(eye["vertices.position"])
+    pixels = struct.unpack(f"<{len(eye['vertices.pixel']) // 4}I", eye["vertices.pixel"])
+    rays = buffer_columns(rays_file)
+    n = len(rays["rays.length"]) // 4
+    origin, direction = points(rays["rays.origin"]), points(rays["rays.direction"])
+    length, h0, dh = (struct.unpack(f"<{n}f", rays[f"rays.{c}"]) for c in ("length", "h0", "dh"))
+    end_normal = points(rays["rays.end_normal"])
+    hits = [(tuple(origin[i][a] + length[i] * direction[i][a] for a in range(3)), h0[i] + dh[i] * length[i])
+            for i in range(n) if rays["rays.class"][i] != 0 and end_normal[i] != (0.0, 0.0, 0.0)]
+    result = []
+    for x0, y0, w, h in CROPS:
+        inside = [v for v, p in zip(vertices, pixels) if x0 <= p % 128 < x0 + w and y0 <= p // 128 < y0 + h]
+        lo = [min(v[a] for v in inside) for a in range(3)]
+        hi = [max(v[a] for v in inside) for a in range(3)]
+        radius, diagonal = mean_gather_radius(eye_file, photon_file, k, sample, inside)
+        splat = [r for p, r in hits if all(lo[a] <= p[a] <= hi[a] for a in range(3))]
+        result.append((round(1e6 * radius / diagonal), round(1e6 * sum(splat) / max(1, len(splat)) / diagonal)))
+    return result
 
 
 def compare(binary, image):
@@ -173,15 +240,26 @@ def main():
     parser.add_argument("--binary", default=os.path.join(ROOT, "build", "fluxgraph"))
     parser.add_argument("--seeds", type=int, nargs="*", default=[],
                         help="photon seeds for the corner-crop error of PM and RS (e.g. 11 12 13 14)")
+    parser.add_argument("--indirect", action="store_true", help="corner crops of the indirect light alone")
+    parser.add_argument("--direct-spp", type=int, default=1024, help="samples of --indirect's one-bounce pt image")
+    parser.add_argument("--crop-bandwidth", action="store_true",
+                        help="PM's and RS's mean bandwidth in the corner crops (from the saved buffers)")
     parser.add_argument("--scaling", action="store_true", help="PM's and RS's T_S at 1, 2 and 4 times the photons")
+    parser.add_argument("--footprint", action="store_true", help="RS's T_S with the frustum against the sphere")
+    parser.add_argument("--memory", action="store_true", help="memory of RS at 500 x 500 with 500k photons")
+    parser.add_argument("--repeats", type=int, default=3, help="alternating runs of --footprint")
+    parser.add_argument("--set-pm", nargs="*", default=[], help="extra --set for the PM row (e.g. passes.gather.k_global=25)")
     parser.add_argument("--set-rs", nargs="*", default=[],
                         help="extra --set for the RS row (e.g. passes.ray_bandwidth.smoothness=1.0)")
     args = parser.parse_args()
     reference = read_exr_rgb(REFERENCE)
-    ref_means = [crop_mean(reference, 128, c) for c in CROPS]
+    # The corner crops, then the whole image for comparison.
+    corner_crops = list(CROPS) + [(0, 0, 128, 128)]
+    ref_means = [crop_mean(reference, 128, c) for c in corner_crops]
 
     def rs_settings(label):
-        return [a for setting in args.set_rs for a in ("--set", setting)] if label.startswith("RS ") else []
+        chosen = args.set_rs if label.startswith("RS ") else args.set_pm if label.startswith("PM ") else []
+        return [a for setting in chosen for a in ("--set", setting)]
 
     os.makedirs(args.out, exist_ok=True)
     rows = []
@@ -190,7 +268,7 @@ def main():
         with open(spm_job, "w") as f:
             f.write(SPM_JOB.format(scene=os.path.join(SCENE_DIR, "cornell-box.xml")))
         methods = [
-            ("PM (spm, k = 100)", spm_job),
+            ("PM (spm, " + (", ".join(args.set_pm) or "k = 100") + ")", spm_job),
             ("RS (prs, " + (", ".join(args.set_rs) or "C = 0.29, S = 0.4") + ")", os.path.join(SCENE_DIR, "prs.toml")),
             ("RC (prs-rc, C = 0.29, S = 0.4, ε = 0.7, 7 records)", os.path.join(SCENE_DIR, "prs-rc.toml")),
             ("PM-FG (pm-fg, k = 100, 16 FGRs)", os.path.join(SCENE_DIR, "pm-fg.toml")),
@@ -205,24 +283,36 @@ def main():
             saves = []
             if label.startswith("PM "):
                 saves = ["--save", f"eye_vertices={out_dir}/eye.fgbuf", "--save", f"global_photons={out_dir}/global.fgbuf"]
+                pm_buffers = (f"{out_dir}/eye.fgbuf", f"{out_dir}/global.fgbuf")
+            if label.startswith("RS ") and args.crop_bandwidth:
+                saves = ["--save", f"splat_rays={out_dir}/rays.fgbuf"]
             times, counters, image = render(args.binary, job, out_dir, args.threads, photons, saves + rs_settings(label))
-            if saves:
+            if label.startswith("PM "):
                 radius, diagonal = mean_gather_radius(f"{out_dir}/eye.fgbuf", f"{out_dir}/global.fgbuf", 100)
                 counters["mean_gather_radius_ppm"] = round(1e6 * radius / diagonal)
+            if label.startswith("RS ") and args.crop_bandwidth:
+                counters["crop_bandwidths"] = crop_bandwidths(*pm_buffers, f"{out_dir}/rays.fgbuf", 100)
             rmse, relmse = compare(args.binary, image)
+            counters["error_classes"] = error_classes(read_exr_rgb(image), reference)
             rows.append((label, times, counters, rmse, relmse))
 
         corners = {}
+        corner_settings = []
+        if args.seeds and args.indirect:
+            from pathlib import Path
+            target = indirect_reference(args.binary, Path(scratch), reference, args.direct_spp)
+            ref_means = [crop_mean(target, 128, c) for c in corner_crops]
+            corner_settings = ["--set", "passes.eye.direct_light=false"]
         for label, job in methods[:2] if args.seeds else ():
-            errors = [[] for _ in CROPS]
+            errors = [[] for _ in corner_crops]
             for seed in args.seeds:
                 out_dir = os.path.join(scratch, f"seed-{len(rows)}-{seed}-{len(corners)}")
                 os.makedirs(out_dir)
                 print(f"rendering {label}, photon seed {seed} ...", file=sys.stderr)
                 _, _, image = render(args.binary, job, out_dir, args.threads, args.photons,
-                                     ["--set", f"passes.photon.seed={seed}"] + rs_settings(label))
+                                     ["--set", f"passes.photon.seed={seed}"] + corner_settings + rs_settings(label))
                 pixels = read_exr_rgb(image)
-                for i, crop in enumerate(CROPS):
+                for i, crop in enumerate(corner_crops):
                     errors[i].append(100.0 * (crop_mean(pixels, 128, crop) - ref_means[i]) / ref_means[i])
             corners[label] = [mean_and_error(e) for e in errors]
 
@@ -237,6 +327,29 @@ def main():
                                             rs_settings(label))
                 scaling.setdefault(label, []).append((factor * base_photons, times["T_S"], counters))
 
+        footprints = {}
+        for run in range(args.repeats if args.footprint else 0):
+            for footprint in ("frustum", "sphere"):
+                out_dir = os.path.join(scratch, f"footprint-{footprint}-{run}")
+                os.makedirs(out_dir)
+                print(f"rendering RS with the {footprint} footprint, run {run + 1} ...", file=sys.stderr)
+                _, counters, _ = render(args.binary, methods[1][1], out_dir, args.threads, args.photons,
+                                        ["--set", f"passes.ray_splat.footprint={footprint}"] + rs_settings("RS "))
+                with open(os.path.join(out_dir, "stats.json")) as f:
+                    splat = [p for p in json.load(f)["passes"] if p["pass"] == "ray_splat"][0]
+                footprints.setdefault(footprint, []).append((splat["cpu_seconds"], counters))
+
+        memory = []
+        for paths in (500000, 136000) if args.memory else ():
+            out_dir = os.path.join(scratch, f"memory-{paths}")
+            os.makedirs(out_dir)
+            print(f"rendering RS at 500 x 500 x 1 with {paths} photon paths ...", file=sys.stderr)
+            peak = []
+            _, counters, _ = render(args.binary, methods[1][1], out_dir, args.threads, paths,
+                                    ["--set", "film.width=500", "--set", "film.height=500", "--set",
+                                     "passes.eye.spp=1"] + rs_settings("RS "), peak=peak)
+            memory.append((paths, counters, peak[0]))
+
     load = os.getloadavg()[0]
     lines = [
         "# Photon ray splatting: Table 2 of Herzog et al. 2007 on the Cornell box",
@@ -249,13 +362,15 @@ def main():
         " 128 × 128 × 1, 50k, as their jobs); RMSE and"
         " relMSE against `data/cornell-box/reference/reference.exr`.",
         "",
-        "| Method | T_E | T_L | T_S | ΣT | RMSE | relMSE |",
-        "|---|---:|---:|---:|---:|---:|---:|",
+        "| Method | T_E | T_L | T_S | ΣT | RMSE | relMSE | < 5 % | < 15 % | ≥ 30 % |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for label, times, counters, rmse, relmse in rows:
         total = sum(times.values())
+        classes = " | ".join(f"{100 * share:.1f} %" for share in counters["error_classes"])
         lines.append(
-            f"| {label} | {times['T_E']:.2f} | {times['T_L']:.2f} | {times['T_S']:.2f} | {total:.2f} | {rmse:.4f} | {relmse:.4f} |"
+            f"| {label} | {times['T_E']:.2f} | {times['T_L']:.2f} | {times['T_S']:.2f} | {total:.2f} | {rmse:.4f} |"
+            f" {relmse:.4f} | {classes} |"
         )
     pm_counters, rs_counters = rows[0][2], rows[1][2]
     pm_radius, rs_radius = pm_counters["mean_gather_radius_ppm"], rs_counters["mean_hit_radius_ppm"]
@@ -269,10 +384,16 @@ def main():
         f" ({rs_counters['leaf_vertices']} leaf vertices tested against the cones); PM used"
         f" {pm_counters.get('photon_contributions', 0)} photons.",
     ]
+    if "crop_bandwidths" in rs_counters:
+        lines += ["", "Mean bandwidth in the corner crops (ppm of the diagonal; PM: k-nearest radius at the crop's eye"
+                  " vertices, RS: R at the hits of the rays ending in the box of those vertices): "
+                  + "; ".join(f"crop {','.join(map(str, c))}: PM {pm}, RS {rs} ({rs / pm:.2f} ×)"
+                              for c, (pm, rs) in zip(CROPS, rs_counters["crop_bandwidths"])) + "."]
     if corners:
-        lines += ["", f"Corner crops, mean signed error over photon seeds {args.seeds}:", "",
-                  "| Method | " + " | ".join(f"crop {','.join(map(str, c))}" for c in CROPS) + " |",
-                  "|---|" + "---:|" * len(CROPS)]
+        what = "of the indirect light against the reference less one-bounce pt" if args.indirect else ""
+        lines += ["", f"Corner crops, mean signed error {what} over photon seeds {args.seeds}:", "",
+                  "| Method | " + " | ".join(f"crop {','.join(map(str, c))}" for c in corner_crops) + " |",
+                  "|---|" + "---:|" * len(corner_crops)]
         for label, cells in corners.items():
             lines.append(f"| {label} | " + " | ".join(f"{m:+.1f} % ± {e:.1f}" for m, e in cells) + " |")
     if scaling:
@@ -281,6 +402,25 @@ def main():
                   "|---|" + "---:|" * 3]
         for label, runs in scaling.items():
             lines.append(f"| {label} | " + " | ".join(f"{t:.2f}" for _, t, _ in runs) + " |")
+    if footprints:
+        frustum = [t for t, _ in footprints["frustum"]]
+        sphere = [t for t, _ in footprints["sphere"]]
+        sphere_counters = footprints["sphere"][0][1]
+        lines += ["", f"ray_splat's CPU seconds, {args.repeats} alternating runs: frustum "
+                  + ", ".join(f"{t:.2f}" for t in frustum) + f" (median {median(frustum):.2f}), sphere "
+                  + ", ".join(f"{t:.2f}" for t in sphere) + f" (median {median(sphere):.2f}): the frustum takes"
+                  f" {median(frustum) / median(sphere):.2f} × the sphere's time (the paper: 1.5–2). The sphere made"
+                  f" {sphere_counters['vertex_deposits']} deposits from {sphere_counters['leaf_vertices']} leaf"
+                  f" vertices, the frustum {footprints['frustum'][0][1]['vertex_deposits']} from"
+                  f" {footprints['frustum'][0][1]['leaf_vertices']}."]
+    for paths, counters, peak in memory:
+        b = counters["output_bytes"]
+        rays, index, film = b.get("ray_bandwidth", 0), b.get("splat_index", 0), b.get("ray_splat", 0)
+        lines += ["", f"Memory at 500 × 500 × 1, {paths} photon paths ({counters['global_rays'] + counters['caustic_rays']}"
+                  f" indirect and {counters['direct_rays']} direct rays stored): photon rays {rays / 1e6:.1f} MB, splat"
+                  f" index {index / 1e6:.1f} MB, radiance film and map {film / 1e6:.1f} MB, together"
+                  f" {(rays + index + film) / 1e6:.1f} MB (the paper: 100–160 MB at 500k photons); peak RSS"
+                  f" {peak / 1e3:.0f} MB."]
     rc_counters = rows[2][2]
     lines += [
         "",

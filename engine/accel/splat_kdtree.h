@@ -108,6 +108,18 @@ public:
 
     std::size_t size() const { return ids_.size(); }
     std::span<const SplatKdNode> nodes() const { return nodes_; }
+    // The four-wide nodes the cone search runs on (derived, never saved).
+    std::size_t wideNodeCount() const { return wide_.size(); }
+    static constexpr std::size_t wideNodeBytes() { return sizeof(WideNode); }
+    // Everything the tree holds: beside the 8-byte nodes of §7.1 and the
+    // vertices, the search's derived arrays (four-wide nodes, tight boxes,
+    // leaf spheres, culling planes, coordinate columns), which take more
+    // than the nodes themselves.
+    std::size_t bytes() const {
+        const auto of = [](const auto& v) { return v.size() * sizeof(v[0]); };
+        return of(nodes_) + of(leafSpheres_) + of(boxes_) + of(wide_) + of(cullPlanes_) + of(xs_) + of(ys_) + of(zs_) +
+               of(nxs_) + of(nys_) + of(nzs_) + of(ids_) + of(positions_) + of(normals_);
+    }
     // Tree order: slot -> vertex index, and the vertices' data in that order.
     std::uint32_t vertexOf(std::uint32_t slot) const { return ids_[slot]; }
     const Vec3& slotPosition(std::uint32_t slot) const { return positions_[slot]; }

@@ -114,9 +114,7 @@ struct BufferTypeName<RadianceMap> {
 // The splat kd-tree over the eye vertices (§7.1), in the eye buffer's index space.
 struct SplatIndex {
     SplatKdTree tree;
-    std::size_t bytes() const {
-        return tree.nodes().size() * sizeof(SplatKdNode) + tree.size() * (2 * sizeof(Vec3) + sizeof(std::uint32_t));
-    }
+    std::size_t bytes() const { return tree.bytes(); }
 };
 template <>
 struct BufferTypeName<SplatIndex> {

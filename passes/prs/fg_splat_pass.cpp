@@ -16,6 +16,8 @@
 // (forEachWeightedVertex in passes/prs/ray_splat.h): nodes entered by their
 // hits' tight boxes, leaf hits weighed from the tree's columns, in
 // Algorithm 1's order (§7.2); its vertex_candidates are the hits weighed.
+// `origin_boundary = "renormalise"` corrects the kernel beside the surface a
+// ray leaves as ray_splat's does (SplatFrustum::originBoundaryGain).
 //
 // Rays are splatted in fixed blocks into per-block tile films merged in block
 // order, so the image is the same for any thread count.
@@ -115,7 +117,7 @@ struct SplatCounts {
 template <class WantedClass>
 std::vector<Rgb> splatOnto(const Scene& scene, const EyeVertexBuffer::View& vertices, const SplatTargets& targets,
                            std::size_t pixelCount, const PhotonRayBuffer& rays, WantedClass wanted, SplatEndCap cap,
-                           bool useCullNodes, bool tightBoxes, SplatCounts& counts) {
+                           bool useCullNodes, bool tightBoxes, bool renormalise, SplatCounts& counts) {
     const auto origin = rays.column<RayOrigin>();
     const auto direction = rays.column<RayDirection>();
     const auto length = rays.column<RayLength>();
@@ -157,7 +159,13 @@ std::vector<Rgb> splatOnto(const Scene& scene, const EyeVertexBuffer::View& vert
                 ++acc.counts.deposits;
             };
             const SplatCone cone = splatCone(ray, cap);
-            if (tightBoxes) {
+            if (tightBoxes && renormalise && frustum.hasOriginSurface) {
+                const auto renormalised = [&](std::uint32_t slot, float weight) {
+                    deposit(slot, weight * frustum.originBoundaryGain(targets.tree.slotPosition(slot)));
+                };
+                acc.counts.candidates += static_cast<std::int64_t>(
+                    forEachWeightedVertex(targets.tree, frustum, cone, renormalised, useCullNodes));
+            } else if (tightBoxes) {
                 acc.counts.candidates +=
                     static_cast<std::int64_t>(forEachWeightedVertex(targets.tree, frustum, cone, deposit, useCullNodes));
             } else {
@@ -165,8 +173,9 @@ std::vector<Rgb> splatOnto(const Scene& scene, const EyeVertexBuffer::View& vert
                     cone,
                     [&](std::uint32_t slot) {
                         ++acc.counts.candidates;
-                        const float weight =
-                            frustum.weight(targets.tree.slotPosition(slot), targets.tree.slotNormal(slot));
+                        float weight = frustum.weight(targets.tree.slotPosition(slot), targets.tree.slotNormal(slot));
+                        if (weight > 0.0f && renormalise)
+                            weight *= frustum.originBoundaryGain(targets.tree.slotPosition(slot));
                         if (weight > 0.0f) deposit(slot, weight);
                     },
                     useCullNodes);
@@ -217,6 +226,7 @@ public:
                                                                                   : SplatEndCap::TangentPlane;
         const bool useCullNodes = ctx.params().getBool("cull_nodes");
         const bool tightBoxes = ctx.params().getString("traversal") == "tight_boxes";
+        const bool renormalise = ctx.params().getString("origin_boundary") == "renormalise";
         const auto leafSize = static_cast<std::uint32_t>(ctx.params().getInt("leaf_size"));
         const PhotonRayBuffer& rays = photonRays.rays;
 
@@ -248,7 +258,8 @@ public:
             const EyeVertexBuffer::View hitView = hits.vertices.view();
             const SplatTargets targets = indexTargets(scene, hitView, rect, leafSize);
             const std::vector<Rgb> local =
-                splatOnto(scene, hitView, targets, rect.size(), rays, everyClass, cap, useCullNodes, tightBoxes, counts);
+                splatOnto(scene, hitView, targets, rect.size(), rays, everyClass, cap, useCullNodes, tightBoxes,
+                          renormalise, counts);
             for (std::size_t i = 0; i < local.size(); ++i) globalPixels[rect.global(i)] += local[i];
             splatMicroseconds += cpuMicrosecondsSince(start);
             ctx.reportProgress(static_cast<double>(tile + 1) / static_cast<double>(byTile.size()));
@@ -261,7 +272,9 @@ public:
             const SplatTargets targets = indexTargets(scene, eye, film, leafSize);
             const auto causticOnly = [](std::uint8_t c) { return c == PhotonRayClass::Caustic; };
             caustic.addToPixels(
-                splatOnto(scene, eye, targets, film.size(), rays, causticOnly, cap, useCullNodes, tightBoxes, counts), 1.0f);
+                splatOnto(scene, eye, targets, film.size(), rays, causticOnly, cap, useCullNodes, tightBoxes, renormalise,
+                          counts),
+                1.0f);
             splatMicroseconds += cpuMicrosecondsSince(start);
         }
         ctx.addItems(hitCount);
@@ -297,6 +310,9 @@ PassRegistration finalGatherSplatPass() {
         {"end_cap", ParamType::String, std::string("tangent_plane"), 0, 0, {"tangent_plane", "hemisphere"},
          "footprint beyond the hit point, as ray_splat's"},
         {"cull_nodes", ParamType::Bool, true, 0, 0, {}, "use the kd-trees' backface-culling nodes"},
+        {"origin_boundary", ParamType::String, std::string("cut"), 0, 0, {"cut", "renormalise"},
+         "the kernel where its disk reaches behind the surface the ray leaves: cut there, as the paper, or "
+         "renormalised over the part in front of it (ray_splat's parameter of the same name)"},
         {"traversal", ParamType::String, std::string("tight_boxes"), 0, 0, {"tight_boxes", "cells"},
          "kd search: nodes by their vertices' tight boxes and leaf vertices weighed from columns, or Algorithm 1's "
          "cell clipping (same deposits in the same order)"},

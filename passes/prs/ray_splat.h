@@ -124,6 +124,37 @@ struct SplatFrustum {
         return 2.0f * kInvPi / r2 * (1.0f - d2 / r2) * cosine;
     }
 
+    // The factor `origin_boundary = "renormalise"` multiplies weight() by:
+    // 1 / the share of the kernel's disk at x (radius R(t_p), perpendicular
+    // to the ray) that lies in front of the surface the ray leaves. Rays
+    // exist only in front of it, so where that surface comes within R of x
+    // (at a concave corner, the adjacent wall) the paper's estimate of the
+    // light leaving it averages over a disk partly empty of rays: at the
+    // corner line it gets exactly half of that wall's light. Renormalising
+    // the kernel over the part where rays can be (the boundary correction
+    // of kernel density estimation) takes that loss out; the factor lies in
+    // [1, 2], as a feasible x lies in front of the surface.
+    float originBoundaryGain(const Vec3& x) const {
+        if (!hasOriginSurface) return 1.0f;
+        const Vec3 offset = x - origin;
+        const float tp = glm::dot(offset, direction);
+        const float radius = tp <= length ? h0 + dh * tp : hitRadius;
+        const float leaving = glm::dot(direction, originNormal);
+        // How far the disk reaches towards the surface: R sin of the angle between the ray and the normal.
+        const float reachTowardsSurface = radius * std::sqrt(std::max(0.0f, 1.0f - leaving * leaving));
+        const float height = glm::dot(offset, originNormal);
+        if (!(height < reachTowardsSurface) || !(height >= 0.0f)) return 1.0f;
+        return 1.0f / (1.0f - epanechnikovMassBeyond(height / reachTowardsSurface));
+    }
+
+    // Share of the 2D Epanechnikov kernel's mass beyond a line at distance
+    // c R from its centre, c in [0, 1]: (8 / 3 pi) ∫_c^1 (1 - u^2)^(3/2) du.
+    static float epanechnikovMassBeyond(float c) {
+        if (!(c < 1.0f)) return 0.0f;
+        const float rest = std::sqrt(std::max(0.0f, 1.0f - c * c));
+        return (1.5f * kPi - c * (5.0f - 2.0f * c * c) * rest - 3.0f * std::asin(c)) / (3.0f * kPi);
+    }
+
     // weight() of the vertices [first, first + count) of `vertices`, bit for
     // bit: the same operations in the same order, with every test turned
     // into a mask, so that the compiler weighs four vertices at once from the
@@ -149,6 +180,38 @@ struct SplatFrustum {
     bool hasOriginSurface;
 };
 
+// The footprint §9 compares the frustum with: a sphere of radius R(t_hit)
+// around the hit point, as photon splatting with a precomputed radius
+// (`footprint = "sphere"`). A vertex facing the ray within the sphere gets
+// the surface kernel K_R(|x - x_hit|) = 2 / (pi R^2) (1 - d^2 / R^2), without
+// |cos theta_x|: the hits' density on the surface already holds the cosine.
+// Rays that escape have no sphere.
+struct SplatSphere {
+    explicit SplatSphere(const SplatRay& ray)
+        : centre(ray.origin + ray.length * ray.direction), direction(ray.direction),
+          radius(ray.endNormal == Vec3(0.0f) ? 0.0f : ray.h0 + ray.dh * ray.length) {}
+
+    float weight(const Vec3& x, const Vec3& n) const {
+        const Vec3 offset = x - centre;
+        const float d2 = glm::dot(offset, offset);
+        const float r2 = radius * radius;
+        if (!(radius > 0.0f) || !(d2 < r2) || !(glm::dot(direction, n) < 0.0f)) return 0.0f;
+        return 2.0f * kInvPi / r2 * (1.0f - d2 / r2);
+    }
+
+    // weight() over columns, bit for bit (defined beside SplatFrustum::weights).
+    void weights(const SplatVertexColumns& vertices, std::uint32_t first, std::uint32_t count, float* out) const;
+
+    // A cylinder of radius R along the ray through the sphere: the tree's
+    // cone search finds every vertex inside.
+    SplatCone cone() const {
+        return SplatCone{centre - radius * direction, direction, radius, 0.0f, 2.0f * radius, 2.0f * radius};
+    }
+
+    Vec3 centre, direction;
+    float radius;
+};
+
 // Leaf vertices weighed at once (SplatFrustum::weights) before their deposits.
 inline constexpr std::uint32_t kWeightChunk = 128;
 
@@ -158,8 +221,9 @@ inline constexpr std::uint32_t kWeightChunk = 128;
 // the tree's columns by SplatFrustum::weights, so the deposits and their
 // weights are those of SplatFrustum::weight over forEachCandidate, bit for
 // bit. Returns how many leaf vertices were weighed.
-template <class Deposit>
-std::uint64_t forEachWeightedVertex(const SplatKdTree& tree, const SplatFrustum& frustum, const SplatCone& cone,
+// (SplatSphere's weights the same way, for the sphere footprint.)
+template <class Footprint, class Deposit>
+std::uint64_t forEachWeightedVertex(const SplatKdTree& tree, const Footprint& frustum, const SplatCone& cone,
                                     Deposit&& deposit, bool useCullNodes) {
     const SplatVertexColumns columns = tree.slotColumns();
     const auto depositLeaf = [&](std::uint32_t first, std::uint32_t count) {

@@ -27,6 +27,12 @@
 // in Algorithm 1's order: the same deposits in the same order, so the same
 // image bit for bit (`"cells"` keeps Algorithm 1 and weighs one candidate at
 // a time). Its vertex_candidates are the leaf vertices weighed.
+// `footprint = "sphere"` splats a sphere of radius R(t_hit) around each hit
+// instead (§9 times the frustum against it). `origin_boundary =
+// "renormalise"` divides a deposit's kernel by its share in front of the
+// surface the ray leaves (SplatFrustum::originBoundaryGain): beside a
+// concave corner's adjacent wall the paper's kernel averages over a disk
+// partly behind that wall, where no ray of it can be.
 // Rays are splatted in fixed blocks into per-block films merged in block
 // order, so the image is the same for any thread count.
 #include "passes/passes.h"
@@ -99,6 +105,20 @@ FG_SPLAT_WEIGHT_CLONES void SplatFrustum::weights(const SplatVertexColumns& vert
     }
 }
 
+FG_SPLAT_WEIGHT_CLONES void SplatSphere::weights(const SplatVertexColumns& vertices, std::uint32_t first,
+                                                 std::uint32_t count, float* out) const {
+    const float cx = centre.x, cy = centre.y, cz = centre.z;
+    const float dx = direction.x, dy = direction.y, dz = direction.z;
+    const float r2 = radius * radius;
+    const int positive = radius > 0.0f ? 1 : 0;
+    for (std::uint32_t k = 0; k < count; ++k) {
+        const float x = vertices.x[first + k] - cx, y = vertices.y[first + k] - cy, z = vertices.z[first + k] - cz;
+        const float d2 = x * x + y * y + z * z;
+        const float facing = dx * vertices.nx[first + k] + dy * vertices.ny[first + k] + dz * vertices.nz[first + k];
+        const int feasible = positive & (d2 < r2 ? 1 : 0) & (facing < 0.0f ? 1 : 0);
+        out[k] = SplatFrustum::maskedSelect(feasible, 2.0f * kInvPi / r2 * (1.0f - d2 / r2), 0.0f);
+    }
+}
 
 namespace {
 
@@ -164,6 +184,9 @@ public:
         const bool tightBoxes = ctx.params().getString("traversal") == "tight_boxes";
         const bool shMap = ctx.params().getString("glossy") == "sh_map";
         const bool lambertianToMap = ctx.params().getString("lambertian") == "sh_map";
+        const bool sphere = ctx.params().getString("footprint") == "sphere";
+        const bool renormalise = ctx.params().getString("origin_boundary") == "renormalise";
+        if (sphere && !tightBoxes) throw InputError("ray_splat: footprint = \"sphere\" needs traversal = \"tight_boxes\"");
 
         Film& image = ctx.createOutput<Film>("radiance", ctx.filmSettings());
         const std::size_t pixelCount = image.pixelCount();
@@ -266,17 +289,32 @@ public:
                     pixels[target.pixel] += value;
                     ++deposits;
                 };
-                const SplatCone cone = splatCone(ray, cap);
-                if (tightBoxes) {
-                    candidates =
-                        static_cast<std::int64_t>(forEachWeightedVertex(index.tree, frustum, cone, deposit, useCullNodes));
+                if (sphere) {
+                    const SplatSphere footprint(ray);
+                    if (footprint.radius > 0.0f) {
+                        candidates = static_cast<std::int64_t>(
+                            forEachWeightedVertex(index.tree, footprint, footprint.cone(), deposit, useCullNodes));
+                        acc.leafVertices += candidates;
+                    }
+                } else if (const SplatCone cone = splatCone(ray, cap); tightBoxes) {
+                    if (renormalise && frustum.hasOriginSurface) {
+                        const auto renormalised = [&](std::uint32_t slot, float weight) {
+                            deposit(slot, weight * frustum.originBoundaryGain(slotPositions[slot]));
+                        };
+                        candidates = static_cast<std::int64_t>(
+                            forEachWeightedVertex(index.tree, frustum, cone, renormalised, useCullNodes));
+                    } else {
+                        candidates = static_cast<std::int64_t>(
+                            forEachWeightedVertex(index.tree, frustum, cone, deposit, useCullNodes));
+                    }
                     acc.leafVertices += candidates;
                 } else {
                     index.tree.forEachCandidate(
                         cone,
                         [&](std::uint32_t slot) {
                             ++candidates;
-                            const float weight = frustum.weight(slotPositions[slot], slotNormals[slot]);
+                            float weight = frustum.weight(slotPositions[slot], slotNormals[slot]);
+                            if (weight > 0.0f && renormalise) weight *= frustum.originBoundaryGain(slotPositions[slot]);
                             if (weight > 0.0f) deposit(slot, weight);
                         },
                         useCullNodes);
@@ -408,6 +446,13 @@ PassRegistration raySplatPass() {
         {"end_cap", ParamType::String, std::string("tangent_plane"), 0, 0, {"tangent_plane", "hemisphere"},
          "footprint beyond the hit point: the paper's hemisphere (biased at oblique incidence) or the cylinder "
          "cut by the hit's tangent plane (exact on planes)"},
+        {"footprint", ParamType::String, std::string("frustum"), 0, 0, {"frustum", "sphere"},
+         "the ray's conical frustum (§4, §7.2), or a sphere of radius R(t_hit) around its hit with the surface "
+         "kernel, as photon splatting (§9's timing comparison; rays that escape splat nothing)"},
+        {"origin_boundary", ParamType::String, std::string("cut"), 0, 0, {"cut", "renormalise"},
+         "the kernel where its disk reaches behind the surface the ray leaves (a concave corner's adjacent wall): "
+         "cut there, as the paper (that wall's light is underestimated, by half at the corner line), or "
+         "renormalised over the part in front of it"},
         {"classes", ParamType::String, std::string("indirect"), 0, 0, {"indirect", "all"},
          "which rays splat: indirect (caustic and global; the eye pass has the direct light) or all"},
         {"cull_nodes", ParamType::Bool, true, 0, 0, {}, "use the index's backface-culling nodes"},

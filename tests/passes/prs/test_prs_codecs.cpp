@@ -130,6 +130,22 @@ TEST(PrsCodecs, SplatIndexRoundTripAnswersTheSameQueries) {
     EXPECT_GT(coneHits, 200u);
 }
 
+// The memory estimate counts the four-wide nodes of the cone search (about
+// 280 bytes each), which outweigh the 8-byte nodes and were left out.
+TEST(PrsCodecs, SplatIndexBytesCountTheWideNodes) {
+    const auto index = makeIndex(5000);
+    const SplatKdTree& tree = index->tree;
+    ASSERT_GT(tree.wideNodeCount(), 0u);
+    const std::size_t binaryAndVertices =
+        tree.nodes().size() * sizeof(SplatKdNode) + tree.size() * (2 * sizeof(Vec3) + sizeof(std::uint32_t));
+    EXPECT_GE(index->bytes(), binaryAndVertices + tree.wideNodeCount() * SplatKdTree::wideNodeBytes());
+    EXPECT_GE(SplatKdTree::wideNodeBytes(), 256u);
+    // Restored from its file the tree derives the same arrays again.
+    const auto loaded = roundTrip(index, scratch());
+    ASSERT_TRUE(loaded);
+    EXPECT_EQ(loaded->bytes(), index->bytes());
+}
+
 TEST(PrsCodecs, EmptySplatIndexAndRadianceMapRoundTrip) {
     EXPECT_TRUE(roundTrip(std::make_shared<SplatIndex>(), scratch()));
     auto map = std::make_shared<RadianceMap>();

@@ -79,6 +79,38 @@ TEST_P(PrsPlaneUnderDirectionalLight, HemisphereCapLosesEnergyAtObliqueIncidence
 
 INSTANTIATE_TEST_SUITE_P(Angles, PrsPlaneUnderDirectionalLight, ::testing::Values(0.0f, 45.0f, 70.0f));
 
+// The sphere footprint (§9's timing comparison) spreads each hit's flux over
+// the plane with the surface kernel: E_0 cos θ at any angle, and no light on
+// vertices facing away or outside R.
+TEST_P(PrsPlaneUnderDirectionalLight, SphereFootprintGivesTheIrradiance) {
+    const float theta = glm::radians(GetParam());
+    const Vec3 direction(std::sin(theta), 0.0f, -std::cos(theta));
+    const float h = 0.1f, step = h / 60.0f;
+    double sum = 0.0;
+    for (int i = -80; i <= 80; ++i)
+        for (int j = -80; j <= 80; ++j) {
+            SplatRay ray;
+            ray.length = 3.0f;
+            ray.origin = Vec3(static_cast<float>(i) * step, static_cast<float>(j) * step, 0.0f) - 3.0f * direction;
+            ray.direction = direction;
+            ray.h0 = h;
+            ray.endNormal = Vec3(0, 0, 1);
+            // Hits on a grid of the plane, each carrying E_0 cos θ times its cell's area (E_0 = 1).
+            sum += std::cos(theta) * step * step * SplatSphere(ray).weight(Vec3(0.0f), Vec3(0, 0, 1));
+            EXPECT_EQ(SplatSphere(ray).weight(Vec3(0.0f), Vec3(0, 0, -1)), 0.0f);
+        }
+    EXPECT_NEAR(sum, std::cos(theta), 0.01 * std::cos(theta));
+    SplatRay ray;
+    ray.length = 1.0f;
+    ray.origin = -direction;
+    ray.direction = direction;
+    ray.h0 = h;
+    ray.endNormal = Vec3(0, 0, 1);
+    EXPECT_EQ(SplatSphere(ray).weight(Vec3(1.01f * h, 0.0f, 0.0f), Vec3(0, 0, 1)), 0.0f);
+    ray.endNormal = Vec3(0.0f);  // escaped: no sphere
+    EXPECT_EQ(SplatSphere(ray).weight(Vec3(0.0f), Vec3(0, 0, 1)), 0.0f);
+}
+
 // An isotropic point light of intensity I at height H over the plane z = 0:
 // rays along a spherical Fibonacci lattice of the lower hemisphere, each
 // carrying 2 pi I / N, as cones from the light (h_0 = 0, dh = 0.04).
@@ -186,6 +218,111 @@ TEST(PrsShortRayOntoPlane, FootprintIsCutAtTheRayOrigin) {
         }
 }
 
+// Rays leave the plane x = 0 (normal +x) in one direction d, one per cell of
+// a grid across d, carrying radiance 1; the vertex faces them at height δ
+// over the plane. The rays through the part of its kernel disk behind the
+// plane do not exist, so the paper's cut kernel gives 1 - kernelMassBeyond(c),
+// c = δ / (R sin(d, n)), and half at δ = 0; origin_boundary = "renormalise"
+// divides each weight by the share in front (SplatFrustum::originBoundaryGain)
+// and gives 1 at every height.
+TEST(PrsOriginBoundary, RenormalisedKernelRecoversTheLightOfTheAdjacentWall) {
+    const float h = 0.1f;
+    for (const float angle : {20.0f, 50.0f, 80.0f})
+        for (const float height : {0.0f, 0.02f, 0.05f, 0.09f, 0.2f}) {
+            const float a = glm::radians(angle);
+            const Vec3 normal(1, 0, 0), direction(std::cos(a), 0.0f, -std::sin(a));
+            const Vec3 x(height + 1e-6f, 0.0f, 0.0f);
+            const Vec3 e1 = glm::normalize(glm::cross(direction, Vec3(0, 1, 0))), e2(0, 1, 0);
+            const int cells = 200;
+            const float step = 2.0f * h / static_cast<float>(cells);
+            double cut = 0.0, renormalised = 0.0;
+            for (int i = 0; i < cells; ++i)
+                for (int j = 0; j < cells; ++j) {
+                    const Vec3 p = x + (-h + (static_cast<float>(i) + 0.5f) * step) * e1 +
+                                   (-h + (static_cast<float>(j) + 0.5f) * step) * e2;
+                    SplatRay ray;
+                    ray.direction = direction;
+                    ray.origin = p - (p.x / direction.x) * direction;  // where the line leaves the plane
+                    ray.length = 10.0f;
+                    ray.h0 = h;
+                    ray.originNormal = normal;
+                    const SplatFrustum frustum(ray, SplatEndCap::TangentPlane);
+                    const float w = frustum.weight(x, -direction);
+                    cut += static_cast<double>(step) * step * w;
+                    if (w > 0.0f) renormalised += static_cast<double>(step) * step * w * frustum.originBoundaryGain(x);
+                }
+            const double expectedCut = 1.0 - kernelMassBeyond(height / (h * std::sin(a)));
+            EXPECT_NEAR(cut, expectedCut, 0.01) << angle << " degrees, height " << height;
+            EXPECT_NEAR(renormalised, 1.0, 0.01) << angle << " degrees, height " << height;
+            EXPECT_NEAR(SplatFrustum::epanechnikovMassBeyond(height / (h * std::sin(a))),
+                        kernelMassBeyond(height / (h * std::sin(a))), 1e-5);
+        }
+}
+
+// The concave corner of a floor z = 0 (normal +z) and a Lambertian wall
+// x = 0 (normal +x, z > 0) of radiance 1: the wall's light on the floor is
+// π / 2 at any distance δ from the corner line (it fills the quarter of the
+// floor's hemisphere towards it). Quadrature of ray splatting's estimate at
+// δ over directions and over the rays across each direction's kernel disk
+// (rays from the wall to the floor, the tangent-plane cap): besides the
+// rays behind the wall (the origin boundary above), the rays that would
+// have met the floor behind the corner line, which the tangent-plane cap
+// counts for vertices in front of a hit, do not exist. The first loss the
+// renormalised kernel removes; the second remains, and with it part of
+// the corner's bias.
+double cornerEstimate(float delta, float h, bool renormalise) {
+    const Vec3 x(delta, 0.0f, 0.0f), floorNormal(0, 0, 1), wallNormal(1, 0, 0);
+    const int thetas = 16, phis = 16, cells = 40;
+    double sum = 0.0;
+    for (int it = 0; it < thetas; ++it)
+        for (int ip = 0; ip < phis; ++ip) {
+            const double theta = (it + 0.5) / thetas * kPi / 2.0, phi = -kPi / 2.0 + (ip + 0.5) / phis * kPi;
+            const Vec3 direction(static_cast<float>(std::sin(theta) * std::cos(phi)),
+                                 static_cast<float>(std::sin(theta) * std::sin(phi)), static_cast<float>(-std::cos(theta)));
+            const Vec3 e1 = glm::normalize(glm::cross(direction, std::abs(direction.z) < 0.9f ? Vec3(0, 0, 1) : Vec3(1, 0, 0)));
+            const Vec3 e2 = glm::cross(direction, e1);
+            const float step = 2.0f * h / static_cast<float>(cells);
+            double beam = 0.0;
+            for (int i = 0; i < cells; ++i)
+                for (int j = 0; j < cells; ++j) {
+                    const Vec3 p = x + (-h + (static_cast<float>(i) + 0.5f) * step) * e1 +
+                                   (-h + (static_cast<float>(j) + 0.5f) * step) * e2;
+                    SplatRay ray;
+                    ray.direction = direction;
+                    ray.origin = p - (p.x / direction.x) * direction;
+                    if (!(ray.origin.z > 0.0f)) continue;  // would leave the wall below the floor: no such ray
+                    ray.length = ray.origin.z / -direction.z;
+                    ray.h0 = h;
+                    ray.originNormal = wallNormal;
+                    ray.endNormal = floorNormal;
+                    const SplatFrustum frustum(ray, SplatEndCap::TangentPlane);
+                    float w = frustum.weight(x, floorNormal);
+                    if (w > 0.0f && renormalise) w *= frustum.originBoundaryGain(x);
+                    beam += static_cast<double>(step) * step * w;
+                }
+            sum += beam * std::sin(theta) * (kPi / 2.0 / thetas) * (kPi / phis);
+        }
+    return sum / (kPi / 2.0);
+}
+
+TEST(PrsConcaveCorner, AdjacentWallsLightIsLostWithinAFewBandwidths) {
+    const float h = 1.0f;
+    for (const float delta : {0.25f, 0.5f, 1.0f, 5.0f}) {
+        const double cut = cornerEstimate(delta, h, false), renormalised = cornerEstimate(delta, h, true);
+        std::printf("delta / R = %.2f: cut %.4f, renormalised %.4f of the truth\n", static_cast<double>(delta / h), cut,
+                    renormalised);
+        if (delta >= 5.0f) {
+            EXPECT_NEAR(cut, 1.0, 0.01);
+            EXPECT_NEAR(renormalised, 1.0, 0.01);
+        } else {
+            EXPECT_LT(cut, 0.97) << delta;
+            EXPECT_GE(renormalised, cut) << delta;
+            EXPECT_LT(renormalised, 0.97) << "the rays behind the corner line stay missing, delta " << delta;
+        }
+    }
+    EXPECT_GT(cornerEstimate(0.25f, h, true), cornerEstimate(0.25f, h, false) + 0.15);
+}
+
 // SplatFrustum::weights weighs many vertices from columns with masks where
 // weight() branches; both must give the same bits for every vertex, feasible
 // or not: rays with and without an origin surface, escaping or hitting, both
@@ -239,6 +376,12 @@ TEST(PrsFrustumWeights, ColumnsGiveTheBitsOfTheOneVertexTest) {
                 << "trial " << trial << ", vertex " << k;
             (expected > 0.0f ? feasible : infeasible) += 1;
         }
+        const SplatSphere sphere(ray);
+        sphere.weights(columns, first, kVertices - first, weights.data());
+        for (std::uint32_t k = first; k < kVertices; ++k)
+            ASSERT_EQ(std::bit_cast<std::uint32_t>(weights[k - first]),
+                      std::bit_cast<std::uint32_t>(sphere.weight(positions[k], normals[k])))
+                << "sphere, trial " << trial << ", vertex " << k;
     }
     EXPECT_GT(feasible, 2000);
     EXPECT_GT(infeasible, 2000);
