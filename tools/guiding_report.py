@@ -15,6 +15,13 @@ it is). Its noise is part of both relMSE figures: compare the ratio, not the
 absolute values.
 
     tools/guiding_report.py --out results/guiding   # the defaults: 64x48, 512 guided spp, 4096-spp reference
+
+Time shares of the guided pt pass (cache query, GMM sampling and density,
+BSDF, Embree) from a profile:
+
+    perf record -e cpu-clock -F 1000 --call-graph dwarf -o p.data -- build/fluxgraph render JOB.toml --threads 1
+    perf script -i p.data -F comm,tid,time,ip,sym,dso --inline > p.txt
+    tools/guiding_report.py --perf-shares p.txt
 """
 import argparse
 import os
@@ -69,6 +76,53 @@ def relmse(binary, image, reference):
     return float(m.group(1))
 
 
+# Time shares of a guided pt pass from `perf script -F comm,tid,time,ip,sym,dso
+# --inline` of a `perf record --call-graph dwarf` run: each sample whose stack
+# holds PathTracerPass::run goes to the innermost frame that belongs to one of
+# the categories. Embree's frames do not unwind to the pass (no unwind tables
+# deep enough), so Embree samples within the pass's time span are added to it.
+SHARE_CATEGORIES = [
+    ("GMM density", re.compile(r"DirectionalGmm::pdfSquare|DirectionalGmm::pdfLocal|hemisphereToSquare")),
+    ("GMM sampling", re.compile(r"DirectionalGmm::samplePlane|squareToHemisphere")),
+    ("cache query", re.compile(r"GuidingCache::lookupCovering|GuidingCache::lookup\b")),
+    ("BSDF and textures", re.compile(r"Bsdf[A-Za-z<>:]*::(eval|sample|pdf)|fresnel|Ggx|Beckmann|Texture")),
+]
+
+
+def perf_shares(path):
+    samples, current = [], None
+    for line in open(path, errors="replace"):
+        if not line.strip() or line[0] not in " \t":
+            if current:
+                samples.append(current)
+            current = None
+            if line.strip():
+                m = re.search(r"\s([0-9]+\.[0-9]+):", line)
+                current = [float(m.group(1)) if m else 0.0, []]
+            continue
+        if current is not None:
+            current[1].append(line.strip())
+    if current:
+        samples.append(current)
+    in_pass = [s for s in samples if any("PathTracerPass::run" in f for f in s[1])]
+    if not in_pass:
+        sys.exit("no sample of PathTracerPass::run")
+    start, end = min(s[0] for s in in_pass), max(s[0] for s in in_pass)
+    counts = {name: 0 for name, _ in SHARE_CATEGORIES}
+    counts["Embree"] = sum(1 for s in samples if s[1] and "libembree" in s[1][0] and start <= s[0] <= end
+                           and not any("PathTracerPass::run" in f for f in s[1]))
+    counts["other"] = 0
+    for s in in_pass:
+        name = next((n for f in s[1] for n, rx in SHARE_CATEGORIES if rx.search(f)), None)
+        if name is None:
+            name = "Embree" if "libembree" in s[1][0] else "other"
+        counts[name] += 1
+    total = len(in_pass) + counts["Embree"]
+    print(f"pt pass: {total} samples")
+    for name, n in counts.items():
+        print(f"{name:18s} {n:6d} {100.0 * n / total:5.1f} %")
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--binary", default=os.path.join(ROOT, "build/fluxgraph"))
@@ -88,7 +142,12 @@ def main():
     parser.add_argument("--seed", type=int, default=1, help="seed of the guided run (the reference uses 2, pt 1)")
     parser.add_argument("--pipeline", default=os.path.join(ROOT, "passes/pipelines/guided-pt.toml"),
                         help="the guided-pt pipeline file (another build's, to compare builds)")
+    parser.add_argument("--perf-shares", metavar="PERF_SCRIPT_OUTPUT",
+                        help="only print the guided pt pass's time shares from this perf script output")
     args = parser.parse_args()
+    if args.perf_shares:
+        perf_shares(args.perf_shares)
+        return
     width, height = (int(v) for v in args.size.split("x"))
     os.makedirs(args.out, exist_ok=True)
     lines = ["| scene | guided CPU s | training share | guided pt share | guided relMSE | pt spp | pt CPU s | pt relMSE | guided/pt relMSE |",

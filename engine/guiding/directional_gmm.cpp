@@ -258,31 +258,6 @@ float DirectionalGmm::pdfSquare(const Vec2& s) const {
     return (sum[0] + sum[2]) + (sum[1] + sum[3]);
 }
 
-std::array<float, 2> DirectionalGmm::pdfSquarePair(const Vec2& s0, const Vec2& s1) const {
-    // pdfSquare's arithmetic, in its order, for each point.
-    const Float4 zero = {};
-    const Float4 x0 = zero + s0.x, y0 = zero + s0.y, x1 = zero + s1.x, y1 = zero + s1.y;
-    Float4 sum0 = zero, sum1 = zero;
-    for (std::size_t first = 0; first < kGmmComponents; first += 4) {
-        const Float4 meanX = loadLanes(lanes.meanX, first), meanY = loadLanes(lanes.meanY, first);
-        const Float4 quadXX = loadLanes(lanes.quadXX, first), quadXY = loadLanes(lanes.quadXY, first),
-                     quadYY = loadLanes(lanes.quadYY, first);
-        const Float4 scale = loadLanes(lanes.scale, first);
-        const Float4 dx0 = x0 - meanX, dy0 = y0 - meanY, dx1 = x1 - meanX, dy1 = y1 - meanY;
-        sum0 += scale * exp2NonPositive(quadXX * dx0 * dx0 + quadXY * dx0 * dy0 + quadYY * dy0 * dy0);
-        sum1 += scale * exp2NonPositive(quadXX * dx1 * dx1 + quadXY * dx1 * dy1 + quadYY * dy1 * dy1);
-    }
-    return {(sum0[0] + sum0[2]) + (sum0[1] + sum0[3]), (sum1[0] + sum1[2]) + (sum1[1] + sum1[3])};
-}
-
-std::array<float, 2> DirectionalGmm::pdfLocalPair(const Vec3& local0, const Vec3& local1) const {
-    const std::optional<Vec2> s0 = hemisphereToSquare(local0);
-    const std::optional<Vec2> s1 = hemisphereToSquare(local1);
-    if (!s0 || !s1) return {s0 ? pdfLocal(local0) : 0.0f, s1 ? pdfLocal(local1) : 0.0f};
-    const std::array<float, 2> square = pdfSquarePair(*s0, *s1);
-    return {square[0] * (1.0f / kSquareToHemisphereJacobian), square[1] * (1.0f / kSquareToHemisphereJacobian)};
-}
-
 float DirectionalGmm::pdfLocal(const Vec3& local) const {
     const std::optional<Vec2> s = hemisphereToSquare(local);
     if (!s) return 0.0f;

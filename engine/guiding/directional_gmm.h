@@ -76,14 +76,8 @@ struct DirectionalGmm {
 
     // Density on the plane R² (not truncated to the square).
     float pdfSquare(const Vec2& s) const;
-    // pdfSquare at two points, each the same value as its own call: the two
-    // sums share the loads and run side by side, so that the latency of one
-    // hides the other's.
-    std::array<float, 2> pdfSquarePair(const Vec2& s0, const Vec2& s1) const;
     // Solid-angle density of a local direction (z = the record's normal); zero below the horizon.
     float pdfLocal(const Vec3& local) const;
-    // pdfLocal of two directions, each the same value as its own call.
-    std::array<float, 2> pdfLocalPair(const Vec3& local0, const Vec3& local1) const;
     // Draws a point of the plane: component by uComponent, Gaussian by Box-Muller from uGauss
     // (its logarithm, cosine and sine by polynomials accurate to float rounding).
     Vec2 samplePlane(float uComponent, const Vec2& uGauss) const;

@@ -33,27 +33,6 @@ float GuidedBsdfSampler::drawnPdf(const GuidedDraw& drawn) const {
     return bsdfProbability * bsdf->pdf(wo, drawn.wi, at) + (1.0f - bsdfProbability) * gmmPdf;
 }
 
-std::array<float, 2> GuidedBsdfSampler::pdfAndDrawnPdf(const Vec3& wiLocal, const Vec3& wiWorld,
-                                                      const GuidedDraw& drawn) const {
-    const float bsdfPdf = bsdf->pdf(wo, wiLocal, at);
-    const float drawnBsdfPdf = drawn.fromGmm ? bsdf->pdf(wo, drawn.wi, at) : drawn.bsdfPdf;
-    std::array<float, 2> gmmPdf{};
-    if (drawn.fromGmm) {
-        const std::optional<Vec2> square = hemisphereToSquare(gmmFrame.toLocal(wiWorld));
-        if (square) {
-            gmmPdf = gmm->pdfSquarePair(*square, drawn.square);
-            gmmPdf[0] *= 1.0f / kSquareToHemisphereJacobian;
-        } else {
-            gmmPdf[1] = gmm->pdfSquare(drawn.square);
-        }
-        gmmPdf[1] *= 1.0f / kSquareToHemisphereJacobian;
-    } else {
-        gmmPdf = gmm->pdfLocalPair(gmmFrame.toLocal(wiWorld), gmmFrame.toLocal(drawn.wiWorld));
-    }
-    return {bsdfProbability * bsdfPdf + (1.0f - bsdfProbability) * gmmPdf[0],
-            bsdfProbability * drawnBsdfPdf + (1.0f - bsdfProbability) * gmmPdf[1]};
-}
-
 std::optional<GuidedSample> GuidedBsdfSampler::sample(float uStrategy, float uLobe, const Vec2& uDir) const {
     const std::optional<GuidedDraw> drawn = draw(uStrategy, uLobe, uDir);
     if (!drawn) return std::nullopt;

@@ -25,7 +25,6 @@
 #include "engine/guiding/directional_gmm.h"
 #include "engine/shading/bsdf.h"
 
-#include <array>
 #include <optional>
 
 namespace fg {
@@ -67,9 +66,6 @@ struct GuidedBsdfSampler {
     // nothing), then its mixture density, the same value sample() returns.
     std::optional<GuidedDraw> draw(float uStrategy, float uLobe, const Vec2& uDir) const;
     float drawnPdf(const GuidedDraw& drawn) const;
-    // pdf(wiLocal, wiWorld) and drawnPdf(drawn), the same values, with the two
-    // GMM densities evaluated side by side (DirectionalGmm::pdfSquarePair).
-    std::array<float, 2> pdfAndDrawnPdf(const Vec3& wiLocal, const Vec3& wiWorld, const GuidedDraw& drawn) const;
 };
 
 }  // namespace fg

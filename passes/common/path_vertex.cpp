@@ -9,7 +9,9 @@
 // reflection lobes picks the BSDF with probability α and the cached GMM
 // otherwise; the one-sample mixture density α p_bsdf + (1 - α) p_gmm divides
 // the sample and is the strategy's pdf in the power heuristic against
-// next-event estimation. The GMM's mass outside its square ends the path. Other
+// next-event estimation; a light sample's weight, which needs the GMM's
+// density of the light's direction, waits until its shadow ray is found
+// unblocked (DeferredGuidedWeight). The GMM's mass outside its square ends the path. Other
 // vertices, and every vertex without a cache, draw exactly the numbers and
 // values of the unguided tracer.
 #include "passes/common/path_vertex.h"
@@ -32,35 +34,41 @@ float lightSelectionPmf(const Scene& scene, int light) {
     return scene.lightChoice.discretePmf(static_cast<std::size_t>(light));
 }
 
+// The GMM (and its frame) guiding directions at a surface vertex, if any.
+struct VertexGuide {
+    const DirectionalGmm* gmm = nullptr;
+    Frame frame;
+    float bsdfProbability = 1.0f;
+};
+
 // Samples one light for next-event estimation from p. `scatter(wi)` returns the
 // scattering value (BSDF * |cos| or phase) and its sampling pdf for direction wi.
-// With deferWeight, a queued sample of a non-delta light leaves its MIS weight
-// out of shadow.contribution (and scatter's pdf unused) and returns its light
-// pdf: the caller multiplies the contribution by weight / light pdf once it
-// has the scattering pdf, the same product in the same order.
+// At a guided vertex (`guide` with a GMM) the scatter pdf is the BSDF's alone,
+// and a sample of a non-delta light leaves its MIS weight to
+// shadowContribution (DeferredGuidedWeight), which needs the GMM's density too.
 template <class Scatter>
-std::optional<float> queueLightSample(const PathTracerScene& pts, const Vec3& p, const Vec3& ng, const Shape* shape,
-                                      int medium, const Rgb& beta, jobs::Rng& rng, Scatter&& scatter,
-                                      ShadowRequest& shadow, bool deferWeight = false) {
+void queueLightSample(const PathTracerScene& pts, const Vec3& p, const Vec3& ng, const Shape* shape, int medium,
+                      const Rgb& beta, jobs::Rng& rng, Scatter&& scatter, ShadowRequest& shadow,
+                      const VertexGuide* guide = nullptr) {
     const Scene& scene = pts.scene;
-    if (scene.lights.empty()) return std::nullopt;
+    if (scene.lights.empty()) return;
     const float uLight = rng.uniform();
     const Vec2 uPoint = rng.uniform2();
     float pmf = 0.0f;
     const std::size_t index = scene.lightChoice.sampleDiscrete(uLight, &pmf);
     const Light& light = *scene.lights[index];
     const std::optional<LightSample> ls = light.sampleLi(p, uPoint);
-    if (!ls || ls->pdf <= 0.0f || isBlack(ls->value)) return std::nullopt;
+    if (!ls || ls->pdf <= 0.0f || isBlack(ls->value)) return;
     const auto [f, scatterPdf] = scatter(ls->wi);
-    if (isBlack(f)) return std::nullopt;
+    if (isBlack(f)) return;
     const float lightPdf = ls->pdf * pmf;
-    std::optional<float> deferredLightPdf;
-    if (deferWeight && !light.isDelta()) {
+    if (guide && guide->gmm && !light.isDelta()) {
         shadow.contribution = beta * f * ls->value;
-        deferredLightPdf = lightPdf;
+        shadow.deferred = {guide->gmm, guide->frame.toLocal(ls->wi), scatterPdf, lightPdf, guide->bsdfProbability};
     } else {
         const float weight = light.isDelta() ? 1.0f : powerHeuristic(lightPdf, scatterPdf);
         shadow.contribution = beta * f * ls->value * (weight / lightPdf);
+        shadow.deferred.gmm = nullptr;
     }
     const bool onSurface = shape != nullptr;
     shadow.ray.origin = onSurface ? offsetRayOrigin(p, ng, ls->wi) : p;
@@ -78,15 +86,16 @@ std::optional<float> queueLightSample(const PathTracerScene& pts, const Vec3& p,
     }
     shadow.medium = onSurface ? mediumAfterCrossing(*shape, ng, ls->wi, medium) : medium;
     shadow.pending = true;
-    return deferredLightPdf;
 }
 
-// The GMM (and its frame) guiding directions at a surface vertex, if any.
-struct VertexGuide {
-    const DirectionalGmm* gmm = nullptr;
-    Frame frame;
-    float bsdfProbability = 1.0f;
-};
+// The contribution of an unblocked shadow ray with its deferred weight, if
+// any: the product and the order of an immediate weight.
+Rgb unblockedContribution(const ShadowRequest& shadow) {
+    const DeferredGuidedWeight& d = shadow.deferred;
+    if (!d.gmm) return shadow.contribution;
+    const float scatterPdf = d.bsdfProbability * d.bsdfPdf + (1.0f - d.bsdfProbability) * d.gmm->pdfLocal(d.gmmLocal);
+    return shadow.contribution * (powerHeuristic(d.lightPdf, scatterPdf) / d.lightPdf);
+}
 
 // Specular and transmissive lobes and null events are never guided.
 bool guidableBsdf(const Bsdf& bsdf) {
@@ -267,54 +276,34 @@ bool advancePathAtSurface(const PathTracerScene& pts, const PathLimits& limits, 
     std::optional<GuidedBsdfSampler> guided;
     if (guide.gmm) guided.emplace(GuidedBsdfSampler{bsdf, frame, wo, sp.texturePoint(), guide.gmm, guide.frame, guide.bsdfProbability});
 
-    // A guided vertex weighs its light sample once the sampled direction is
-    // drawn, so that the two mixture densities are evaluated side by side.
-    std::optional<float> lightPdfToWeigh;
-    Vec3 lightWiLocal{0.0f}, lightWi{0.0f};
     if (bsdf->hasSmoothLobe()) {
-        lightPdfToWeigh = queueLightSample(
+        queueLightSample(
             pts, sp.p, sp.ng, &shape, h.medium, beta, s.rng,
             [&](const Vec3& wi) {
                 const Vec3 wiLocal = frame.toLocal(wi);
                 // Shading normals must not let light through the geometric surface.
                 if (glm::dot(wi, sp.ng) * wiLocal.z <= 0.0f) return std::pair<Rgb, float>(Rgb(0.0f), 0.0f);
-                lightWiLocal = wiLocal;
-                lightWi = wi;
-                const float pdf = guided ? 0.0f : bsdf->pdf(wo, wiLocal, sp.texturePoint());
+                const float pdf = bsdf->pdf(wo, wiLocal, sp.texturePoint());
                 return std::pair<Rgb, float>(bsdf->eval(wo, wiLocal, sp.texturePoint(), TransportMode::Radiance), pdf);
             },
-            shadow, guided.has_value());
+            shadow, &guide);
     }
 
     if (guided) {
-        const auto weighLightSample = [&](float scatterPdf) {
-            shadow.contribution = shadow.contribution * (powerHeuristic(*lightPdfToWeigh, scatterPdf) / *lightPdfToWeigh);
-        };
-        const auto endPath = [&] {
-            if (lightPdfToWeigh) weighLightSample(guided->pdf(lightWiLocal, lightWi));
-            return false;
-        };
         const float uStrategy = s.rng.uniform();
         const float uLobe = s.rng.uniform();
         const Vec2 uDir = s.rng.uniform2();
         const std::optional<GuidedDraw> drawn = guided->draw(uStrategy, uLobe, uDir);
-        if (!drawn) return endPath();
+        if (!drawn) return false;
         const Vec3 wiLocal = drawn->wi;
         const Vec3& wi = drawn->wiWorld;
         // Directions that end the path whatever their density are turned away
         // before the mixture's density is evaluated (GMM directions below the
         // surface of a BSDF that only reflects, mostly).
-        if (glm::dot(wi, sp.ng) * wiLocal.z <= 0.0f) return endPath();
+        if (glm::dot(wi, sp.ng) * wiLocal.z <= 0.0f) return false;
         const Rgb f = bsdf->eval(wo, wiLocal, sp.texturePoint(), TransportMode::Radiance);
-        if (isBlack(f)) return endPath();
-        float pdf = 0.0f;
-        if (lightPdfToWeigh) {
-            const std::array<float, 2> pdfs = guided->pdfAndDrawnPdf(lightWiLocal, lightWi, *drawn);
-            weighLightSample(pdfs[0]);
-            pdf = pdfs[1];
-        } else {
-            pdf = guided->drawnPdf(*drawn);
-        }
+        if (isBlack(f)) return false;
+        const float pdf = guided->drawnPdf(*drawn);
         if (!(pdf > 0.0f)) return false;
         beta *= f / pdf;
         h.specular = false;
@@ -355,7 +344,7 @@ void endPathAtEyeVertex(const PathTracerScene& pts, const Hit& hit, PathVertexSt
     ShadowRequest shadow;
     bool alive = segmentDone ? advancePathAtSurface(pts, last, hit, state, shadow)
                              : advancePath(pts, last, hit, state, shadow);
-    if (shadow.pending) state.radiance += shadow.contribution * shadowTransmittance(pts, shadow);
+    if (shadow.pending) state.radiance += shadowContribution(pts, shadow);
     while (alive) {
         ShadowRequest unused;  // no light is sampled past the depth limit
         alive = advancePath(pts, last, pts.rays.intersect(state.ray), state, unused);
@@ -398,11 +387,17 @@ Rgb shadowTransmittance(const PathTracerScene& pts, const ShadowRequest& shadow,
     return Rgb(0.0f);
 }
 
+Rgb shadowContribution(const PathTracerScene& pts, const ShadowRequest& shadow) {
+    const Rgb transmittance = shadowTransmittance(pts, shadow);
+    if (isBlack(transmittance)) return Rgb(0.0f);
+    return unblockedContribution(shadow) * transmittance;
+}
+
 void resolveShadowRays(const PathTracerScene& pts, std::span<const std::uint32_t> paths,
                        std::span<const ShadowRequest> shadows, std::span<Rgb> radiance) {
     if (pts.shadowsNeedTransmittance) {
         for (std::uint32_t p : paths)
-            if (shadows[p].pending) radiance[p] += shadows[p].contribution * shadowTransmittance(pts, shadows[p]);
+            if (shadows[p].pending) radiance[p] += shadowContribution(pts, shadows[p]);
         return;
     }
     // Plain visibility: one occlusion stream for the whole chunk.
@@ -414,7 +409,7 @@ void resolveShadowRays(const PathTracerScene& pts, std::span<const std::uint32_t
     const auto flush = [&] {
         pts.rays.occluded(std::span<const Ray>(rays.data(), n), std::span<std::uint8_t>(blocked.data(), n));
         for (std::size_t k = 0; k < n; ++k)
-            if (!blocked[k]) radiance[owner[k]] += shadows[owner[k]].contribution;
+            if (!blocked[k]) radiance[owner[k]] += unblockedContribution(shadows[owner[k]]);
         n = 0;
     };
     for (std::uint32_t p : paths) {

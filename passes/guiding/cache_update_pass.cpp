@@ -323,8 +323,12 @@ public:
         struct Fresh {
             Vec3 position, normal;
             float trainingRadius;
+            std::size_t firstPoint;  // its training points in freshPoints
         };
         std::vector<Fresh> fresh;
+        // The training points found while deciding a new record's cover are
+        // kept for its fit instead of being searched for a second time.
+        std::vector<WeightedPoint> freshPoints;
         for (std::size_t q = 0; q < queryCount; ++q) {
             if (!missed[q]) continue;
             const Vec3 p = queryPositions[q];
@@ -337,21 +341,22 @@ public:
             const float radius = trainingPoints(particles, p, n, settings.trainingParticles, creationScratch);
             if (!(radius > 0.0f)) continue;
             grid.insert(static_cast<std::uint32_t>(fresh.size()), p, settings.newRecordSpacing * radius);
-            fresh.push_back({p, n, radius});
+            fresh.push_back({p, n, radius, freshPoints.size()});
+            freshPoints.insert(freshPoints.end(), creationScratch.points.begin(), creationScratch.points.end());
         }
 
         // Off-line stepwise EM for the new records, in parallel.
         cache.records.resize(existing + fresh.size());
         std::vector<std::int32_t> sweeps(fresh.size(), 0);
         jobs::parallelForChunks(fresh.size(), 8, [&](jobs::IndexRange r) {
-            TrainingScratch scratch;
-            const std::vector<WeightedPoint>& points = scratch.points;
             for (std::size_t k = r.begin; k != r.end; ++k) {
+                const std::size_t end = k + 1 < fresh.size() ? fresh[k + 1].firstPoint : freshPoints.size();
+                const std::span<const WeightedPoint> points(freshPoints.data() + fresh[k].firstPoint,
+                                                            end - fresh[k].firstPoint);
+                const float radius = fresh[k].trainingRadius;
                 GuidingRecordBuffer::Record record;
                 record.get<GuidePosition>() = fresh[k].position;
                 record.get<GuideNormal>() = fresh[k].normal;
-                const float radius = trainingPoints(particles, fresh[k].position, fresh[k].normal,
-                                                    settings.trainingParticles, scratch);
                 record.get<GuideTrainingRadius>() = radius;
                 DirectionalGmm gmm = initialGmm(points, settings.em);
                 GmmStatistics stats;

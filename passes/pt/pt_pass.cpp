@@ -225,7 +225,7 @@ std::int64_t traceTile(const PathTracerScene& pts, const Camera& camera, std::ui
                     ++chunkSegments;
                     ShadowRequest shadow;
                     pathAlive = advancePath(pts, settings.limits, hit, state, shadow);
-                    if (shadow.pending) L += shadow.contribution * shadowTransmittance(pts, shadow);
+                    if (shadow.pending) L += shadowContribution(pts, shadow);
                 }
                 radiance[i] = finiteOrBlack(L);
             }

@@ -181,36 +181,6 @@ TEST(DirectionalGmm, PdfMatchesDoublePrecisionDensity) {
     }
 }
 
-// Guided vertices evaluate two densities at once (the light sample's and the
-// sampled direction's); each must be the single call's value bit for bit, or
-// the images would depend on which of them a vertex happens to pair. Pairs
-// include directions below the horizon, at the pole and on the wedges'
-// diagonals.
-TEST(DirectionalGmm, PairedDensitiesEqualSingleCalls) {
-    const DirectionalGmm gmm = randomMixture(3);
-    jobs::Rng rng(13, jobs::streamKey("gmm-pdf-pair"), 0);
-    const auto randomDirection = [&](int k) {
-        if (k % 97 == 0) return Vec3(0.0f, 0.0f, 1.0f);
-        const float x = 2.0f * rng.uniform() - 1.0f;
-        const float y = k % 13 == 0 ? -x : 2.0f * rng.uniform() - 1.0f;
-        return glm::normalize(Vec3(x, y, 2.0f * rng.uniform() - 0.3f));
-    };
-    int belowHorizon = 0;
-    for (int k = 0; k < 20000; ++k) {
-        const Vec2 s0(1.4f * rng.uniform() - 0.2f, 1.4f * rng.uniform() - 0.2f);
-        const Vec2 s1(rng.uniform(), rng.uniform());
-        const std::array<float, 2> squares = gmm.pdfSquarePair(s0, s1);
-        EXPECT_EQ(squares[0], gmm.pdfSquare(s0));
-        EXPECT_EQ(squares[1], gmm.pdfSquare(s1));
-        const Vec3 w0 = randomDirection(k), w1 = randomDirection(k + 1);
-        belowHorizon += w0.z < 0.0f ? 1 : 0;
-        const std::array<float, 2> locals = gmm.pdfLocalPair(w0, w1);
-        EXPECT_EQ(locals[0], gmm.pdfLocal(w0));
-        EXPECT_EQ(locals[1], gmm.pdfLocal(w1));
-    }
-    EXPECT_GT(belowHorizon, 1000);
-}
-
 // Sampling draws the component whose running weight first exceeds u and maps
 // uGauss by Box-Muller through the Cholesky factor: the same point as that
 // recipe in double precision with the library's log, cos and sin.

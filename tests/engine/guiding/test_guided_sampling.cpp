@@ -125,39 +125,6 @@ TEST(GuidedSampling, SampledPdfMatchesPdf) {
     }
 }
 
-// A guided vertex weighs its light sample and divides its sampled direction
-// by densities evaluated together (pdfAndDrawnPdf); they must be exactly
-// pdf() and drawnPdf(), for directions from either strategy and light
-// directions on both sides of the record's horizon.
-TEST(GuidedSampling, PairedPdfsEqualSingleCalls) {
-    const auto conductor = makeRoughConductor(*conductorPreset("Au"), 0.3f);
-    const DirectionalGmm gmm = testMixture();
-    GuidedBsdfSampler sampler;
-    sampler.bsdf = conductor.get();
-    sampler.shading = Frame(Vec3(0.0f, 0.0f, 1.0f));
-    sampler.wo = glm::normalize(Vec3(0.4f, -0.3f, 0.8f));
-    sampler.at = Vec2(0.3f, 0.6f);
-    sampler.gmm = &gmm;
-    sampler.gmmFrame = Frame(glm::normalize(Vec3(0.6f, -0.5f, 0.62f)));
-    sampler.bsdfProbability = 0.5f;
-    jobs::Rng rng(17, jobs::streamKey("guided-paired-pdfs"), 0);
-    int fromGmm = 0, lightBelowRecord = 0;
-    for (int k = 0; k < 20'000; ++k) {
-        const float uStrategy = rng.uniform();
-        const float uLobe = rng.uniform();
-        const std::optional<GuidedDraw> drawn = sampler.draw(uStrategy, uLobe, rng.uniform2());
-        const Vec3 light = glm::normalize(Vec3(2.0f * rng.uniform() - 1.0f, 2.0f * rng.uniform() - 1.0f, rng.uniform()));
-        if (!drawn) continue;
-        fromGmm += drawn->fromGmm ? 1 : 0;
-        lightBelowRecord += sampler.gmmFrame.toLocal(light).z < 0.0f ? 1 : 0;
-        const std::array<float, 2> pdfs = sampler.pdfAndDrawnPdf(light, light, *drawn);
-        EXPECT_EQ(pdfs[0], sampler.pdf(light, light));
-        EXPECT_EQ(pdfs[1], sampler.drawnPdf(*drawn));
-    }
-    EXPECT_GT(fromGmm, 3000);
-    EXPECT_GT(lightBelowRecord, 3000);
-}
-
 // pdf_ω at the sampled direction equals pdf_s / 2π at the sampled point of the
 // square: the inverse map sends the direction back to (almost) that point. For
 // lobes a few thousandths wide, as many particles from one direction give them

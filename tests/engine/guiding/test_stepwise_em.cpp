@@ -10,6 +10,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <vector>
 
 namespace fg {
@@ -81,6 +82,22 @@ TEST(StepwiseEm, OfflineReachesBatchLogLikelihood) {
         EXPECT_GT(sweeps, 1);
         const double llBatch = weightedLogLikelihood(batch, points);
         const double llStepwise = weightedLogLikelihood(stepwise, points);
+        // At the default tolerance the sweeps' running log-likelihood settles
+        // long before the sweep limit, within 5 % of batch EM's log-likelihood
+        // (measured: -1.25 %, -4.6 % and -3.0 % after 24, 16 and 33 sweeps; a
+        // separate likelihood pass after each sweep stopped after 20, 9 and 10
+        // sweeps at -1.5 %, -5.0 % and -5.4 %).
+        EmSettings loose = settings;
+        loose.tolerance = EmSettings{}.tolerance;
+        DirectionalGmm early = initialGmm(points, loose);
+        GmmStatistics earlyStats;
+        const int earlySweeps = offlineStepwiseEm(early, earlyStats, points, loose);
+        const double llEarly = weightedLogLikelihood(early, points);
+        std::printf("data %u: stepwise/batch log-likelihood - 1 = %+.4f after %d sweeps, %+.4f after %d\n",
+                    static_cast<unsigned>(key), llStepwise / llBatch - 1.0, sweeps, llEarly / llBatch - 1.0, earlySweeps);
+        EXPECT_GT(earlySweeps, 1);
+        EXPECT_LT(earlySweeps, loose.maxSweeps);
+        EXPECT_NEAR(llEarly, llBatch, 5e-2 * std::abs(llBatch)) << "data " << key << ", sweeps " << earlySweeps;
         EXPECT_NEAR(llStepwise, llBatch, 1.5e-2 * std::abs(llBatch)) << "data " << key << ", sweeps " << sweeps;
         // The mass of each cluster agrees: components summed by the side of the square they sit on.
         const auto massLeft = [](const DirectionalGmm& g) {

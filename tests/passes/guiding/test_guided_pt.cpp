@@ -188,6 +188,31 @@ TEST(GuidedPt, CacheAndImageIdenticalAtOneAndTwoThreads) {
     EXPECT_EQ(std::memcmp(p1.data(), p2.data(), p1.size() * sizeof(Rgb)), 0);
 }
 
+// The depth-first (tile) schedule adds a guided vertex's light sample itself,
+// the wavefront schedule in its shadow-ray stream; both evaluate the sample's
+// deferred MIS weight (DeferredGuidedWeight) only for an unblocked ray and must
+// give the same image. The unguided image differs, so the cache is in use.
+TEST(GuidedPt, WavefrontAndTileSchedulesGiveSameImage) {
+    const Scene scene = loadScene(test::sourcePath("data/cornell-box/cornell-box.toml"));
+    const BufferHandle cache = test::runPipeline(scene, guidedPipeline(2, "radiance_cache"), builtinRegistry().passes,
+                                                 trainingParams(4000, 4), test::smallFilm(16, 16), "radiance_cache", 7);
+    ASSERT_GT(test::bufferAs<GuidingCache>(cache).records.size(), 10u);
+    const RayQuery rays(scene);
+    const PassRegistration pt = pathTracerPass();
+    const auto render = [&](const std::string& schedule, bool guided) {
+        const std::map<std::string, ParamValue> params{
+            {"spp", std::int64_t{8}}, {"max_depth", std::int64_t{12}}, {"schedule", schedule}};
+        std::map<std::string, BufferHandle> inputs;
+        if (guided) inputs["radiance_cache"] = cache;
+        return pixels(test::bufferAs<Film>(test::runPass(pt, scene, &rays, test::smallFilm(16, 16), inputs, params, 11).at("image")));
+    };
+    const std::vector<Rgb> wavefront = render("wavefront", true), tile = render("tile", true);
+    const std::vector<Rgb> unguided = render("wavefront", false);
+    ASSERT_EQ(wavefront.size(), tile.size());
+    EXPECT_EQ(std::memcmp(wavefront.data(), tile.data(), wavefront.size() * sizeof(Rgb)), 0);
+    EXPECT_NE(std::memcmp(wavefront.data(), unguided.data(), wavefront.size() * sizeof(Rgb)), 0);
+}
+
 // Train once, render many times: a saved cache, loaded again, is the same
 // cache (its bytes), and pt on it renders the image the trained run rendered.
 TEST(GuidedPt, SavedAndImportedCacheRendersSameImage) {

@@ -65,7 +65,7 @@ std::vector<double> incidentRadiance(const PathTracerScene& pts, const Vec3& p, 
             for (bool alive = true; alive;) {
                 ShadowRequest shadow;
                 alive = advancePath(pts, limits, pts.rays.intersect(state.ray), state, shadow);
-                if (shadow.pending) estimate += shadow.contribution * shadowTransmittance(pts, shadow);
+                if (shadow.pending) estimate += shadowContribution(pts, shadow);
             }
             sum += (estimate.x + estimate.y + estimate.z) / 3.0;
         }
