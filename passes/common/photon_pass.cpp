@@ -196,22 +196,24 @@ struct ChunkResult {
 class RecordRates {
 public:
     void reserve(ChunkResult& out, std::size_t paths) const {
-        const Expected records = expected(paths);
+        // A quarter more than the mean, so that most chunks never grow.
+        const Expected records = expected(paths, 4);
         out.caustic.reserve(records.caustic);
         out.global.reserve(records.global);
         out.volume.reserve(records.volume);
         out.rays.reserve(records.rays);
     }
-    // Records expected from `paths` paths: a quarter more than the mean so far, so
-    // that most chunks never grow; zero before any chunk is done.
+    // Records expected from `paths` paths at the mean rate so far, plus a
+    // 1/marginDivisor margin; zero before any chunk is done.
     struct Expected {
         std::size_t caustic = 0, global = 0, volume = 0, rays = 0;
     };
-    Expected expected(std::size_t paths) const {
+    Expected expected(std::size_t paths, std::uint64_t marginDivisor) const {
         const std::uint64_t seen = paths_.load(std::memory_order_relaxed);
         if (seen == 0) return {};
         const auto hint = [&](const std::atomic<std::uint64_t>& records) {
-            return static_cast<std::size_t>(records.load(std::memory_order_relaxed) * paths * 5 / (4 * seen));
+            return static_cast<std::size_t>(records.load(std::memory_order_relaxed) * paths * (marginDivisor + 1) /
+                                            (marginDivisor * seen));
         };
         return {hint(caustic_), hint(global_), hint(volume_), hint(rays_)};
     }
@@ -758,7 +760,8 @@ public:
         // counts) rather than by growing the maps wave by wave, which would copy
         // them again at every doubling. Only capacities depend on the estimate.
         const auto sizeMaps = [&](std::size_t paths) {
-            const RecordRates::Expected records = rates.expected(paths);
+            // A batch's count varies far less than a chunk's: 1/32 more than the mean.
+            const RecordRates::Expected records = rates.expected(paths, 32);
             const auto makeRoom = [](auto& buffer, std::size_t more) {
                 const std::size_t size = buffer.size();
                 buffer.resize(size + more);
