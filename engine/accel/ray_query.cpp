@@ -35,6 +35,9 @@ struct SphereGeometry {
     glm::dvec3 center{0.0};
     double radius = 1.0;
     bool flipNormals = false;
+    // The same, in float (as the scene stores them), for certainlyMissesSphere.
+    Vec3 floatCenter{0.0f};
+    float floatRadius = 1.0f;
 };
 
 // Both ray parameters where the line o + t d crosses the sphere, t0 <= t1.
@@ -77,6 +80,26 @@ bool nearestSphereHit(const SphereGeometry& sphere, const glm::dvec3& o, const g
     return false;
 }
 
+// True when the line o + t d certainly passes the sphere by: its distance from
+// the centre, computed in float, exceeds the radius by more than float
+// rounding could account for. A scene with one sphere has a one-primitive
+// user-geometry hierarchy, whose leaf Embree enters without a box test, so
+// every ray of the scene comes here; most miss, and this test settles them
+// without the double-precision solve. Hits (and the rare near misses) still
+// go through solveSphere unchanged, so the reported t is the same as without
+// the test.
+bool certainlyMissesSphere(const SphereGeometry& sphere, const Vec3& o, const Vec3& d) {
+    const float a = glm::dot(d, d);
+    if (!(a > 0.0f)) return false;
+    const Vec3 f = o - sphere.floatCenter;
+    const Vec3 perpendicular = f - (glm::dot(f, d) / a) * d;
+    // The rounding error of the offset is a few float epsilons (6e-8) of |f| and
+    // |center|; 1e-5 of them leaves a margin of two orders of magnitude. NaNs
+    // compare false and go to the exact solve.
+    const float reach = sphere.floatRadius * (1.0f + 1e-5f) + 1e-5f * (glm::length(f) + glm::length(sphere.floatCenter));
+    return glm::dot(perpendicular, perpendicular) > reach * reach;
+}
+
 Vec3 orientedSphereNormal(const SphereGeometry& sphere, const Vec3& p) {
     const Vec3 outward = glm::normalize(p - Vec3(sphere.center));
     return sphere.flipNormals ? -outward : outward;
@@ -102,8 +125,10 @@ void sphereIntersect(const RTCIntersectFunctionNArguments* args) {
     RTCHitN* hits = RTCRayHitN_HitN(args->rayhit, n);
     for (unsigned i = 0; i < n; ++i) {
         if (args->valid[i] != -1) continue;
-        const glm::dvec3 o(RTCRayN_org_x(rays, n, i), RTCRayN_org_y(rays, n, i), RTCRayN_org_z(rays, n, i));
-        const glm::dvec3 d(RTCRayN_dir_x(rays, n, i), RTCRayN_dir_y(rays, n, i), RTCRayN_dir_z(rays, n, i));
+        const Vec3 floatOrigin(RTCRayN_org_x(rays, n, i), RTCRayN_org_y(rays, n, i), RTCRayN_org_z(rays, n, i));
+        const Vec3 floatDirection(RTCRayN_dir_x(rays, n, i), RTCRayN_dir_y(rays, n, i), RTCRayN_dir_z(rays, n, i));
+        if (certainlyMissesSphere(*sphere, floatOrigin, floatDirection)) continue;
+        const glm::dvec3 o(floatOrigin), d(floatDirection);
         double t;
         if (!nearestSphereHit(*sphere, o, d, RTCRayN_tnear(rays, n, i), RTCRayN_tfar(rays, n, i), &t)) continue;
         const Vec3 ng = orientedSphereNormal(*sphere, Vec3(o + t * d));
@@ -127,8 +152,10 @@ void sphereOccluded(const RTCOccludedFunctionNArguments* args) {
     RTCRayN* rays = args->ray;
     for (unsigned i = 0; i < n; ++i) {
         if (args->valid[i] != -1) continue;
-        const glm::dvec3 o(RTCRayN_org_x(rays, n, i), RTCRayN_org_y(rays, n, i), RTCRayN_org_z(rays, n, i));
-        const glm::dvec3 d(RTCRayN_dir_x(rays, n, i), RTCRayN_dir_y(rays, n, i), RTCRayN_dir_z(rays, n, i));
+        const Vec3 floatOrigin(RTCRayN_org_x(rays, n, i), RTCRayN_org_y(rays, n, i), RTCRayN_org_z(rays, n, i));
+        const Vec3 floatDirection(RTCRayN_dir_x(rays, n, i), RTCRayN_dir_y(rays, n, i), RTCRayN_dir_z(rays, n, i));
+        if (certainlyMissesSphere(*sphere, floatOrigin, floatDirection)) continue;
+        const glm::dvec3 o(floatOrigin), d(floatDirection);
         double t;
         if (nearestSphereHit(*sphere, o, d, RTCRayN_tnear(rays, n, i), RTCRayN_tfar(rays, n, i), &t)) {
             RTCRayN_tfar(rays, n, i) = -std::numeric_limits<float>::infinity();
@@ -351,7 +378,8 @@ RayQuery::RayQuery(const Scene& scene) : scene_(scene), impl_(std::make_unique<I
         const Shape& shape = scene.shapes[i];
         const auto id = static_cast<unsigned>(i);
         if (const auto* sphere = std::get_if<Sphere>(&shape.geometry)) {
-            impl.spheres.push_back({glm::dvec3(sphere->center), static_cast<double>(sphere->radius), shape.flipNormals});
+            impl.spheres.push_back({glm::dvec3(sphere->center), static_cast<double>(sphere->radius), shape.flipNormals,
+                                    sphere->center, sphere->radius});
             impl.addSphere(id, &impl.spheres.back());
         } else if (const auto* instance = std::get_if<MeshInstance>(&shape.geometry)) {
             impl.addInstance(id, *instance);
@@ -449,7 +477,8 @@ SurfacePoint interpolatedSurface(const Scene& scene, const Ray& ray, const Hit& 
         // The float t of a distant hit carries an error of about |t| * 2^-24, which
         // can be large against a small radius; the crossing is solved again in double
         // precision (the root nearest the reported t) and projected onto the sphere.
-        const SphereGeometry geometry{glm::dvec3(sphere->center), static_cast<double>(sphere->radius), false};
+        const SphereGeometry geometry{glm::dvec3(sphere->center), static_cast<double>(sphere->radius), false,
+                                       sphere->center, sphere->radius};
         const glm::dvec3 o(ray.origin), d(ray.direction);
         double t = hit.t, t0, t1;
         if (solveSphere(geometry, o, d, &t0, &t1)) t = std::abs(t0 - hit.t) <= std::abs(t1 - hit.t) ? t0 : t1;

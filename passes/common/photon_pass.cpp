@@ -88,7 +88,9 @@
 // Determinism: path i draws from the stream (seed, instance, i); a batch is
 // split into fixed chunks, each chunk collects its photons in path order, and
 // chunks are appended in order, so the maps do not depend on the thread count
-// (nor on batch_size). Scenes without media draw exactly the random numbers
+// (nor on batch_size). Chunks are traced a wave at a time and their records
+// copied into the maps after each wave, so that the next wave reuses their
+// memory; the waves only bound that memory and do not change the order. Scenes without media draw exactly the random numbers
 // they drew before media were simulated.
 #include "passes/passes.h"
 #include "passes/common/light_media.h"
@@ -121,6 +123,12 @@ namespace fg {
 namespace {
 
 constexpr std::size_t kGrain = 256;
+// Chunks traced between two copies into the maps. A wave's chunks reuse the
+// record vectors of the wave before, so records are written to memory that is
+// already mapped (and mostly cached) instead of fresh pages per chunk; 32k
+// paths keep the barrier at each wave's end to about 1 % of it at 2 threads.
+constexpr std::size_t kWaveChunks = 128;
+constexpr std::size_t kWavePaths = kWaveChunks * kGrain;
 // Paths of the first batch when emission stops at a volume-photon target.
 constexpr double kPilotPaths = 16384.0;
 // Null boundaries crossed by one segment; the bound only guards against degenerate geometry.
@@ -170,6 +178,15 @@ struct ChunkResult {
     std::int64_t collapsedGlobal = 0;
     std::int64_t segments = 0;
     std::int64_t guidedEvents = 0;
+
+    // Empties the chunk for its next paths; the vectors keep their capacity.
+    void clear() {
+        caustic.clear();
+        global.clear();
+        volume.clear();
+        rays.clear();
+        collapsedCaustic = collapsedGlobal = segments = guidedEvents = 0;
+    }
 };
 
 // Capacity hints for a chunk's record vectors, from the records per path of
@@ -179,16 +196,26 @@ struct ChunkResult {
 class RecordRates {
 public:
     void reserve(ChunkResult& out, std::size_t paths) const {
+        // A quarter more than the mean, so that most chunks never grow.
+        const Expected records = expected(paths, 4);
+        out.caustic.reserve(records.caustic);
+        out.global.reserve(records.global);
+        out.volume.reserve(records.volume);
+        out.rays.reserve(records.rays);
+    }
+    // Records expected from `paths` paths at the mean rate so far, plus a
+    // 1/marginDivisor margin; zero before any chunk is done.
+    struct Expected {
+        std::size_t caustic = 0, global = 0, volume = 0, rays = 0;
+    };
+    Expected expected(std::size_t paths, std::uint64_t marginDivisor) const {
         const std::uint64_t seen = paths_.load(std::memory_order_relaxed);
-        if (seen == 0) return;
+        if (seen == 0) return {};
         const auto hint = [&](const std::atomic<std::uint64_t>& records) {
-            // A quarter more than the mean, so that most chunks never grow.
-            return static_cast<std::size_t>(records.load(std::memory_order_relaxed) * paths * 5 / (4 * seen));
+            return static_cast<std::size_t>(records.load(std::memory_order_relaxed) * paths * (marginDivisor + 1) /
+                                            (marginDivisor * seen));
         };
-        out.caustic.reserve(hint(caustic_));
-        out.global.reserve(hint(global_));
-        out.volume.reserve(hint(volume_));
-        out.rays.reserve(hint(rays_));
+        return {hint(caustic_), hint(global_), hint(volume_), hint(rays_)};
     }
     void add(const ChunkResult& out, std::size_t paths) {
         paths_.fetch_add(paths, std::memory_order_relaxed);
@@ -719,6 +746,32 @@ public:
         std::vector<VolumePhotonRecord> laterRecords;
         std::uint64_t pathsTraced = 0;
         RecordRates rates;
+        // The batch is traced in waves (kWaveChunks); the records of a wave's
+        // chunks are copied into the maps before the next wave reuses them.
+        std::vector<ChunkResult> chunks(kWaveChunks);
+        struct Take {
+            std::size_t caustic = 0, global = 0, volume = 0, rays = 0;
+            std::size_t causticAt = 0, globalAt = 0, volumeAt = 0, raysAt = 0;
+            std::int64_t direct = 0, singleScattering = 0;
+        };
+        std::vector<Take> takes(kWaveChunks);
+        // Room in the maps for the records expected from a batch of `paths` paths,
+        // made once per batch after its first wave (whose records the rate already
+        // counts) rather than by growing the maps wave by wave, which would copy
+        // them again at every doubling. Only capacities depend on the estimate.
+        const auto sizeMaps = [&](std::size_t paths) {
+            // A batch's count varies far less than a chunk's: 1/32 more than the mean.
+            const RecordRates::Expected records = rates.expected(paths, 32);
+            const auto makeRoom = [](auto& buffer, std::size_t more) {
+                const std::size_t size = buffer.size();
+                buffer.resize(size + more);
+                buffer.resize(size);
+            };
+            makeRoom(causticMap->photons, records.caustic);
+            makeRoom(globalMap->photons, records.global);
+            makeRoom(volumeMap->photons, records.volume);
+            makeRoom(photonRays.rays, records.rays);
+        };
         for (std::uint64_t batchStart = 0; batchStart < settings.photons && !targetReached;) {
             std::uint64_t wanted = settings.batchSize;
             if (targetMode) {
@@ -737,93 +790,94 @@ public:
             }
             const auto count =
                 static_cast<std::size_t>(std::min<std::uint64_t>(wanted, settings.photons - batchStart));
-            std::vector<ChunkResult> chunks((count + kGrain - 1) / kGrain);
-            jobs::parallelForChunks(count, kGrain, [&](jobs::IndexRange r) {
-                ChunkResult& out = chunks[r.begin / kGrain];
-                rates.reserve(out, r.end - r.begin);
-                for (std::size_t i = r.begin; i != r.end; ++i) tracer.trace(batchStart + i, out);
-                rates.add(out, r.end - r.begin);
-            });
-            emitted = batchStart + count;
-            // How many records each chunk hands over is decided in chunk order
-            // (a volume-photon target cuts the batch at one path); the copying
-            // into the maps, at offsets fixed by those counts, runs in parallel.
-            struct Take {
-                std::size_t caustic = 0, global = 0, volume = 0, rays = 0;
-                std::size_t causticAt = 0, globalAt = 0, volumeAt = 0, raysAt = 0;
-                std::int64_t direct = 0, singleScattering = 0;
-            };
-            std::vector<Take> takes(chunks.size());
-            std::size_t causticEnd = causticMap->photons.size(), globalEnd = globalMap->photons.size(),
-                        volumeEnd = volumeMap->photons.size(), raysEnd = photonRays.rays.size();
-            std::size_t usedChunks = 0;
-            for (const ChunkResult& chunk : chunks) {
-                Take& take = takes[usedChunks++];
-                take.volume = chunk.volume.size();
-                std::uint64_t lastPath = ~std::uint64_t(0);
-                if (targetMode && static_cast<std::uint64_t>(storedVolume) + take.volume >= settings.volumeTarget) {
-                    take.volume = static_cast<std::size_t>(settings.volumeTarget - static_cast<std::uint64_t>(storedVolume));
-                    lastPath = chunk.volume[take.volume - 1].path;
-                    emitted = lastPath + 1;
-                    targetReached = true;
-                }
-                take.caustic = recordsUpTo(chunk.caustic, lastPath);
-                take.global = recordsUpTo(chunk.global, lastPath);
-                take.causticAt = causticEnd;
-                take.globalAt = globalEnd;
-                take.volumeAt = volumeEnd;
-                causticEnd += take.caustic;
-                globalEnd += take.global;
-                volumeEnd += take.volume;
-                take.rays = static_cast<std::size_t>(
-                    std::partition_point(chunk.rays.begin(), chunk.rays.end(),
-                                         [&](const PhotonRayBuffer::Record& r) { return r.get<RayPath>() <= lastPath; }) -
-                    chunk.rays.begin());
-                take.raysAt = raysEnd;
-                raysEnd += take.rays;
-                causticMap->collapsedFootprints += static_cast<std::uint64_t>(chunk.collapsedCaustic);
-                globalMap->collapsedFootprints += static_cast<std::uint64_t>(chunk.collapsedGlobal);
-                collapsed += static_cast<std::uint64_t>(chunk.collapsedCaustic + chunk.collapsedGlobal);
-                storedCaustic += static_cast<std::int64_t>(take.caustic);
-                storedVolume += static_cast<std::int64_t>(take.volume);
-                segments += chunk.segments;
-                guidedEvents += chunk.guidedEvents;
-                if (targetReached) {
-                    if (laterVolume) {
-                        laterRecords.assign(chunk.volume.begin() + static_cast<std::ptrdiff_t>(take.volume),
-                                            chunk.volume.end());
-                        for (const ChunkResult* rest = &chunk + 1; rest != chunks.data() + chunks.size(); ++rest)
-                            laterRecords.insert(laterRecords.end(), rest->volume.begin(), rest->volume.end());
+            for (std::size_t waveStart = 0; waveStart < count && !targetReached; waveStart += kWavePaths) {
+                const std::size_t waveCount = std::min(kWavePaths, count - waveStart);
+                const std::size_t waveChunks = (waveCount + kGrain - 1) / kGrain;
+                const std::uint64_t firstPath = batchStart + waveStart;
+                jobs::parallelForChunks(waveCount, kGrain, [&](jobs::IndexRange r) {
+                    ChunkResult& out = chunks[r.begin / kGrain];
+                    out.clear();
+                    rates.reserve(out, r.end - r.begin);
+                    for (std::size_t i = r.begin; i != r.end; ++i) tracer.trace(firstPath + i, out);
+                    rates.add(out, r.end - r.begin);
+                });
+                emitted = firstPath + waveCount;
+                if (waveStart == 0) sizeMaps(count);
+                // How many records each chunk hands over is decided in chunk order
+                // (a volume-photon target cuts the batch at one path); the copying
+                // into the maps, at offsets fixed by those counts, runs in parallel.
+                std::size_t causticEnd = causticMap->photons.size(), globalEnd = globalMap->photons.size(),
+                            volumeEnd = volumeMap->photons.size(), raysEnd = photonRays.rays.size();
+                std::size_t usedChunks = 0;
+                for (const ChunkResult& chunk : std::span(chunks).first(waveChunks)) {
+                    Take& take = takes[usedChunks++];
+                    take = Take{};
+                    take.volume = chunk.volume.size();
+                    std::uint64_t lastPath = ~std::uint64_t(0);
+                    if (targetMode && static_cast<std::uint64_t>(storedVolume) + take.volume >= settings.volumeTarget) {
+                        take.volume = static_cast<std::size_t>(settings.volumeTarget - static_cast<std::uint64_t>(storedVolume));
+                        lastPath = chunk.volume[take.volume - 1].path;
+                        emitted = lastPath + 1;
+                        targetReached = true;
                     }
-                    break;
+                    take.caustic = recordsUpTo(chunk.caustic, lastPath);
+                    take.global = recordsUpTo(chunk.global, lastPath);
+                    take.causticAt = causticEnd;
+                    take.globalAt = globalEnd;
+                    take.volumeAt = volumeEnd;
+                    causticEnd += take.caustic;
+                    globalEnd += take.global;
+                    volumeEnd += take.volume;
+                    take.rays = static_cast<std::size_t>(
+                        std::partition_point(chunk.rays.begin(), chunk.rays.end(),
+                                             [&](const PhotonRayBuffer::Record& r) { return r.get<RayPath>() <= lastPath; }) -
+                        chunk.rays.begin());
+                    take.raysAt = raysEnd;
+                    raysEnd += take.rays;
+                    causticMap->collapsedFootprints += static_cast<std::uint64_t>(chunk.collapsedCaustic);
+                    globalMap->collapsedFootprints += static_cast<std::uint64_t>(chunk.collapsedGlobal);
+                    collapsed += static_cast<std::uint64_t>(chunk.collapsedCaustic + chunk.collapsedGlobal);
+                    storedCaustic += static_cast<std::int64_t>(take.caustic);
+                    storedVolume += static_cast<std::int64_t>(take.volume);
+                    segments += chunk.segments;
+                    guidedEvents += chunk.guidedEvents;
+                    if (targetReached) {
+                        if (laterVolume) {
+                            laterRecords.assign(chunk.volume.begin() + static_cast<std::ptrdiff_t>(take.volume),
+                                                chunk.volume.end());
+                            for (const ChunkResult* rest = &chunk + 1; rest != chunks.data() + waveChunks; ++rest)
+                                laterRecords.insert(laterRecords.end(), rest->volume.begin(), rest->volume.end());
+                        }
+                        break;
+                    }
                 }
+                causticMap->photons.resize(causticEnd);
+                globalMap->photons.resize(globalEnd);
+                volumeMap->photons.resize(volumeEnd);
+                photonRays.rays.resize(raysEnd);
+                jobs::parallelFor(usedChunks, 1, [&](std::size_t c) {
+                    const ChunkResult& chunk = chunks[c];
+                    Take& take = takes[c];
+                    for (std::size_t k = 0; k < take.caustic; ++k) causticMap->photons.set(take.causticAt + k, chunk.caustic[k]);
+                    for (std::size_t k = 0; k < take.global; ++k) {
+                        globalMap->photons.set(take.globalAt + k, chunk.global[k]);
+                        take.direct += chunk.global[k].get<PhotonClassColumn>() == PhotonClass::Direct;
+                    }
+                    for (std::size_t k = 0; k < take.volume; ++k) {
+                        volumeMap->photons.set(take.volumeAt + k, chunk.volume[k]);
+                        take.singleScattering += (chunk.volume[k].get<PhotonClassColumn>() & PhotonClass::Direct) != 0;
+                    }
+                    for (std::size_t k = 0; k < take.rays; ++k) photonRays.rays.set(take.raysAt + k, chunk.rays[k]);
+                });
+                for (std::size_t c = 0; c < usedChunks; ++c) {
+                    storedDirect += takes[c].direct;
+                    storedGlobal += static_cast<std::int64_t>(takes[c].global) - takes[c].direct;
+                    singleScattering += takes[c].singleScattering;
+                }
+                ctx.addItems(static_cast<std::int64_t>(waveCount));
+                pathsTraced = firstPath + waveCount;
             }
-            causticMap->photons.resize(causticEnd);
-            globalMap->photons.resize(globalEnd);
-            volumeMap->photons.resize(volumeEnd);
-            photonRays.rays.resize(raysEnd);
-            jobs::parallelFor(usedChunks, 1, [&](std::size_t c) {
-                const ChunkResult& chunk = chunks[c];
-                Take& take = takes[c];
-                for (std::size_t k = 0; k < take.caustic; ++k) causticMap->photons.set(take.causticAt + k, chunk.caustic[k]);
-                for (std::size_t k = 0; k < take.global; ++k) {
-                    globalMap->photons.set(take.globalAt + k, chunk.global[k]);
-                    take.direct += chunk.global[k].get<PhotonClassColumn>() == PhotonClass::Direct;
-                }
-                for (std::size_t k = 0; k < take.volume; ++k) {
-                    volumeMap->photons.set(take.volumeAt + k, chunk.volume[k]);
-                    take.singleScattering += (chunk.volume[k].get<PhotonClassColumn>() & PhotonClass::Direct) != 0;
-                }
-                for (std::size_t k = 0; k < take.rays; ++k) photonRays.rays.set(take.raysAt + k, chunk.rays[k]);
-            });
-            for (std::size_t c = 0; c < usedChunks; ++c) {
-                storedDirect += takes[c].direct;
-                storedGlobal += static_cast<std::int64_t>(takes[c].global) - takes[c].direct;
-                singleScattering += takes[c].singleScattering;
-            }
-            ctx.addItems(static_cast<std::int64_t>(count));
             batchStart += count;
-            pathsTraced = batchStart;
             if (!targetMode) handOver();
             if (!targetMode && anyStreamed && allSatisfied) {
                 ctx.addCounter("stopped_by_readers", 1);
@@ -949,7 +1003,7 @@ PassRegistration photonPass() {
     // volume map with a volume_photons target holds exactly that many; a
     // global map one photon per path (the Cornell box stores 2.3; an open
     // scene fewer); a caustic map nothing. A streamed map holds one batch,
-    // and tracing holds one batch of records.
+    // and tracing holds one wave of records (below one batch's estimate).
     const auto memory = [](const PreflightContext& pf) {
         constexpr std::uint64_t kSurfacePhoton = 5 * sizeof(Vec3) + sizeof(Rgb) + sizeof(std::uint8_t);
         constexpr std::uint64_t kVolumePhoton = 2 * sizeof(Vec3) + sizeof(Rgb) + sizeof(std::uint8_t);

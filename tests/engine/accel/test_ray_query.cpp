@@ -7,6 +7,7 @@
 #include <glm/gtc/matrix_transform.hpp>
 
 #include <array>
+#include <cmath>
 #include <map>
 #include <thread>
 #include <vector>
@@ -178,6 +179,45 @@ TEST(RayQuery, SmallDistantSphereSilhouetteIsExact) {
     for (float f : {1.01f, 1.1f}) {
         EXPECT_FALSE(query.intersect(makeRay({f * r, 0, 1.0e4f}, {0, 0, -1})).valid()) << f;
     }
+}
+
+// Rays that pass the silhouette closely: the quick float rejection of misses
+// must leave every hit to the exact solve. Each ray aims at a point at
+// (1 + delta) r from the centre, perpendicular to the ray, with |delta| up to
+// 1e-3; it hits iff delta < 0 (exactly, in long double), which the query must
+// report except within 1e-6 of the silhouette.
+TEST(RayQuery, RaysGrazingASphereAreHitIffTheyPassInside) {
+    Scene scene;
+    const Vec3 center(0.3f, -1.2f, 2.0f);
+    const float r = 0.7f;
+    scene.shapes.push_back(sphereShape(center, r));
+    RayQuery query(scene);
+    jobs::Rng rng(7, 0, 0);
+    int hits = 0, misses = 0;
+    for (int i = 0; i < 20000; ++i) {
+        const Vec3 d = glm::normalize(Vec3(rng.uniform() - 0.5f, rng.uniform() - 0.5f, rng.uniform() - 0.5f));
+        const Frame frame(d);
+        const float phi = 2.0f * kPi * rng.uniform();
+        const float delta = 2e-3f * (rng.uniform() - 0.5f);
+        const Vec3 aim = center + (1.0f + delta) * r * (std::cos(phi) * frame.s + std::sin(phi) * frame.t);
+        const float distance = 3.0f + 30.0f * rng.uniform();
+        const Vec3 o = aim - distance * d;
+        // The exact distance of the line (as rounded to float) from the centre.
+        using L = long double;
+        const L fx = L(o.x) - L(center.x), fy = L(o.y) - L(center.y), fz = L(o.z) - L(center.z);
+        const L dd = L(d.x) * d.x + L(d.y) * d.y + L(d.z) * d.z;
+        const L fd = (fx * d.x + fy * d.y + fz * d.z) / dd;
+        const L px = fx - fd * d.x, py = fy - fd * d.y, pz = fz - fd * d.z;
+        const L offset = std::sqrt(px * px + py * py + pz * pz) / L(r) - 1;
+        if (std::abs(static_cast<double>(offset)) < 1e-6) continue;
+        const bool inside = offset < 0;
+        const Hit hit = query.intersect(makeRay(o, d));
+        ASSERT_EQ(hit.valid(), inside) << "ray " << i << ", offset " << static_cast<double>(offset);
+        EXPECT_EQ(query.occluded(makeRay(o, d)), inside) << "ray " << i;
+        (inside ? hits : misses) += 1;
+    }
+    EXPECT_GT(hits, 5000);
+    EXPECT_GT(misses, 5000);
 }
 
 TEST(RayQuery, TransformedAndFlippedMeshNormals) {

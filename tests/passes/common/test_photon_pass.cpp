@@ -412,6 +412,31 @@ TEST(PhotonPass, IdenticalForAnyThreadCountAndBatchSize) {
     EXPECT_FALSE(samePhotons(*one.global, *reseeded.global));
 }
 
+// A batch longer than a wave (32768 paths) is traced in several waves whose
+// chunk storage is reused; the maps must equal those of batches shorter than
+// a wave, whatever the thread count.
+TEST(PhotonPass, IdenticalWhenABatchSpansSeveralWaves) {
+    const Scene scene = glassBallScene();
+    const std::map<std::string, ParamValue> params = {{"photons", std::int64_t{70000}}, {"store_direct", true},
+                                                      {"batch_size", std::int64_t{1 << 18}}};
+    const PhotonRun waves = runPhotonPass(scene, params, 2);
+    ASSERT_GT(waves.caustic->photons.size(), 0u);
+    ASSERT_GT(waves.global->photons.size(), 0u);
+    EXPECT_EQ(waves.caustic->emitted, 70000u);
+    auto shortBatches = params;
+    shortBatches["batch_size"] = std::int64_t{9000};
+    const PhotonRun batches = runPhotonPass(scene, shortBatches, 1);
+    EXPECT_TRUE(samePhotons(*waves.caustic, *batches.caustic));
+    EXPECT_TRUE(samePhotons(*waves.global, *batches.global));
+    const PhotonRun oneThread = runPhotonPass(scene, params, 1);
+    EXPECT_TRUE(samePhotons(*waves.caustic, *oneThread.caustic));
+    EXPECT_TRUE(samePhotons(*waves.global, *oneThread.global));
+    // Fewer paths give other maps (the comparison can fail).
+    auto fewer = params;
+    fewer["photons"] = std::int64_t{69999};
+    EXPECT_FALSE(samePhotons(*waves.global, *runPhotonPass(scene, fewer, 2).global));
+}
+
 // The pass's own seed replaces the job's for the photon streams alone: photons of
 // seed s under any job seed are those of job seed s, and 0 means the job's seed.
 TEST(PhotonPass, OwnSeedOverridesTheJobSeed) {
