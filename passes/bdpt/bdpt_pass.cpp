@@ -13,6 +13,16 @@
 // (point, spot, directional) and specular vertices take no weight in the
 // strategies that cannot produce them.
 //
+// Guided BDPT (Vorba et al. 2014, Fig. 1 and §4.1). With a `radiance_cache`
+// input, camera subpaths draw their directions at vertices with smooth,
+// non-transmissive lobes from the one-sample mixture α p_bsdf + (1 - α) p_gmm
+// of the radiance record there, with an `importance_cache` light subpaths do
+// the same with the importance record, and the throughput takes f cos / p_mix.
+// Every density in the weights is the one of the subpath that would sample
+// the direction: a vertex's forward density the mixture of its own side's
+// cache, its reverse density the mixture of the other side's (BSDF densities
+// where that side has no record), so the ratios stay those of the strategies.
+//
 // Subpaths grow through surfaces and homogeneous media as `pt`'s paths do:
 // chromatic free-flight sampling (HomogeneousMedium::sampleDistance) gives
 // medium vertices scattered by the Henyey-Greenstein phase function; null
@@ -145,6 +155,26 @@ bool survives(int scatterings, int rrDepth, float startMax, float etaScale, Rgb&
     return true;
 }
 
+// A direction from a guided vertex's mixture (Vorba et al. 2014, §4.1) as a
+// BSDF sample: weight f |cos| / p_mix, pdf p_mix. Only reflection lobes are
+// guided, for which the sampler's radiance-transport BSDF draws are those of
+// either transport.
+std::optional<BsdfSample> sampleGuided(const GuidedBsdfSampler& guided, TransportMode mode, jobs::Rng& rng) {
+    const float uStrategy = rng.uniform();
+    const float uLobe = rng.uniform();
+    const Vec2 uDirection = rng.uniform2();
+    const std::optional<GuidedSample> drawn = guided.sample(uStrategy, uLobe, uDirection);
+    if (!drawn || !(drawn->pdf > 0.0f)) return std::nullopt;
+    const Rgb f = guided.bsdf->eval(guided.wo, drawn->wi, guided.at, mode);
+    if (isBlack(f)) return std::nullopt;
+    BsdfSample sample;
+    sample.wi = drawn->wi;
+    sample.weight = f / drawn->pdf;  // Bsdf::eval includes the cosine
+    sample.pdf = drawn->pdf;
+    sample.lobe = BsdfLobe::Reflection | BsdfLobe::Glossy;
+    return sample;
+}
+
 // Extends path[0] (the camera or a light origin) by a random walk; returns the vertex count.
 int randomWalk(const BdptScene& bs, Ray ray, Rgb beta, float pdfDirection, int medium, TransportMode mode,
                int maxVertices, int rrDepth, jobs::Rng& rng, BdptVertex* path) {
@@ -244,16 +274,27 @@ int randomWalk(const BdptScene& bs, Ray ray, Rgb beta, float pdfDirection, int m
         BdptVertex& added = addVertex(v);
         if (count >= maxVertices) break;
         if (!chosen) {
-            const float uLobe = rng.uniform();
-            const Vec2 uDir = rng.uniform2();
-            chosen = bsdf->sample(woLocal, sp.texturePoint(), uLobe, uDir, mode);
+            if (const std::optional<GuidedBsdfSampler> guided = bs.guide(added, *bsdf, added.wo, mode)) {
+                chosen = sampleGuided(*guided, mode, rng);
+                if (!chosen) break;
+            } else {
+                const float uLobe = rng.uniform();
+                const Vec2 uDir = rng.uniform2();
+                chosen = bsdf->sample(woLocal, sp.texturePoint(), uLobe, uDir, mode);
+            }
         }
         if (!chosen || chosen->pdf <= 0.0f || isBlack(chosen->weight)) break;
         const Vec3 wi = frame.toWorld(chosen->wi);
         if (glm::dot(wi, sp.ng) * chosen->wi.z <= 0.0f) break;
         beta *= chosen->weight;
         float pdfForward = chosen->pdf;
-        float pdfReverse = bsdf->pdf(chosen->wi, woLocal, sp.texturePoint());
+        // The reverse density is that of a subpath from the other end, guided by its own cache.
+        const TransportMode otherWalk = mode == TransportMode::Radiance ? TransportMode::Importance : TransportMode::Radiance;
+        float pdfReverse = 0.0f;
+        if (const std::optional<GuidedBsdfSampler> reverse = bs.guide(added, *bsdf, wi, otherWalk))
+            pdfReverse = reverse->pdf(woLocal, added.wo);
+        else
+            pdfReverse = bsdf->pdf(chosen->wi, woLocal, sp.texturePoint());
         if (chosen->isSpecular()) {
             added.delta = true;
             const BdptSpecularPdfs specular = bdptSpecularPdfs(woLocal, chosen->wi, chosen->eta);
@@ -435,7 +476,15 @@ public:
 
         const FilmSettings& filmSettings = ctx.filmSettings();
         const Camera camera = ctx.filmCamera();
-        const BdptScene bs(scene, ctx.rays(), camera);
+        BdptScene guidedScene(scene, ctx.rays(), camera);
+        if (ctx.hasInput("radiance_cache")) guidedScene.radianceCache = &ctx.input<GuidingCache>("radiance_cache");
+        if (ctx.hasInput("importance_cache")) guidedScene.importanceCache = &ctx.input<GuidingCache>("importance_cache");
+        if (guidedScene.radianceCache || guidedScene.importanceCache) {
+            guidedScene.guidingBsdfProbability = static_cast<float>(params.getFloat("guiding_bsdf_probability"));
+            guidedScene.guidingCandidates = static_cast<std::uint32_t>(params.getInt("guiding_candidates"));
+            guidedScene.guidingCovering = params.getString("guiding_query") == "covering";
+        }
+        const BdptScene& bs = guidedScene;
         const StrategyTable table(settings.strategyLength);
 
         Film& film = ctx.createOutput<Film>("image", filmSettings);
@@ -826,6 +875,11 @@ PassRegistration bdptPass() {
     spec.name = "bdpt";
     spec.doc = "Bidirectional path tracer: camera and light subpaths through surfaces and homogeneous media, every "
                "connection strategy combined by MIS";
+    SlotSpec radianceCache{"radiance_cache", "GuidingCache", "directional GMMs of incident radiance that guide camera subpaths"};
+    radianceCache.optional = true;
+    SlotSpec importanceCache{"importance_cache", "GuidingCache", "directional GMMs of incident importance that guide light subpaths"};
+    importanceCache.optional = true;
+    spec.inputs = {radianceCache, importanceCache};
     spec.outputs = {{"image", "Film", "radiance estimate per pixel; per-strategy AOVs sStT.R/G/B when strategy_aovs > 0"}};
     spec.params = {
         {"spp", ParamType::Int, std::int64_t{16}, 1, 1 << 20, {}, "samples (camera and light subpath pairs) per pixel",
@@ -844,6 +898,8 @@ PassRegistration bdptPass() {
         {"wave_size", ParamType::Int, std::int64_t{1 << 14}, 1, 1 << 22, {},
          "camera samples in flight per wave (memory: about 2 max_depth vertices of 96 bytes each)"},
     };
+    const std::vector<ParamSpec> guidedParams = guidedSamplingParams();
+    spec.params.insert(spec.params.end(), guidedParams.begin(), guidedParams.end());
     const auto preflight = [](const PreflightContext& pf) {
         if (pf.scene.camera.orthographic) {
             throw InputError("pass '" + pf.instance + "': " + pf.scene.sourcePath +

@@ -141,7 +141,26 @@ float bdptPdfLightOrigin(const BdptScene& bs, const BdptVertex& v) {
     return 0.0f;
 }
 
-float bdptPdf(const BdptScene& bs, const BdptVertex* prev, const BdptVertex& cur, const BdptVertex& next) {
+std::optional<GuidedBsdfSampler> BdptScene::guide(const BdptVertex& v, const Bsdf& bsdf, const Vec3& toPrevious,
+                                                  TransportMode walk) const {
+    const GuidingCache* cache = walk == TransportMode::Radiance ? radianceCache : importanceCache;
+    constexpr std::uint32_t kUnguided = BsdfLobe::Specular | BsdfLobe::Transmission | BsdfLobe::Null;
+    if (!cache || v.kind != BdptVertexKind::Surface || (bsdf.lobes() & kUnguided) != 0 || !bsdf.hasSmoothLobe())
+        return std::nullopt;
+    const Vec3 facing = glm::dot(v.ns, toPrevious) >= 0.0f ? v.ns : -v.ns;
+    const std::optional<std::uint32_t> record =
+        guidingCovering && cache->hasCoverGrid() ? cache->lookupCovering(v.p, facing)
+                                                 : cache->lookup(v.p, facing, GuidingCacheQuery{guidingCandidates});
+    if (!record) return std::nullopt;
+    const DirectionalGmm& gmm = cache->records.column<GuideMixture>()[*record];
+    if (!(cache->hasCoverGrid() ? cache->usable(*record) : gmm.usable())) return std::nullopt;
+    const Frame shading(v.ns);
+    return GuidedBsdfSampler{&bsdf, shading, shading.toLocal(toPrevious), v.at, &gmm,
+                             Frame(cache->records.column<GuideNormal>()[*record]), guidingBsdfProbability};
+}
+
+float bdptPdf(const BdptScene& bs, const BdptVertex* prev, const BdptVertex& cur, const BdptVertex& next,
+              TransportMode walk) {
     switch (cur.kind) {
     case BdptVertexKind::Camera:
         return bdptConvertDensity(bs.cameraDirectionPdf(bdptDirection(cur, next)), cur, next);
@@ -156,10 +175,12 @@ float bdptPdf(const BdptScene& bs, const BdptVertex* prev, const BdptVertex& cur
         if (!prev) return bdptPdfLight(bs, cur, next);  // an emitter seen by the camera, leaving towards next
         const Bsdf* bsdf = bs.bsdf(cur);
         if (!bsdf) return 0.0f;
+        const Vec3 toPrevious = bdptDirection(cur, *prev);
+        const Vec3 toNext = bdptDirection(cur, next);
+        if (const std::optional<GuidedBsdfSampler> guided = bs.guide(cur, *bsdf, toPrevious, walk))
+            return bdptConvertDensity(guided->pdf(guided->shading.toLocal(toNext), toNext), cur, next);
         const Frame frame(cur.ns);
-        const Vec3 wo = frame.toLocal(bdptDirection(cur, *prev));
-        const Vec3 wi = frame.toLocal(bdptDirection(cur, next));
-        return bdptConvertDensity(bsdf->pdf(wo, wi, cur.at), cur, next);
+        return bdptConvertDensity(bsdf->pdf(frame.toLocal(toPrevious), frame.toLocal(toNext), cur.at), cur, next);
     }
     }
     return 0.0f;
@@ -221,10 +242,11 @@ BdptWeightTerms bdptMisTerms(const BdptScene& bs, std::span<const BdptVertex> li
     // The segments beside the connection were sampled towards pt and qs; the
     // reverse densities along them take the distance densities stored there.
     if (s > 0) {
-        camRev[T - 1] = bdptPdf(bs, qsMinus, *qs, pt);
-        if (ptMinus) camRev[T - 2] = bdptPdf(bs, qs, pt, *ptMinus) * pt.distancePdfRev;
-        lightRev[S - 1] = bdptPdf(bs, ptMinus, pt, *qs);
-        if (qsMinus) lightRev[S - 2] = bdptPdf(bs, &pt, *qs, *qsMinus) * qs->distancePdfRev;
+        // Densities towards the camera side are those of a light subpath, towards the light side a camera subpath's.
+        camRev[T - 1] = bdptPdf(bs, qsMinus, *qs, pt, TransportMode::Importance);
+        if (ptMinus) camRev[T - 2] = bdptPdf(bs, qs, pt, *ptMinus, TransportMode::Importance) * pt.distancePdfRev;
+        lightRev[S - 1] = bdptPdf(bs, ptMinus, pt, *qs, TransportMode::Radiance);
+        if (qsMinus) lightRev[S - 2] = bdptPdf(bs, &pt, *qs, *qsMinus, TransportMode::Radiance) * qs->distancePdfRev;
         lightDelta[S - 1] = false;
         terms.connected = true;
         terms.cameraConnectionPdf = camRev[T - 1];

@@ -29,11 +29,14 @@
 #pragma once
 
 #include "engine/accel/ray_query.h"
+#include "engine/guiding/guided_sampling.h"
+#include "engine/guiding/guiding_cache.h"
 #include "passes/common/path_vertex.h"
 #include "engine/core/math.h"
 #include "engine/scene/scene.h"
 
 #include <cstdint>
+#include <optional>
 #include <span>
 #include <vector>
 
@@ -99,11 +102,27 @@ struct BdptScene {
     PathTracerScene tracer;
     // Connections must walk through null boundaries and media instead of a plain occlusion test.
     bool connectionsNeedTransmittance = false;
+    // Guided BDPT (Vorba et al. 2014, Fig. 1): camera subpaths draw their
+    // directions from the radiance cache's mixtures, light subpaths from the
+    // importance cache's (null: BSDF sampling on that side).
+    const GuidingCache* radianceCache = nullptr;
+    const GuidingCache* importanceCache = nullptr;
+    float guidingBsdfProbability = 0.5f;  // α
+    std::uint32_t guidingCandidates = 2;  // M of Eq. 11 without a cover grid
+    bool guidingCovering = true;
 
     float lightPmf(int light) const;
     const Bsdf* bsdf(const BdptVertex& v) const;
     // Solid-angle density of a camera ray along `direction`; zero outside the image.
     float cameraDirectionPdf(const Vec3& direction, Vec2* raster = nullptr) const;
+    // The mixture sampler of surface vertex `v` for a subpath of transport
+    // `walk` that reached it from direction `toPrevious` (world space): the
+    // radiance cache's record for camera subpaths, the importance cache's for
+    // light subpaths, on the side the subpath arrived from. Nothing where that
+    // cache is absent or holds no usable record, or where the BSDF has
+    // specular, transmissive or null lobes (never guided).
+    std::optional<GuidedBsdfSampler> guide(const BdptVertex& v, const Bsdf& bsdf, const Vec3& toPrevious,
+                                           TransportMode walk) const;
 };
 
 // Unit direction from a to b (either may be at infinity).
@@ -113,8 +132,11 @@ Vec3 bdptDirection(const BdptVertex& from, const BdptVertex& to);
 float bdptConvertDensity(float pdfSolidAngle, const BdptVertex& from, const BdptVertex& to);
 // Area density with which `cur`, reached from `prev` (null for subpath origins),
 // samples `next`. Surfaces use the BSDF density, media the phase function,
-// the camera its ray density, light origins their emission density.
-float bdptPdf(const BdptScene& bs, const BdptVertex* prev, const BdptVertex& cur, const BdptVertex& next);
+// the camera its ray density, light origins their emission density. At a
+// guided vertex the density is the mixture α p_bsdf + (1 - α) p_gmm of the
+// cache of the subpath kind `walk` that would sample `next` (§4.1).
+float bdptPdf(const BdptScene& bs, const BdptVertex* prev, const BdptVertex& cur, const BdptVertex& next,
+              TransportMode walk = TransportMode::Radiance);
 // Density of choosing `v` as the origin of a light subpath (light selection
 // included): area density for area lights, solid angle for lights at infinity.
 float bdptPdfLightOrigin(const BdptScene& bs, const BdptVertex& v);
