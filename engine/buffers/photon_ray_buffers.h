@@ -66,6 +66,10 @@ struct BufferTypeName<PhotonRays> {
 using SplatRayBuffer = SoaBuffer<RayOrigin, RayDirection, RayLength, RayPower, RayH0, RayDh, RayClassColumn,
                                  RayOriginNormal, RayEndNormal>;
 
+// Bytes a splat ray takes, what memory figures per ray count.
+inline constexpr std::size_t kSplatRayBytes =
+    4 * sizeof(Vec3) + sizeof(Rgb) + 3 * sizeof(float) + sizeof(std::uint8_t);
+
 struct SplatRays {
     SplatRayBuffer rays;
     std::uint64_t emitted = 0;   // photon paths emitted

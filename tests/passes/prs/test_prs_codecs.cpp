@@ -112,7 +112,8 @@ TEST(PrsCodecs, SplatRaysRoundTripAtSeventyThreeBytesARay) {
     rays->normalisation = 2.5;
     rays->sceneScale = 0.0625;
     rays->rays.resize(kRays);
-    EXPECT_EQ(rays->bytes(), kRays * 73);
+    EXPECT_EQ(kSplatRayBytes, 73u);
+    EXPECT_EQ(rays->bytes(), kRays * kSplatRayBytes);
     const std::vector<Vec3> p = randomPoints(kRays, 2), d = randomPoints(kRays, 3), nOrigin = randomPoints(kRays, 4),
                             nEnd = randomPoints(kRays, 7);
     SplatRayBuffer& r = rays->rays;
@@ -134,7 +135,7 @@ TEST(PrsCodecs, SplatRaysRoundTripAtSeventyThreeBytesARay) {
     EXPECT_EQ(loaded->countPerClass, rays->countPerClass);
     EXPECT_EQ(loaded->normalisation, 2.5);
     EXPECT_EQ(loaded->sceneScale, 0.0625);
-    EXPECT_EQ(loaded->bytes(), kRays * 73);
+    EXPECT_EQ(loaded->bytes(), kRays * kSplatRayBytes);
     const SplatRayBuffer& l = loaded->rays;
     ASSERT_EQ(l.size(), kRays);
     for (std::size_t i = 0; i < kRays; ++i) {
