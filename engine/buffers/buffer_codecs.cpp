@@ -473,6 +473,7 @@ std::vector<BufferCodec> builtinCodecs() {
     codecs.push_back(guidingCacheCodec());
     codecs.push_back(importonMapCodec());
     codecs.push_back(photonRaysCodec());
+    codecs.push_back(splatRaysCodec());
     codecs.push_back(splatIndexCodec());
     codecs.push_back(radianceMapCodec());
     codecs.push_back(cacheRecordsCodec());

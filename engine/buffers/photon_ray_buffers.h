@@ -59,6 +59,31 @@ struct BufferTypeName<PhotonRays> {
     static constexpr const char* value = "PhotonRays";
 };
 
+// The rays as the splat passes read them (ray_splat, fg_splat): ray_bandwidth's
+// output in 5D kd order, every ray with its bandwidth, without the columns
+// only Eq. 8 needs (the densities, the path index and the vertex number):
+// 73 bytes a ray instead of 91, the largest buffer of the prs pipelines.
+using SplatRayBuffer = SoaBuffer<RayOrigin, RayDirection, RayLength, RayPower, RayH0, RayDh, RayClassColumn,
+                                 RayOriginNormal, RayEndNormal>;
+
+// Bytes a splat ray takes, what memory figures per ray count.
+inline constexpr std::size_t kSplatRayBytes =
+    4 * sizeof(Vec3) + sizeof(Rgb) + 3 * sizeof(float) + sizeof(std::uint8_t);
+
+struct SplatRays {
+    SplatRayBuffer rays;
+    std::uint64_t emitted = 0;   // photon paths emitted
+    float clampDistance = 0.0f;  // D~ of Eq. 7
+    std::array<std::uint64_t, PhotonRayClass::Count> countPerClass{};  // M of Eq. 8 per class
+    double normalisation = 0.0;  // w
+    double sceneScale = 0.0;     // mu_C
+    std::size_t bytes() const { return rays.bytes(); }
+};
+template <>
+struct BufferTypeName<SplatRays> {
+    static constexpr const char* value = "SplatRays";
+};
+
 // The radiance map of §5/§8.1 for the glossy eye vertices: per vertex the
 // spherical-harmonic coefficients (order 3, world frame, cos θ folded in;
 // passes/prs/sh_radiance.h) of the light the photon rays splatted onto it,
@@ -123,6 +148,7 @@ struct BufferTypeName<SplatIndex> {
 
 // Codecs for --save / --import (engine/buffers/photon_ray_codecs.cpp).
 BufferCodec photonRaysCodec();
+BufferCodec splatRaysCodec();
 BufferCodec splatIndexCodec();
 BufferCodec radianceMapCodec();
 

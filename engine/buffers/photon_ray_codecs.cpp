@@ -1,6 +1,6 @@
 // Codecs of photon ray splatting's buffers (Herzog et al. 2007): photon rays
-// with their bandwidths, the splat kd-tree over the eye vertices and the SH
-// radiance map, so that `render --save` writes them and `--import` /
+// as traced and, with their bandwidths, as splatted, the splat kd-tree over
+// the eye vertices and the SH radiance map, so that `render --save` writes them and `--import` /
 // `replay --inputs` read them back. Scalars before arrays, as every codec in
 // engine/buffers/buffer_codecs.cpp; the kd-tree is saved as built and checked
 // structurally on loading (SplatKdTree::restore), never rebuilt, so a loaded
@@ -46,6 +46,31 @@ BufferCodec photonRaysCodec() {
             rays.normalisation = reader.read<double>();
             rays.sceneScale = reader.read<double>();
             rays.hasBandwidths = reader.read<bool>();
+            reader.readSoa("rays", rays.rays);
+            for (std::uint8_t c : rays.rays.column<RayClassColumn>())
+                if (c >= PhotonRayClass::Count) reader.fail("corrupt buffer: photon ray class " + std::to_string(c));
+            return rays;
+        });
+}
+
+BufferCodec splatRaysCodec() {
+    return codecOf<SplatRays>(
+        [](const SplatRays& rays, CodecWriter& writer) {
+            writer.setItemCount(rays.rays.size());
+            writer.write<std::uint64_t>(rays.emitted);
+            writer.write<float>(rays.clampDistance);
+            for (std::uint64_t count : rays.countPerClass) writer.write<std::uint64_t>(count);
+            writer.write<double>(rays.normalisation);
+            writer.write<double>(rays.sceneScale);
+            writer.writeSoa("rays", rays.rays);
+        },
+        [](CodecReader& reader) {
+            SplatRays rays;
+            rays.emitted = reader.read<std::uint64_t>();
+            rays.clampDistance = reader.read<float>();
+            for (std::uint64_t& count : rays.countPerClass) count = reader.read<std::uint64_t>();
+            rays.normalisation = reader.read<double>();
+            rays.sceneScale = reader.read<double>();
             reader.readSoa("rays", rays.rays);
             for (std::uint8_t c : rays.rays.column<RayClassColumn>())
                 if (c >= PhotonRayClass::Count) reader.fail("corrupt buffer: photon ray class " + std::to_string(c));

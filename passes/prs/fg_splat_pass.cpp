@@ -116,7 +116,7 @@ struct SplatCounts {
 // rectangle's pixels, summed per fixed block of rays and merged in block order.
 template <class WantedClass>
 std::vector<Rgb> splatOnto(const Scene& scene, const EyeVertexBuffer::View& vertices, const SplatTargets& targets,
-                           std::size_t pixelCount, const PhotonRayBuffer& rays, WantedClass wanted, SplatEndCap cap,
+                           std::size_t pixelCount, const SplatRayBuffer& rays, WantedClass wanted, SplatEndCap cap,
                            bool useCullNodes, bool tightBoxes, bool renormalise, SplatCounts& counts) {
     const auto origin = rays.column<RayOrigin>();
     const auto direction = rays.column<RayDirection>();
@@ -197,7 +197,7 @@ std::vector<Rgb> splatOnto(const Scene& scene, const EyeVertexBuffer::View& vert
 // paper chooses C for equal mean bandwidths (§9, Fig. 9). Rays that escape
 // or carry no footprint do not count. Summed in integers, so the figure does
 // not depend on the order.
-std::int64_t meanHitRadiusPpm(const Scene& scene, const PhotonRayBuffer& rays) {
+std::int64_t meanHitRadiusPpm(const Scene& scene, const SplatRayBuffer& rays) {
     const auto h0 = rays.column<RayH0>();
     const auto dh = rays.column<RayDh>();
     const auto length = rays.column<RayLength>();
@@ -218,8 +218,7 @@ public:
     void run(PassContext& ctx) override {
         const Scene& scene = ctx.scene();
         const EyeVertexBuffer::View eye = ctx.input<EyeVertices>("eye_vertices").vertices.view();
-        const PhotonRays& photonRays = ctx.input<PhotonRays>("splat_rays");
-        if (!photonRays.hasBandwidths) throw std::logic_error("fg_splat: the rays carry no bandwidths");
+        const SplatRays& splatRays = ctx.input<SplatRays>("splat_rays");
         const int raysPerVertex = static_cast<int>(ctx.params().getInt("fg_rays"));
         const int tiles = static_cast<int>(ctx.params().getInt("tiles"));
         const SplatEndCap cap = ctx.params().getString("end_cap") == "hemisphere" ? SplatEndCap::Hemisphere
@@ -228,7 +227,7 @@ public:
         const bool tightBoxes = ctx.params().getString("traversal") == "tight_boxes";
         const bool renormalise = ctx.params().getString("origin_boundary") == "renormalise";
         const auto leafSize = static_cast<std::uint32_t>(ctx.params().getInt("leaf_size"));
-        const PhotonRayBuffer& rays = photonRays.rays;
+        const SplatRayBuffer& rays = splatRays.rays;
 
         Film& global = ctx.createOutput<Film>("global", ctx.filmSettings());
         Film& caustic = ctx.createOutput<Film>("caustic", ctx.filmSettings());
@@ -266,7 +265,7 @@ public:
         }
         global.addToPixels(globalPixels, 1.0f);
 
-        if (photonRays.countPerClass[PhotonRayClass::Caustic] > 0) {
+        if (splatRays.countPerClass[PhotonRayClass::Caustic] > 0) {
             const auto start = std::clock();
             const PixelRect film{0, 0, width, height, width};
             const SplatTargets targets = indexTargets(scene, eye, film, leafSize);
@@ -296,7 +295,7 @@ PassRegistration finalGatherSplatPass() {
                "of BSDF-sampled final-gather rays, tile by tile; caustic rays also onto the primary vertices";
     spec.inputs = {
         {"eye_vertices", "EyeVertices", "primary vertices the final-gather rays leave from, with pixel and throughput"},
-        {"splat_rays", "PhotonRays", "photon rays with bandwidths (ray_bandwidth), direct ones included"},
+        {"splat_rays", "SplatRays", "photon rays with bandwidths (ray_bandwidth), direct ones included"},
     };
     spec.outputs = {
         {"global", "Film", "indirect light through the final-gather hits (a film from black)"},

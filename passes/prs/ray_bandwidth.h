@@ -106,8 +106,22 @@ inline BandwidthModel fitBandwidthModel(const PhotonRayBuffer& rays, float clamp
     return model;
 }
 
-// Fills h_0 and dh of every ray (§6): h_0 = min(h(x_i), h(x_{i+1})),
+struct RayBandwidth {
+    float h0 = 0.0f;
+    float dh = 0.0f;
+};
+
+// h_0 and dh of one ray (§6): h_0 = min(h(x_i), h(x_{i+1})),
 // dh = max(0, h(x_{i+1}) - h(x_i)) / |x_{i+1} - x_i|.
+inline RayBandwidth rayBandwidth(const BandwidthModel& model, float originDensity, float density, std::uint16_t vertex,
+                                 std::uint8_t rayClass, float length) {
+    const double start = model.atOrigin(readDensity(originDensity), vertex, rayClass);
+    const double end = model.clamped(readDensity(density), rayClass);
+    return {static_cast<float>(std::min(start, end)),
+            length > 0.0f ? static_cast<float>(std::max(0.0, end - start) / length) : 0.0f};
+}
+
+// Fills h_0 and dh of every ray in place.
 inline void assignBandwidths(PhotonRayBuffer& rays, const BandwidthModel& model) {
     const auto rayClass = rays.column<RayClassColumn>();
     const auto vertex = rays.column<RayVertex>();
@@ -117,10 +131,9 @@ inline void assignBandwidths(PhotonRayBuffer& rays, const BandwidthModel& model)
     auto h0 = rays.column<RayH0>();
     auto dh = rays.column<RayDh>();
     for (std::size_t i = 0; i < rays.size(); ++i) {
-        const double start = model.atOrigin(readDensity(originDensity[i]), vertex[i], rayClass[i]);
-        const double end = model.clamped(readDensity(density[i]), rayClass[i]);
-        h0[i] = static_cast<float>(std::min(start, end));
-        dh[i] = length[i] > 0.0f ? static_cast<float>(std::max(0.0, end - start) / length[i]) : 0.0f;
+        const RayBandwidth b = rayBandwidth(model, originDensity[i], density[i], vertex[i], rayClass[i], length[i]);
+        h0[i] = b.h0;
+        dh[i] = b.dh;
     }
 }
 

@@ -150,7 +150,7 @@ struct BlockFilm {
 // with photon mapping's mean gather radius, as the paper chooses C for equal
 // mean bandwidths (§9, Fig. 10). Summed in integers, so the figure does not
 // depend on the order.
-std::int64_t meanHitRadiusPpm(const Scene& scene, const PhotonRayBuffer& rays, bool withDirect) {
+std::int64_t meanHitRadiusPpm(const Scene& scene, const SplatRayBuffer& rays, bool withDirect) {
     const auto h0 = rays.column<RayH0>();
     const auto dh = rays.column<RayDh>();
     const auto length = rays.column<RayLength>();
@@ -174,8 +174,7 @@ public:
         const Scene& scene = ctx.scene();
         const EyeVertexBuffer::View eye = ctx.input<EyeVertices>("eye_vertices").vertices.view();
         const SplatIndex& index = ctx.input<SplatIndex>("splat_index");
-        const PhotonRays& photonRays = ctx.input<PhotonRays>("splat_rays");
-        if (!photonRays.hasBandwidths) throw std::logic_error("ray_splat: the rays carry no bandwidths");
+        const SplatRays& splatRays = ctx.input<SplatRays>("splat_rays");
         if (index.tree.size() != eye.size()) throw std::logic_error("ray_splat: the index was not built from these eye vertices");
         const SplatEndCap cap = ctx.params().getString("end_cap") == "hemisphere" ? SplatEndCap::Hemisphere
                                                                                   : SplatEndCap::TangentPlane;
@@ -196,7 +195,7 @@ public:
         const std::size_t glossyCount = glossyVertices_.size();
         const bool higherBands = glossyCount > 0 && (ctx.params().getString("map_bands") == "all" || mapHasGlossy_);
 
-        const PhotonRayBuffer& rays = photonRays.rays;
+        const SplatRayBuffer& rays = splatRays.rays;
         const auto origin = rays.column<RayOrigin>();
         const auto direction = rays.column<RayDirection>();
         const auto length = rays.column<RayLength>();
@@ -433,7 +432,7 @@ PassRegistration raySplatPass() {
     spec.inputs = {
         {"eye_vertices", "EyeVertices", "the vertices rays splat to, with pixel and throughput"},
         {"splat_index", "SplatIndex", "splat kd-tree over eye_vertices"},
-        {"splat_rays", "PhotonRays", "photon rays with bandwidths (ray_bandwidth)"},
+        {"splat_rays", "SplatRays", "photon rays with bandwidths (ray_bandwidth)"},
     };
     spec.outputs = {
         {"radiance", "Film", "the splatted indirect light alone (a film from black); glossy vertices only with glossy = direct"},

@@ -1,5 +1,5 @@
 // Codecs of photon ray splatting's buffers (engine/buffers/photon_ray_codecs.cpp):
-// photon rays, the splat kd-tree and the SH radiance map survive a save and a
+// photon rays (as traced and as splatted, at 73 bytes a ray), the splat kd-tree and the SH radiance map survive a save and a
 // load byte for byte, the loaded tree answers frustum queries with the same
 // vertices in the same order, and a tree whose arrays do not fit together is
 // refused; so do the radiance cache's records, and records of another codec
@@ -98,6 +98,67 @@ TEST(PrsCodecs, PhotonRaysRoundTrip) {
     EXPECT_TRUE(loaded->hasBandwidths);
     ASSERT_EQ(loaded->rays.size(), 14u);
     for (std::size_t i = 0; i < 14; ++i) EXPECT_EQ(loaded->rays.column<RayOrigin>()[i], p[i]);
+}
+
+// The splat passes' rays: every column survives, and the buffer holds the
+// 73 bytes a ray that the README's memory figures count (origin, direction,
+// length, power, h_0, dh, class, origin and end normals).
+TEST(PrsCodecs, SplatRaysRoundTripAtSeventyThreeBytesARay) {
+    constexpr std::size_t kRays = 1000;
+    auto rays = std::make_shared<SplatRays>();
+    rays->emitted = 500;
+    rays->clampDistance = 0.5f;
+    rays->countPerClass = {300, 200, 500};
+    rays->normalisation = 2.5;
+    rays->sceneScale = 0.0625;
+    rays->rays.resize(kRays);
+    EXPECT_EQ(kSplatRayBytes, 73u);
+    EXPECT_EQ(rays->bytes(), kRays * kSplatRayBytes);
+    const std::vector<Vec3> p = randomPoints(kRays, 2), d = randomPoints(kRays, 3), nOrigin = randomPoints(kRays, 4),
+                            nEnd = randomPoints(kRays, 7);
+    SplatRayBuffer& r = rays->rays;
+    for (std::size_t i = 0; i < kRays; ++i) {
+        r.column<RayOrigin>()[i] = p[i];
+        r.column<RayDirection>()[i] = glm::normalize(d[i] - Vec3(0.5f));
+        r.column<RayLength>()[i] = 0.25f * static_cast<float>(i) + 0.125f;
+        r.column<RayPower>()[i] = Rgb(p[i].x, p[i].y, 1.0f / static_cast<float>(i + 1));
+        r.column<RayH0>()[i] = 1e-3f * static_cast<float>(i);
+        r.column<RayDh>()[i] = 1e-4f * static_cast<float>(kRays - i);
+        r.column<RayClassColumn>()[i] = static_cast<std::uint8_t>(i % PhotonRayClass::Count);
+        r.column<RayOriginNormal>()[i] = nOrigin[i];
+        r.column<RayEndNormal>()[i] = nEnd[i];
+    }
+    const auto loaded = roundTrip(rays, scratch());
+    ASSERT_TRUE(loaded);
+    EXPECT_EQ(loaded->emitted, 500u);
+    EXPECT_EQ(loaded->clampDistance, 0.5f);
+    EXPECT_EQ(loaded->countPerClass, rays->countPerClass);
+    EXPECT_EQ(loaded->normalisation, 2.5);
+    EXPECT_EQ(loaded->sceneScale, 0.0625);
+    EXPECT_EQ(loaded->bytes(), kRays * kSplatRayBytes);
+    const SplatRayBuffer& l = loaded->rays;
+    ASSERT_EQ(l.size(), kRays);
+    for (std::size_t i = 0; i < kRays; ++i) {
+        EXPECT_EQ(l.column<RayOrigin>()[i], r.column<RayOrigin>()[i]);
+        EXPECT_EQ(l.column<RayDirection>()[i], r.column<RayDirection>()[i]);
+        EXPECT_EQ(l.column<RayLength>()[i], r.column<RayLength>()[i]);
+        EXPECT_EQ(l.column<RayPower>()[i], r.column<RayPower>()[i]);
+        EXPECT_EQ(l.column<RayH0>()[i], r.column<RayH0>()[i]);
+        EXPECT_EQ(l.column<RayDh>()[i], r.column<RayDh>()[i]);
+        EXPECT_EQ(l.column<RayClassColumn>()[i], r.column<RayClassColumn>()[i]);
+        EXPECT_EQ(l.column<RayOriginNormal>()[i], r.column<RayOriginNormal>()[i]);
+        EXPECT_EQ(l.column<RayEndNormal>()[i], r.column<RayEndNormal>()[i]);
+    }
+}
+
+TEST(PrsCodecs, SplatRaysOfAnUnknownClassAreRefused) {
+    auto rays = std::make_shared<SplatRays>();
+    rays->rays.resize(3);
+    rays->rays.column<RayClassColumn>()[1] = PhotonRayClass::Count;
+    registerBuiltinCodecs();
+    const fs::path file = scratch() / "bad.fgbuf";
+    saveBuffer(handleOf(rays), file.string(), "# test\n");
+    EXPECT_THROW(loadBuffer(file.string(), "SplatRays", "splat_rays"), InputError);
 }
 
 TEST(PrsCodecs, SplatIndexRoundTripAnswersTheSameQueries) {

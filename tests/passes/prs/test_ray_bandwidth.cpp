@@ -17,9 +17,11 @@
 #include <xmmintrin.h>
 #endif
 
+#include <array>
 #include <cmath>
 #include <cstring>
 #include <limits>
+#include <map>
 #include <memory>
 #include <string>
 
@@ -260,6 +262,75 @@ TEST(PrsBandwidth, DoublingPhotonCountScalesEveryBandwidth) {
     EXPECT_GT(clamped, 100);
 }
 
+
+// The pass's lean output is its input in some order, every column the splat
+// reads carried over bit for bit and h_0, dh those of the model fitted on the
+// input: what gathering through an index permutation must preserve.
+TEST(PrsBandwidth, SplatRaysAreTheInputPermutedWithItsBandwidths) {
+    const Scene scene = pointLightBox("white");
+    const Pipeline pipeline{"rays",
+                            "photon rays and their bandwidths",
+                            {{"photon", "photon", {}, {}, 0}, {"ray_bandwidth", "ray_bandwidth", {}, {}, 0}},
+                            {"photon_rays", "splat_rays"}};
+    JobParams jobParams;
+    jobParams.values["photon"]["photons"] = {ParamValue(std::int64_t{3000}), "test"};
+    jobParams.values["photon"]["photon_rays"] = {ParamValue(true), "test"};
+    jobParams.values["photon"]["clamp_distance"] = {ParamValue(0.05), "test"};
+    jobParams.values["ray_bandwidth"]["pilot_paths"] = {ParamValue(std::int64_t{1000}), "test"};
+    const ExecutionPlan plan = ExecutionPlan::build(pipeline, jobParams, "test");
+    const RayQuery rayQuery(scene);
+    RunOptions options;
+    options.seed = 5;
+    const RunResult result = execute(plan, scene, rayQuery, options);
+    const auto& input = *std::static_pointer_cast<const PhotonRays>(result.results.at("photon_rays").data);
+    const auto& output = *std::static_pointer_cast<const SplatRays>(result.results.at("splat_rays").data);
+    const PhotonRayBuffer& in = input.rays;
+    const SplatRayBuffer& out = output.rays;
+    ASSERT_GT(in.size(), 3000u);
+    ASSERT_EQ(out.size(), in.size());
+    EXPECT_EQ(output.bytes(), out.size() * kSplatRayBytes);
+
+    BandwidthSettings settings;
+    settings.smoothness = 1.0;
+    settings.sensitivity = 0.4;
+    settings.maxScaling = 0.2;
+    settings.pilotPaths = 1000;
+    const BandwidthModel model = fitBandwidthModel(in, input.clampDistance, settings);
+    EXPECT_EQ(output.countPerClass, model.countPerClass);
+    EXPECT_EQ(output.normalisation, model.normalisation);
+
+    const auto bitsOf = [](const Vec3& origin, const Vec3& direction, float length) {
+        std::array<std::uint32_t, 7> key{};
+        std::memcpy(key.data(), &origin, sizeof(Vec3));
+        std::memcpy(key.data() + 3, &direction, sizeof(Vec3));
+        std::memcpy(key.data() + 6, &length, sizeof(float));
+        return key;
+    };
+    std::map<std::array<std::uint32_t, 7>, std::size_t> inputOf;
+    for (std::size_t i = 0; i < in.size(); ++i)
+        inputOf.emplace(bitsOf(in.column<RayOrigin>()[i], in.column<RayDirection>()[i], in.column<RayLength>()[i]), i);
+    std::vector<bool> used(in.size(), false);
+    std::size_t moved = 0;
+    for (std::size_t o = 0; o < out.size(); ++o) {
+        const auto found =
+            inputOf.find(bitsOf(out.column<RayOrigin>()[o], out.column<RayDirection>()[o], out.column<RayLength>()[o]));
+        ASSERT_NE(found, inputOf.end()) << "ray " << o;
+        const std::size_t i = found->second;
+        ASSERT_FALSE(used[i]) << "ray " << o;
+        used[i] = true;
+        moved += i != o;
+        EXPECT_EQ(out.column<RayPower>()[o], in.column<RayPower>()[i]);
+        EXPECT_EQ(out.column<RayClassColumn>()[o], in.column<RayClassColumn>()[i]);
+        EXPECT_EQ(out.column<RayOriginNormal>()[o], in.column<RayOriginNormal>()[i]);
+        EXPECT_EQ(out.column<RayEndNormal>()[o], in.column<RayEndNormal>()[i]);
+        const RayBandwidth b =
+            rayBandwidth(model, in.column<RayOriginDensity>()[i], in.column<RayDensity>()[i], in.column<RayVertex>()[i],
+                         in.column<RayClassColumn>()[i], in.column<RayLength>()[i]);
+        EXPECT_EQ(out.column<RayH0>()[o], b.h0);
+        EXPECT_EQ(out.column<RayDh>()[o], b.dh);
+    }
+    EXPECT_GT(moved, out.size() / 2) << "the 5D order moves most rays";
+}
 
 // Densities below FLT_MIN (deep paths in millimetre scenes: 1.3 % of the
 // Cornell box's rays) are subnormal floats, which arithmetic reads as zero
