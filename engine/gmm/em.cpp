@@ -17,7 +17,10 @@ namespace {
 // Fixed block counts: reductions merge in block order, independent of threads.
 constexpr std::size_t kEStepBlocks = 64;
 constexpr std::size_t kMStepBlocks = 32;
-constexpr std::uint32_t kComponentLeafSize = 32;
+// With a leaf's terms computed in one vectorised loop and gathered without
+// a branch, opening fewer, larger leaves is cheaper than walking further
+// (pem_fit at k = 1024 and 4096: 32 -> 64 about 10 % faster, 128 no faster).
+constexpr std::uint32_t kComponentLeafSize = 64;
 
 // A hierarchy over the components' means for the sparse E-step. For a cell
 // (mean m, covariance C) and a component s whose mean lies in a node's box,
