@@ -1,6 +1,7 @@
 // Accelerated EM with sparsity (Jakob et al. 2011 §3.6, §5.3); see em.h.
 #include "engine/gmm/em.h"
 
+#include "engine/gmm/fast_math.h"
 #include "jobs/parallel.h"
 
 #include <algorithm>
@@ -16,7 +17,10 @@ namespace {
 // Fixed block counts: reductions merge in block order, independent of threads.
 constexpr std::size_t kEStepBlocks = 64;
 constexpr std::size_t kMStepBlocks = 32;
-constexpr std::uint32_t kComponentLeafSize = 32;
+// With a leaf's terms computed in one vectorised loop and gathered without
+// a branch, opening fewer, larger leaves is cheaper than walking further
+// (pem_fit at k = 1024 and 4096: 32 -> 64 about 10 % faster, 128 no faster).
+constexpr std::uint32_t kComponentLeafSize = 64;
 
 // A hierarchy over the components' means for the sparse E-step. For a cell
 // (mean m, covariance C) and a component s whose mean lies in a node's box,
@@ -229,11 +233,8 @@ void sparseTerms(const ComponentTree& tree, const Vec3d& mean, const Sym3& covar
     terms.reference = reference;
     std::vector<OpenNode>& open = terms.open;
     open.clear();
-    const auto entry = [&](std::uint32_t n, double logBound) {
-        return OpenNode{logBound,
-                        static_cast<double>(tree.nodes[n].end - tree.nodes[n].begin) * std::exp(logBound - reference), n};
-    };
-    open.push_back(entry(0, reference));
+    const auto countOf = [&](std::uint32_t n) { return static_cast<double>(tree.nodes[n].end - tree.nodes[n].begin); };
+    open.push_back(OpenNode{reference, countOf(0), 0});
     double queued = open.front().mass;
     double found = 0.0;
     const auto push = [&](const OpenNode& n) {
@@ -260,24 +261,41 @@ void sparseTerms(const ComponentTree& tree, const Vec3d& mean, const Sym3& covar
                 const double skipMass = tau * found / (10.0 * static_cast<double>(tree.order.size()));
                 const double skipBelow = found > 0.0 ? std::log(skipMass) : -std::numeric_limits<double>::infinity();
                 std::array<double, kComponentLeafSize> leafLogits;
+                const std::uint32_t leafCount = node.end - node.begin;
                 tree.logits(node.begin, node.end, mean, covariance, leafLogits.data());
-                for (std::uint32_t i = node.begin; i < node.end; ++i) {
-                    const double logit = leafLogits[i - node.begin];
-                    if (logit - reference < skipBelow) {
-                        queued += skipMass;
-                        ++terms.pruned;
-                        continue;
-                    }
-                    const double scaled = std::exp(logit - reference);
-                    terms.component.push_back(tree.order[i]);
-                    terms.logit.push_back(logit);
-                    terms.scaled.push_back(scaled);
-                    found += scaled;
+                // The terms above the skip bound are gathered without a branch
+                // (which of a leaf's terms pass is unpredictable) and
+                // exponentiated two at a time (fast_math.h, 1e-9 relative).
+                alignas(16) std::array<double, kComponentLeafSize + 1> relative;
+                std::array<std::uint32_t, kComponentLeafSize> position;
+                std::uint32_t passing = 0;
+                for (std::uint32_t i = 0; i < leafCount; ++i) {
+                    relative[passing] = leafLogits[i] - reference;
+                    position[passing] = i;
+                    passing += relative[passing] < skipBelow ? 0u : 1u;
+                }
+                const std::uint32_t skipped = leafCount - passing;
+                queued += skipMass * static_cast<double>(skipped);
+                terms.pruned += skipped;
+                relative[passing] = 0.0;
+                alignas(16) std::array<double, kComponentLeafSize + 1> scaled;
+                for (std::uint32_t j = 0; j < passing; j += 2)
+                    _mm_store_pd(scaled.data() + j, simd::exp(_mm_load_pd(relative.data() + j)));
+                for (std::uint32_t j = 0; j < passing; ++j) {
+                    const std::uint32_t i = position[j];
+                    terms.component.push_back(tree.order[node.begin + i]);
+                    terms.logit.push_back(leafLogits[i]);
+                    terms.scaled.push_back(scaled[j]);
+                    found += scaled[j];
                 }
                 break;
             }
-            const OpenNode left = entry(node.left, tree.logBound(node.left, mean, spread));
-            const OpenNode right = entry(node.right, tree.logBound(node.right, mean, spread));
+            const double leftBound = tree.logBound(node.left, mean, spread);
+            const double rightBound = tree.logBound(node.right, mean, spread);
+            alignas(16) std::array<double, 2> share;
+            _mm_store_pd(share.data(), simd::exp(_mm_set_pd(rightBound - reference, leftBound - reference)));
+            const OpenNode left{leftBound, countOf(node.left) * share[0], node.left};
+            const OpenNode right{rightBound, countOf(node.right) * share[1], node.right};
             queued += left.mass;
             queued += right.mass;
             const bool leftBetter = right < left;

@@ -22,8 +22,9 @@
 // the pruned terms are dropped. What remains of the budget drops the kept
 // terms that are each at most an equal share of it, so that pruned and
 // dropped mass together stay <= tau Z_A (terms of a leaf below
-// tau Z / (10 k) are counted into that mass unevaluated). tau = 0 visits
-// all pairs.
+// tau Z / (10 k) are counted into that mass unevaluated). The walk's
+// exponentials are fast_math.h's (relative error below 1e-9, two at a time);
+// tau = 0 visits all pairs with the C library's.
 //
 // Cells are processed in fixed blocks and the M-step's sums merged in block
 // order, so a fit is bit-identical for any thread count.
