@@ -5,6 +5,13 @@
 // changes the sampled directions most.
 #pragma once
 
+#include "engine/scene/scene.h"
+#include "engine/scene/scene_loader.h"
+#include "tests/support/cli_helpers.h"
+
+#include <filesystem>
+#include <string>
+
 namespace fg::test {
 
 inline constexpr float kAjarPartitionX = 0.32f;
@@ -32,5 +39,12 @@ transform = [{ scale = 0.15 }, { rotate = { axis = [1, 0, 0], angle = 90 } }, { 
 material = "wall"
 emission = 60
 )";
+
+// The room loaded as a scene, through a file in the test group's scratch directory.
+inline Scene loadAjarRoom(const std::string& scratchGroup) {
+    const std::filesystem::path dir = scratchDirectory(scratchGroup);
+    writeText(dir / "ajar-room.toml", kAjarRoom);
+    return loadScene((dir / "ajar-room.toml").string());
+}
 
 }  // namespace fg::test

@@ -14,6 +14,7 @@
 #include "tests/support/guiding_pipeline.h"
 #include "tests/support/pass_helpers.h"
 #include "tests/support/render_helpers.h"
+#include "tests/support/seed_means.h"
 
 #include <gtest/gtest.h>
 
@@ -27,7 +28,6 @@ namespace fg {
 namespace {
 
 constexpr int kSize = 16;
-constexpr int kBlock = 4;
 
 std::map<std::string, ParamValue> trainingParams(std::int64_t photons) {
     return {{"importon.spp", std::int64_t{4}},
@@ -39,11 +39,7 @@ std::map<std::string, ParamValue> trainingParams(std::int64_t photons) {
             {"importance_update.training_particles", std::int64_t{64}}};
 }
 
-Scene ajarRoom() {
-    const std::filesystem::path dir = test::scratchDirectory("guided-bdpt");
-    test::writeText(dir / "ajar-room.toml", test::kAjarRoom);
-    return loadScene((dir / "ajar-room.toml").string());
-}
+Scene ajarRoom() { return test::loadAjarRoom("guided-bdpt"); }
 
 struct Caches {
     BufferHandle radiance, importance;
@@ -61,28 +57,7 @@ Caches trainedCaches(const Scene& scene, std::int64_t photons, std::uint64_t see
     return caches;
 }
 
-// Per image: the 4x4-block means, then the image mean as one more entry.
-std::vector<double> means(const BufferHandle& image) {
-    const int blocksPerSide = kSize / kBlock;
-    std::vector<double> m(static_cast<std::size_t>(blocksPerSide * blocksPerSide) + 1, 0.0);
-    const std::vector<Rgb> px = test::bufferAs<Film>(image).resolve();
-    for (int y = 0; y < kSize; ++y)
-        for (int x = 0; x < kSize; ++x) {
-            const Rgb& p = px[static_cast<std::size_t>(y * kSize + x)];
-            const double v = (p.x + p.y + p.z) / 3.0;
-            m[static_cast<std::size_t>((y / kBlock) * blocksPerSide + x / kBlock)] += v / (kBlock * kBlock);
-            m.back() += v / (kSize * kSize);
-        }
-    return m;
-}
-
-struct MeanComparison {
-    double worstBlockZ = 0.0;
-    double imageZ = 0.0;
-    double imageRelativeSigma = 0.0;       // standard error of the difference of the image means / bdpt's mean
-    double imageRelativeDifference = 0.0;  // (guided - bdpt) / bdpt of the image means
-    double varianceRatio = 0.0;            // guided / bdpt variance of the block means, summed over blocks
-};
+std::vector<double> means(const BufferHandle& image) { return test::blockMeans(test::bufferAs<Film>(image)); }
 
 std::map<std::string, ParamValue> bdptParams(std::int64_t spp) {
     return {{"spp", spp}, {"max_depth", std::int64_t{13}}};
@@ -92,7 +67,7 @@ std::map<std::string, ParamValue> bdptParams(std::int64_t spp) {
 // renders of each (guiding must be unbiased for any caches). Per 4x4 block
 // and for the whole image, z = difference of the means / its standard error
 // from the seeds' spread.
-MeanComparison compareMeans(const Scene& scene, const Caches& caches, int seeds, std::int64_t spp, double alpha) {
+test::MeanComparison compareMeans(const Scene& scene, const Caches& caches, int seeds, std::int64_t spp, double alpha) {
     const RayQuery rays(scene);
     const PassRegistration bdpt = bdptPass();
     auto guidedParams = bdptParams(spp);
@@ -107,41 +82,10 @@ MeanComparison compareMeans(const Scene& scene, const Caches& caches, int seeds,
         b.push_back(means(test::runPass(bdpt, scene, &rays, test::smallFilm(kSize, kSize), {}, bdptParams(spp), s + 1000)
                               .at("image")));
     }
-    MeanComparison result;
-    double varianceA = 0.0, varianceB = 0.0;
-    const std::size_t blocks = a.front().size() - 1;
-    for (std::size_t k = 0; k <= blocks; ++k) {
-        double ma = 0, mb = 0, va = 0, vb = 0;
-        for (int i = 0; i < seeds; ++i) ma += a[i][k] / seeds, mb += b[i][k] / seeds;
-        for (int i = 0; i < seeds; ++i) va += sqr(a[i][k] - ma), vb += sqr(b[i][k] - mb);
-        va /= seeds - 1;
-        vb /= seeds - 1;
-        const double sigma = std::sqrt((va + vb) / seeds);
-        const double z = std::abs(ma - mb) / std::max(sigma, 1e-12);
-        if (k == blocks) {
-            result.imageZ = z;
-            result.imageRelativeSigma = sigma / mb;
-            result.imageRelativeDifference = (ma - mb) / mb;
-        } else {
-            result.worstBlockZ = std::max(result.worstBlockZ, z);
-            varianceA += va;
-            varianceB += vb;
-        }
-    }
-    result.varianceRatio = varianceA / varianceB;
-    return result;
+    return test::compareSeedMeans(a, b);
 }
 
-// Thresholds as guided pt's: 16 blocks at |z| < 4.5 fail together with
-// probability about 16 x 7e-5 (t with 38 degrees of freedom) when both means
-// are the same; the image mean at |z| < 4 with about 1e-4.
-void expectSameMean(const MeanComparison& c, const char* what) {
-    EXPECT_LT(c.worstBlockZ, 4.5) << what;
-    EXPECT_LT(c.imageZ, 4.0) << what << ": image means differ by " << c.imageZ << " sigma (sigma = " << c.imageRelativeSigma
-                             << " of the mean)";
-    std::printf("%s: worst block z %.2f, image z %.2f (guided - bdpt: %+.4f of the mean, sigma %.4f), guided/bdpt variance %.3f\n",
-                what, c.worstBlockZ, c.imageZ, c.imageRelativeDifference, c.imageRelativeSigma, c.varianceRatio);
-}
+void expectSameMean(const test::MeanComparison& c, const char* what) { test::expectSameMean(c, what, "guided", "bdpt"); }
 
 // The caches must change the paths for the mean tests to mean anything: with
 // the same seed, each cache alone changes the image.

@@ -17,6 +17,7 @@
 #include "tests/support/cli_helpers.h"
 #include "tests/support/pass_helpers.h"
 #include "tests/support/render_helpers.h"
+#include "tests/support/seed_means.h"
 
 #include <gtest/gtest.h>
 
@@ -30,7 +31,6 @@ namespace fg {
 namespace {
 
 constexpr int kSize = 16;
-constexpr int kBlock = 4;
 
 // The built-in guided-lt pipeline (passes/pipelines/guided-lt.toml) with
 // `trainingPasses` instead of its 30 training passes.
@@ -59,40 +59,15 @@ std::map<std::string, ParamValue> pipelineParams(std::int64_t trainingPhotons, s
     return params;
 }
 
-Scene ajarRoom() {
-    const std::filesystem::path dir = test::scratchDirectory("guided-lt");
-    test::writeText(dir / "ajar-room.toml", test::kAjarRoom);
-    return loadScene((dir / "ajar-room.toml").string());
-}
+Scene ajarRoom() { return test::loadAjarRoom("guided-lt"); }
 
-// Per image: the 4x4-block means, then the image mean as one more entry.
-std::vector<double> means(const BufferHandle& image) {
-    const int blocksPerSide = kSize / kBlock;
-    std::vector<double> m(static_cast<std::size_t>(blocksPerSide * blocksPerSide) + 1, 0.0);
-    const std::vector<Rgb> px = test::bufferAs<Film>(image).resolve();
-    for (int y = 0; y < kSize; ++y)
-        for (int x = 0; x < kSize; ++x) {
-            const Rgb& p = px[static_cast<std::size_t>(y * kSize + x)];
-            const double v = (p.x + p.y + p.z) / 3.0;
-            m[static_cast<std::size_t>((y / kBlock) * blocksPerSide + x / kBlock)] += v / (kBlock * kBlock);
-            m.back() += v / (kSize * kSize);
-        }
-    return m;
-}
-
-struct MeanComparison {
-    double worstBlockZ = 0.0;
-    double imageZ = 0.0;
-    double imageRelativeSigma = 0.0;       // standard error of the difference of the image means / lt's mean
-    double imageRelativeDifference = 0.0;  // (guided - lt) / lt of the image means
-    double varianceRatio = 0.0;            // guided / lt variance of the block means, summed over blocks
-};
+std::vector<double> means(const BufferHandle& image) { return test::blockMeans(test::bufferAs<Film>(image)); }
 
 // Guided lt with one trained cache against lt, over `seeds` independent
 // renders of each (guiding must be unbiased for every cache, so the cache is
 // trained once). Per 4x4 block and for the whole image, z = difference of the
 // means / its standard error from the seeds' spread.
-MeanComparison compareMeans(const Scene& scene, const BufferHandle& cache, int seeds, std::int64_t photons, double alpha) {
+test::MeanComparison compareMeans(const Scene& scene, const BufferHandle& cache, int seeds, std::int64_t photons, double alpha) {
     const RayQuery rays(scene);
     const PassRegistration photon = photonPass(), connect = lightTracePass();
     auto guidedParams = lightPathParams(photons);
@@ -113,41 +88,10 @@ MeanComparison compareMeans(const Scene& scene, const BufferHandle& cache, int s
         a.push_back(means(render(true, s)));
         b.push_back(means(render(false, s + 1000)));
     }
-    MeanComparison result;
-    double varianceA = 0.0, varianceB = 0.0;
-    const std::size_t blocks = a.front().size() - 1;
-    for (std::size_t k = 0; k <= blocks; ++k) {
-        double ma = 0, mb = 0, va = 0, vb = 0;
-        for (int i = 0; i < seeds; ++i) ma += a[i][k] / seeds, mb += b[i][k] / seeds;
-        for (int i = 0; i < seeds; ++i) va += sqr(a[i][k] - ma), vb += sqr(b[i][k] - mb);
-        va /= seeds - 1;
-        vb /= seeds - 1;
-        const double sigma = std::sqrt((va + vb) / seeds);
-        const double z = std::abs(ma - mb) / std::max(sigma, 1e-12);
-        if (k == blocks) {
-            result.imageZ = z;
-            result.imageRelativeSigma = sigma / mb;
-            result.imageRelativeDifference = (ma - mb) / mb;
-        } else {
-            result.worstBlockZ = std::max(result.worstBlockZ, z);
-            varianceA += va;
-            varianceB += vb;
-        }
-    }
-    result.varianceRatio = varianceA / varianceB;
-    return result;
+    return test::compareSeedMeans(a, b);
 }
 
-// Thresholds as guided pt's: 16 blocks at |z| < 4.5 fail together with
-// probability about 16 x 7e-5 (t with 38 degrees of freedom) when both means
-// are the same; the image mean at |z| < 4 with about 1e-4.
-void expectSameMean(const MeanComparison& c, const char* what) {
-    EXPECT_LT(c.worstBlockZ, 4.5) << what;
-    EXPECT_LT(c.imageZ, 4.0) << what << ": image means differ by " << c.imageZ << " sigma (sigma = " << c.imageRelativeSigma
-                             << " of the mean)";
-    std::printf("%s: worst block z %.2f, image z %.2f (guided - lt: %+.4f of the mean, sigma %.4f), guided/lt variance %.3f\n",
-                what, c.worstBlockZ, c.imageZ, c.imageRelativeDifference, c.imageRelativeSigma, c.varianceRatio);
-}
+void expectSameMean(const test::MeanComparison& c, const char* what) { test::expectSameMean(c, what, "guided", "lt"); }
 
 // The importance cache the built-in pipeline's training block makes.
 BufferHandle trainedCache(const Scene& scene, std::uint64_t seed) {

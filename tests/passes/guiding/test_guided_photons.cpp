@@ -41,11 +41,7 @@ std::map<std::string, ParamValue> trainingParams(std::int64_t photons) {
             {"importance_update.training_particles", std::int64_t{64}}};
 }
 
-Scene ajarRoom() {
-    const std::filesystem::path dir = test::scratchDirectory("guided-photons");
-    test::writeText(dir / "ajar-room.toml", test::kAjarRoom);
-    return loadScene((dir / "ajar-room.toml").string());
-}
+Scene ajarRoom() { return test::loadAjarRoom("guided-photons"); }
 
 BufferHandle trainedImportanceCache(const Scene& scene, int passes, std::uint64_t seed, int threads = 0) {
     return test::runPipeline(scene, test::guidedTrainingPipeline(passes, "importance_cache"), builtinRegistry().passes,

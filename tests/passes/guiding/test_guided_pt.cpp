@@ -16,6 +16,7 @@
 #include "tests/support/guiding_pipeline.h"
 #include "tests/support/pass_helpers.h"
 #include "tests/support/render_helpers.h"
+#include "tests/support/seed_means.h"
 #include "tests/passes/guiding/ajar_room.h"
 
 #include <gtest/gtest.h>
@@ -47,83 +48,28 @@ TEST(GuidedPt, FurnaceSphereHasUnitRadiance) {
     EXPECT_NEAR(sum / px.size(), 1.0, 0.01);
 }
 
-using test::kAjarRoom;
-
-struct MeanComparison {
-    double worstBlockZ = 0.0;
-    double imageZ = 0.0;
-    double imageRelativeSigma = 0.0;  // standard error of the difference of the image means / pt's mean
-    double imageRelativeDifference = 0.0;  // (guided - pt) / pt of the image means
-    double varianceRatio = 0.0;       // guided / pt variance of the block means, summed over blocks
-};
 
 // Guided pt with a cache trained once, against pt, over `seeds` independent
 // renders of each. Guided pt must be unbiased for every cache, so one cache
-// serves all seeds and the training is paid once. Per 4x4 block (and for the
-// whole image) z = difference of means / its standard error from the seeds'
-// spread; with 2(seeds - 1) degrees of freedom z is close to normal.
-MeanComparison compareMeans(const Scene& scene, int size, int seeds, std::int64_t spp, std::int64_t photons) {
-    constexpr int kBlock = 4;
-    const int blocksPerSide = size / kBlock, blocks = blocksPerSide * blocksPerSide;
+// serves all seeds and the training is paid once.
+test::MeanComparison compareMeans(const Scene& scene, int size, int seeds, std::int64_t spp, std::int64_t photons) {
     const BufferHandle cache = test::runPipeline(scene, guidedPipeline(2, "radiance_cache"), builtinRegistry().passes,
                                                  trainingParams(photons, spp), test::smallFilm(size, size), "radiance_cache", 99);
     EXPECT_GT(test::bufferAs<GuidingCache>(cache).records.size(), 10u);
     const RayQuery rays(scene);
     const PassRegistration pt = pathTracerPass();
     const std::map<std::string, ParamValue> params{{"spp", spp}, {"max_depth", std::int64_t{12}}};
-    // Per seed: the block means, then the image mean as one more entry.
-    const auto means = [&](const BufferHandle& image) {
-        std::vector<double> m(static_cast<std::size_t>(blocks) + 1, 0.0);
-        const std::vector<Rgb> px = pixels(test::bufferAs<Film>(image));
-        for (int y = 0; y < size; ++y)
-            for (int x = 0; x < size; ++x) {
-                const Rgb& p = px[static_cast<std::size_t>(y * size + x)];
-                const double v = (p.x + p.y + p.z) / 3.0;
-                m[static_cast<std::size_t>((y / kBlock) * blocksPerSide + x / kBlock)] += v / (kBlock * kBlock);
-                m.back() += v / (size * size);
-            }
-        return m;
-    };
+    const auto means = [](const BufferHandle& image) { return test::blockMeans(test::bufferAs<Film>(image)); };
     std::vector<std::vector<double>> a, b;
     for (int seed = 1; seed <= seeds; ++seed) {
         const auto s = static_cast<std::uint64_t>(seed);
         a.push_back(means(test::runPass(pt, scene, &rays, test::smallFilm(size, size), {{"radiance_cache", cache}}, params, s).at("image")));
         b.push_back(means(test::runPass(pt, scene, &rays, test::smallFilm(size, size), {}, params, s + 1000).at("image")));
     }
-    MeanComparison result;
-    double varianceA = 0.0, varianceB = 0.0;
-    for (std::size_t k = 0; k <= static_cast<std::size_t>(blocks); ++k) {
-        double ma = 0, mb = 0, va = 0, vb = 0;
-        for (int i = 0; i < seeds; ++i) ma += a[i][k] / seeds, mb += b[i][k] / seeds;
-        for (int i = 0; i < seeds; ++i) va += sqr(a[i][k] - ma), vb += sqr(b[i][k] - mb);
-        va /= seeds - 1;
-        vb /= seeds - 1;
-        const double sigma = std::sqrt((va + vb) / seeds);
-        const double z = std::abs(ma - mb) / std::max(sigma, 1e-12);
-        if (k == static_cast<std::size_t>(blocks)) {
-            result.imageZ = z;
-            result.imageRelativeSigma = sigma / mb;
-            result.imageRelativeDifference = (ma - mb) / mb;
-        } else {
-            result.worstBlockZ = std::max(result.worstBlockZ, z);
-            varianceA += va;
-            varianceB += vb;
-        }
-    }
-    result.varianceRatio = varianceA / varianceB;
-    return result;
+    return test::compareSeedMeans(a, b);
 }
 
-// Thresholds: 16 blocks at |z| < 4.5 fail together with probability about
-// 16 x 7e-5 (t with 38 degrees of freedom) when both means are the same; the
-// image mean at |z| < 4 with about 1e-4.
-void expectSameMean(const MeanComparison& c, const char* scene) {
-    EXPECT_LT(c.worstBlockZ, 4.5) << scene;
-    EXPECT_LT(c.imageZ, 4.0) << scene << ": image means differ by " << c.imageZ << " sigma (sigma = "
-                             << c.imageRelativeSigma << " of the mean)";
-    std::printf("%s: worst block z %.2f, image z %.2f (guided - pt: %+.4f of the mean, sigma %.4f), guided/pt variance %.3f\n",
-                scene, c.worstBlockZ, c.imageZ, c.imageRelativeDifference, c.imageRelativeSigma, c.varianceRatio);
-}
+void expectSameMean(const test::MeanComparison& c, const char* scene) { test::expectSameMean(c, scene, "guided", "pt"); }
 
 TEST(GuidedPt, SameMeanAsPtOnCornellBox) {
     const Scene scene = loadScene(test::sourcePath("data/cornell-box/cornell-box.toml"));
@@ -131,9 +77,7 @@ TEST(GuidedPt, SameMeanAsPtOnCornellBox) {
 }
 
 TEST(GuidedPt, SameMeanAsPtInOccludedRoom) {
-    const std::filesystem::path dir = test::scratchDirectory("guided-pt");
-    test::writeText(dir / "ajar-room.toml", kAjarRoom);
-    const Scene scene = loadScene((dir / "ajar-room.toml").string());
+    const Scene scene = test::loadAjarRoom("guided-pt");
     expectSameMean(compareMeans(scene, 16, 20, 32, 20000), "occluded room");
 }
 
@@ -274,9 +218,7 @@ TEST(GuidedPt, CacheWhoseLanesDisagreeWithItsComponentsIsRefused) {
 // face of the partition, whose short training radius made the near side's
 // records small and many).
 TEST(GuidedPt, RecordsFollowCameraPathsInOccludedRoom) {
-    const std::filesystem::path dir = test::scratchDirectory("guided-pt");
-    test::writeText(dir / "ajar-room.toml", kAjarRoom);
-    const Scene scene = loadScene((dir / "ajar-room.toml").string());
+    const Scene scene = test::loadAjarRoom("guided-pt");
     const auto cameraSideShare = [&](RecordsAt at) {
         const auto cache = test::runPipeline(scene, guidedPipeline(2, "radiance_cache", at), builtinRegistry().passes,
                                              trainingParams(20000, 1), test::smallFilm(16, 16), "radiance_cache", 11);

@@ -129,9 +129,7 @@ VarianceRatio oneBounceVarianceRatio(const Scene& scene, const GuidingCache& cac
 }
 
 TEST(MixtureQuality, TrainedMixturesDoNotRaiseOneBounceVarianceInOccludedRoom) {
-    const std::filesystem::path dir = test::scratchDirectory("mixture-quality");
-    test::writeText(dir / "ajar-room.toml", test::kAjarRoom);
-    const Scene scene = loadScene((dir / "ajar-room.toml").string());
+    const Scene scene = test::loadAjarRoom("mixture-quality");
     const std::map<std::string, ParamValue> params{
         {"importon.spp", std::int64_t{4}},       {"photon.photons", std::int64_t{20000}},
         {"photon.store", std::string("global")}, {"photon.differentials", false},
