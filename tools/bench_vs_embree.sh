@@ -30,24 +30,16 @@ while [ $# -gt 0 ]; do
 done
 
 root="$(cd "$(dirname "$0")/.." && pwd)"
-fluxgraph="$build/fluxgraph"
-[ -x "$fluxgraph" ] || fluxgraph="$root/$build/fluxgraph"
-if [ ! -x "$fluxgraph" ]; then
-  echo "bench_vs_embree: no fluxgraph binary in $build (build it first)" >&2
-  exit 2
-fi
+. "$root/tools/bench_common.sh"
+bench_find_fluxgraph bench_vs_embree "$build" "$root"
 if ! command -v pathtracer >/dev/null 2>&1; then
   echo "bench_vs_embree: Embree's 'pathtracer' is not installed; run tools/install-deps.sh (package embree-tools)" >&2
   exit 2
 fi
-if [ $((spp % 4)) -ne 0 ] || [ "$spp" -lt 4 ]; then
-  echo "bench_vs_embree: --spp must be a positive multiple of 4" >&2
-  exit 2
-fi
+bench_require_multiple_of_four bench_vs_embree --spp "$spp"
 lowSpp=$((spp / 4))
 
-work="$(mktemp -d)"
-trap 'rm -rf "$work"' EXIT
+bench_make_work_dir
 
 python3 - "$root/data/cornell-box/meshes" "$work" <<'EOF'
 import pathlib, sys

@@ -49,12 +49,8 @@ while [ $# -gt 0 ]; do
   esac
 done
 
-fluxgraph="$build/fluxgraph"
-[ -x "$fluxgraph" ] || fluxgraph="$root/$build/fluxgraph"
-if [ ! -x "$fluxgraph" ]; then
-  echo "bench_vs_tungsten: no fluxgraph binary in $build (build it first)" >&2
-  exit 2
-fi
+. "$root/tools/bench_common.sh"
+bench_find_fluxgraph bench_vs_tungsten "$build" "$root"
 if [ -z "$tungsten" ] || [ ! -x "$tungsten" ]; then
   echo "bench_vs_tungsten: give the path of a tungsten binary (tools/bench_vs_tungsten.sh --help)" >&2
   exit 2
@@ -67,14 +63,10 @@ if ! command -v perf >/dev/null 2>&1; then
   echo "bench_vs_tungsten: needs 'perf' (linux-perf) to leave Tungsten's photon-map build out" >&2
   exit 2
 fi
-if [ $((paths % 4)) -ne 0 ] || [ "$paths" -lt 4 ]; then
-  echo "bench_vs_tungsten: --paths must be a positive multiple of 4" >&2
-  exit 2
-fi
+bench_require_multiple_of_four bench_vs_tungsten --paths "$paths"
 lowPaths=$((paths / 4))
 
-work="$(mktemp -d)"
-trap 'rm -rf "$work"' EXIT
+bench_make_work_dir
 
 # Volume photon capacity: the same in both runs (Tungsten allocates and clears
 # per-thread caches in proportion to it, which then cancels), and above what
