@@ -141,6 +141,11 @@ public:
         size_ = n;
     }
     void clear() { resize(0); }
+    // Room for `n` items in every column without writing them, so that resizing
+    // up to `n` later neither reallocates nor fills the memory twice.
+    void reserve(std::size_t n) {
+        std::apply([n](auto&... col) { (col.reserve(n), ...); }, columns_);
+    }
     void shrinkToFit() {
         std::apply([](auto&... col) { (col.shrink_to_fit(), ...); }, columns_);
     }

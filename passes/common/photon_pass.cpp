@@ -90,8 +90,9 @@
 // chunks are appended in order, so the maps do not depend on the thread count
 // (nor on batch_size). Chunks are traced a wave at a time and their records
 // copied into the maps after each wave, so that the next wave reuses their
-// memory; the waves only bound that memory and do not change the order. Scenes without media draw exactly the random numbers
-// they drew before media were simulated.
+// memory; the waves only bound that memory and do not change the order.
+// Scenes without media draw exactly the random numbers they drew before media
+// were simulated.
 #include "passes/passes.h"
 #include "passes/common/light_media.h"
 #include "passes/common/path_vertex.h"
@@ -762,11 +763,7 @@ public:
         const auto sizeMaps = [&](std::size_t paths) {
             // A batch's count varies far less than a chunk's: 1/32 more than the mean.
             const RecordRates::Expected records = rates.expected(paths, 32);
-            const auto makeRoom = [](auto& buffer, std::size_t more) {
-                const std::size_t size = buffer.size();
-                buffer.resize(size + more);
-                buffer.resize(size);
-            };
+            const auto makeRoom = [](auto& buffer, std::size_t more) { buffer.reserve(buffer.size() + more); };
             makeRoom(causticMap->photons, records.caustic);
             makeRoom(globalMap->photons, records.global);
             makeRoom(volumeMap->photons, records.volume);
