@@ -8,6 +8,7 @@
 #include "engine/buffers/photon_ray_buffers.h"
 #include "engine/buffers/radiance_cache_buffers.h"
 
+#include <string>
 #include <utility>
 #include <vector>
 
@@ -24,31 +25,47 @@ BufferCodec codecOf(Write write, Read read) {
     return codec;
 }
 
+// The scalars PhotonRays and SplatRays share, in the order both files hold them.
+template <class Rays>
+void writeRayScalars(const Rays& rays, CodecWriter& writer) {
+    writer.setItemCount(rays.rays.size());
+    writer.write<std::uint64_t>(rays.emitted);
+    writer.write<float>(rays.clampDistance);
+    for (std::uint64_t count : rays.countPerClass) writer.write<std::uint64_t>(count);
+    writer.write<double>(rays.normalisation);
+    writer.write<double>(rays.sceneScale);
+}
+
+template <class Rays>
+void readRayScalars(Rays& rays, CodecReader& reader) {
+    rays.emitted = reader.read<std::uint64_t>();
+    rays.clampDistance = reader.read<float>();
+    for (std::uint64_t& count : rays.countPerClass) count = reader.read<std::uint64_t>();
+    rays.normalisation = reader.read<double>();
+    rays.sceneScale = reader.read<double>();
+}
+
+template <class Rays>
+void refuseUnknownRayClasses(const Rays& rays, CodecReader& reader) {
+    for (std::uint8_t c : rays.rays.template column<RayClassColumn>())
+        if (c >= PhotonRayClass::Count) reader.fail("corrupt buffer: photon ray class " + std::to_string(c));
+}
+
 }  // namespace
 
 BufferCodec photonRaysCodec() {
     return codecOf<PhotonRays>(
         [](const PhotonRays& rays, CodecWriter& writer) {
-            writer.setItemCount(rays.rays.size());
-            writer.write<std::uint64_t>(rays.emitted);
-            writer.write<float>(rays.clampDistance);
-            for (std::uint64_t count : rays.countPerClass) writer.write<std::uint64_t>(count);
-            writer.write<double>(rays.normalisation);
-            writer.write<double>(rays.sceneScale);
+            writeRayScalars(rays, writer);
             writer.write(rays.hasBandwidths);
             writer.writeSoa("rays", rays.rays);
         },
         [](CodecReader& reader) {
             PhotonRays rays;
-            rays.emitted = reader.read<std::uint64_t>();
-            rays.clampDistance = reader.read<float>();
-            for (std::uint64_t& count : rays.countPerClass) count = reader.read<std::uint64_t>();
-            rays.normalisation = reader.read<double>();
-            rays.sceneScale = reader.read<double>();
+            readRayScalars(rays, reader);
             rays.hasBandwidths = reader.read<bool>();
             reader.readSoa("rays", rays.rays);
-            for (std::uint8_t c : rays.rays.column<RayClassColumn>())
-                if (c >= PhotonRayClass::Count) reader.fail("corrupt buffer: photon ray class " + std::to_string(c));
+            refuseUnknownRayClasses(rays, reader);
             return rays;
         });
 }
@@ -56,24 +73,14 @@ BufferCodec photonRaysCodec() {
 BufferCodec splatRaysCodec() {
     return codecOf<SplatRays>(
         [](const SplatRays& rays, CodecWriter& writer) {
-            writer.setItemCount(rays.rays.size());
-            writer.write<std::uint64_t>(rays.emitted);
-            writer.write<float>(rays.clampDistance);
-            for (std::uint64_t count : rays.countPerClass) writer.write<std::uint64_t>(count);
-            writer.write<double>(rays.normalisation);
-            writer.write<double>(rays.sceneScale);
+            writeRayScalars(rays, writer);
             writer.writeSoa("rays", rays.rays);
         },
         [](CodecReader& reader) {
             SplatRays rays;
-            rays.emitted = reader.read<std::uint64_t>();
-            rays.clampDistance = reader.read<float>();
-            for (std::uint64_t& count : rays.countPerClass) count = reader.read<std::uint64_t>();
-            rays.normalisation = reader.read<double>();
-            rays.sceneScale = reader.read<double>();
+            readRayScalars(rays, reader);
             reader.readSoa("rays", rays.rays);
-            for (std::uint8_t c : rays.rays.column<RayClassColumn>())
-                if (c >= PhotonRayClass::Count) reader.fail("corrupt buffer: photon ray class " + std::to_string(c));
+            refuseUnknownRayClasses(rays, reader);
             return rays;
         });
 }

@@ -39,4 +39,18 @@ std::optional<GuidedSample> GuidedBsdfSampler::sample(float uStrategy, float uLo
     return GuidedSample{drawn->wi, drawn->wiWorld, drawnPdf(*drawn)};
 }
 
+std::optional<BsdfSample> GuidedBsdfSampler::sampleAsBsdf(float uStrategy, float uLobe, const Vec2& uDir,
+                                                          TransportMode mode) const {
+    const std::optional<GuidedSample> drawn = sample(uStrategy, uLobe, uDir);
+    if (!drawn || !(drawn->pdf > 0.0f)) return std::nullopt;
+    const Rgb f = bsdf->eval(wo, drawn->wi, at, mode);
+    if (isBlack(f)) return std::nullopt;
+    BsdfSample result;
+    result.wi = drawn->wi;
+    result.weight = f / drawn->pdf;  // Bsdf::eval includes the cosine
+    result.pdf = drawn->pdf;
+    result.lobe = BsdfLobe::Reflection | BsdfLobe::Glossy;
+    return result;
+}
+
 }  // namespace fg

@@ -66,6 +66,12 @@ struct GuidedBsdfSampler {
     // nothing), then its mixture density, the same value sample() returns.
     std::optional<GuidedDraw> draw(float uStrategy, float uLobe, const Vec2& uDir) const;
     float drawnPdf(const GuidedDraw& drawn) const;
+    // sample() as a BSDF sample of `mode` transport, for walks that take any
+    // BSDF's samples: weight f |cos| / p_mix, pdf p_mix; nothing where sample()
+    // gives nothing or f vanishes. Only reflection lobes are guided, for which
+    // the BSDF half's draws (made in radiance transport) are those of either
+    // transport.
+    std::optional<BsdfSample> sampleAsBsdf(float uStrategy, float uLobe, const Vec2& uDir, TransportMode mode) const;
 };
 
 }  // namespace fg

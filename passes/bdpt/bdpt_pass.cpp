@@ -155,26 +155,6 @@ bool survives(int scatterings, int rrDepth, float startMax, float etaScale, Rgb&
     return true;
 }
 
-// A direction from a guided vertex's mixture (Vorba et al. 2014, §4.1) as a
-// BSDF sample: weight f |cos| / p_mix, pdf p_mix. Only reflection lobes are
-// guided, for which the sampler's radiance-transport BSDF draws are those of
-// either transport.
-std::optional<BsdfSample> sampleGuided(const GuidedBsdfSampler& guided, TransportMode mode, jobs::Rng& rng) {
-    const float uStrategy = rng.uniform();
-    const float uLobe = rng.uniform();
-    const Vec2 uDirection = rng.uniform2();
-    const std::optional<GuidedSample> drawn = guided.sample(uStrategy, uLobe, uDirection);
-    if (!drawn || !(drawn->pdf > 0.0f)) return std::nullopt;
-    const Rgb f = guided.bsdf->eval(guided.wo, drawn->wi, guided.at, mode);
-    if (isBlack(f)) return std::nullopt;
-    BsdfSample sample;
-    sample.wi = drawn->wi;
-    sample.weight = f / drawn->pdf;  // Bsdf::eval includes the cosine
-    sample.pdf = drawn->pdf;
-    sample.lobe = BsdfLobe::Reflection | BsdfLobe::Glossy;
-    return sample;
-}
-
 // Extends path[0] (the camera or a light origin) by a random walk; returns the vertex count.
 int randomWalk(const BdptScene& bs, Ray ray, Rgb beta, float pdfDirection, int medium, TransportMode mode,
                int maxVertices, int rrDepth, jobs::Rng& rng, BdptVertex* path) {
@@ -275,7 +255,10 @@ int randomWalk(const BdptScene& bs, Ray ray, Rgb beta, float pdfDirection, int m
         if (count >= maxVertices) break;
         if (!chosen) {
             if (const std::optional<GuidedBsdfSampler> guided = bs.guide(added, *bsdf, added.wo, mode)) {
-                chosen = sampleGuided(*guided, mode, rng);
+                const float uStrategy = rng.uniform();
+                const float uLobe = rng.uniform();
+                const Vec2 uDirection = rng.uniform2();
+                chosen = guided->sampleAsBsdf(uStrategy, uLobe, uDirection, mode);
                 if (!chosen) break;
             } else {
                 const float uLobe = rng.uniform();

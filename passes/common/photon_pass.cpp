@@ -398,7 +398,10 @@ public:
 
             if (!chosen) {
                 if (const std::optional<GuidedBsdfSampler> guided = importanceGuide(*bsdf, frame, wo, sp, -direction)) {
-                    chosen = sampleGuided(*guided, rng);
+                    const float uStrategy = rng.uniform();
+                    const float uLobe = rng.uniform();
+                    const Vec2 uGuided = rng.uniform2();
+                    chosen = guided->sampleAsBsdf(uStrategy, uLobe, uGuided, TransportMode::Importance);
                     if (!chosen) return;
                     ++out.guidedEvents;
                 } else {
@@ -466,26 +469,6 @@ private:
         return GuidedBsdfSampler{&bsdf, frame, wo, sp.texturePoint(), &gmm,
                                  Frame(cache->records.column<GuideNormal>()[*record]),
                                  settings_.guidingBsdfProbability};
-    }
-
-    // A direction from the guided mixture as a BSDF sample of importance
-    // transport: weight f |cos| / p_mix, pdf p_mix (the photon rays' density).
-    // The sampler draws its BSDF half in radiance transport, which for
-    // reflection lobes (the only ones guided) samples the same directions.
-    static std::optional<BsdfSample> sampleGuided(const GuidedBsdfSampler& guided, jobs::Rng& rng) {
-        const float uStrategy = rng.uniform();
-        const float uLobe = rng.uniform();
-        const Vec2 uDirection = rng.uniform2();
-        const std::optional<GuidedSample> drawn = guided.sample(uStrategy, uLobe, uDirection);
-        if (!drawn || !(drawn->pdf > 0.0f)) return std::nullopt;
-        const Rgb f = guided.bsdf->eval(guided.wo, drawn->wi, guided.at, TransportMode::Importance);
-        if (isBlack(f)) return std::nullopt;
-        BsdfSample sample;
-        sample.wi = drawn->wi;
-        sample.weight = f / drawn->pdf;  // Bsdf::eval includes the cosine
-        sample.pdf = drawn->pdf;
-        sample.lobe = BsdfLobe::Reflection | BsdfLobe::Glossy;
-        return sample;
     }
 
     // Eq. 7, i = 0: p_e = area pdf x projected-solid-angle pdf (times the
