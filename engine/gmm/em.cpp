@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <array>
+#include <bit>
 #include <cmath>
 #include <limits>
 #include <numeric>
@@ -54,11 +55,26 @@ struct ComponentTree {
         std::array<std::vector<double>, 6> precision;
         std::vector<double> offset;
     };
+    // The same columns in single precision, only to decide which of a leaf's
+    // terms can pass the walk's skip bound (four terms per SSE2 register
+    // instead of two); terms that can are then computed in double as above.
+    struct FloatColumns {
+        std::vector<float> meanX, meanY, meanZ;
+        std::array<std::vector<float>, 6> precision;
+        std::vector<float> offset;
+    };
+    // Per leaf, what bounds the single-precision terms' error (see candidates()).
+    struct LeafScale {
+        Vec3d maxAbsMean{0.0}, maxDiagonalPrecision{0.0};
+        double maxAbsOffset = 0.0;
+    };
     std::vector<Node> nodes;
     std::vector<Line> lines;
     std::vector<std::uint32_t> order;
     std::vector<double> logWeight;
     PackedColumns packed;  // by position in `order`
+    FloatColumns single;   // by position in `order`
+    std::vector<LeafScale> leafScale;  // by node index; set for leaves
 
     explicit ComponentTree(const std::vector<EmComponent>& components) {
         const std::size_t k = components.size();
@@ -87,6 +103,107 @@ struct ComponentTree {
             for (std::size_t e = 0; e < 6; ++e) packed.precision[e][i] = c.gaussian.factors.precision.v[e];
             packed.offset[i] = own[order[i]].a;
         }
+        single.meanX.assign(packed.meanX.begin(), packed.meanX.end());
+        single.meanY.assign(packed.meanY.begin(), packed.meanY.end());
+        single.meanZ.assign(packed.meanZ.begin(), packed.meanZ.end());
+        for (std::size_t e = 0; e < 6; ++e)
+            single.precision[e].assign(packed.precision[e].begin(), packed.precision[e].end());
+        single.offset.assign(packed.offset.begin(), packed.offset.end());
+        leafScale.resize(nodes.size());
+        for (std::size_t n = 0; n < nodes.size(); ++n) {
+            if (!nodes[n].leaf) continue;
+            LeafScale& scale = leafScale[n];
+            for (std::uint32_t i = nodes[n].begin; i < nodes[n].end; ++i) {
+                scale.maxAbsMean = glm::max(scale.maxAbsMean, glm::abs(Vec3d(packed.meanX[i], packed.meanY[i], packed.meanZ[i])));
+                scale.maxDiagonalPrecision = glm::max(
+                    scale.maxDiagonalPrecision, Vec3d(packed.precision[0][i], packed.precision[3][i], packed.precision[5][i]));
+                scale.maxAbsOffset = std::max(scale.maxAbsOffset, std::abs(packed.offset[i]));
+            }
+        }
+    }
+
+    // log w_s + <log g_s>_A of the component at position i: the arithmetic of
+    // logits() for one term, so that both give the same bits.
+    double logit(std::uint32_t i, const Vec3d& mean, const Sym3& covariance) const {
+        const std::array<double, 6>& c = covariance.v;
+        const double dx = mean.x - packed.meanX[i], dy = mean.y - packed.meanY[i], dz = mean.z - packed.meanZ[i];
+        const double n0 = c[0] + dx * dx, n1 = c[1] + dx * dy, n2 = c[2] + dx * dz;
+        const double n3 = c[3] + dy * dy, n4 = c[4] + dy * dz, n5 = c[5] + dz * dz;
+        const double trace = packed.precision[0][i] * n0 + packed.precision[3][i] * n3 + packed.precision[5][i] * n5 +
+                             2.0 * (packed.precision[1][i] * n1 + packed.precision[2][i] * n2 +
+                                    packed.precision[4][i] * n4);
+        return packed.offset[i] - 0.5 * trace;
+    }
+
+    // The positions (relative to the leaf's begin) of the leaf's terms whose
+    // logit may be at least `threshold`, a superset of those that are: each
+    // term is computed in single precision and raised by a bound on its
+    // error. With P = Sigma_s^-1 and N = C_A + d d^T both positive
+    // semidefinite, |p_ij n_ij| <= sqrt(p_ii p_jj n_ii n_jj), so the sum of
+    // the trace's products in absolute value is at most 3 D, D = sum_i p_ii
+    // n_ii, and the rounding of the inputs and of the ten operations moves
+    // the trace by at most about 36 u D (u = 2^-24). The difference d is
+    // rounded by delta_i <= 4 u (|m_i| + |mu_i|); that moves d^T P d by
+    // 2 delta^T P d + delta^T P delta <= eta tr(P N) + (1/eta + 1) E, with
+    // E = 3 sum_i p_ii delta_i^2 >= delta^T P delta and tr(P N) <= 3 D, and
+    // D itself by at most eta D + E / (3 eta). With eta = 2e-4 the trace is
+    // off by less than 7e-4 D + 5004 E, so the logit (half of it, plus 4 u
+    // of the offset and of the threshold) is raised by 1e-3 D / 2 per term,
+    // in single precision, and by 5001 E (twice what is needed) + 4 u
+    // (|offset| + |threshold|) + 1e-3 per leaf, in double, with the leaf's
+    // largest p_ii, |mu_i| and |offset|.
+    std::uint32_t candidates(std::uint32_t n, const Vec3d& mean, const Sym3& covariance, double threshold,
+                             std::uint32_t* position) const {
+        const Node& node = nodes[n];
+        const LeafScale& scale = leafScale[n];
+        constexpr double u = 0x1p-24;
+        double e = 0.0;
+        for (int axis = 0; axis < 3; ++axis) {
+            const double delta = 4.0 * u * (std::abs(mean[axis]) + scale.maxAbsMean[axis]);
+            e += scale.maxDiagonalPrecision[axis] * delta * delta;
+        }
+        e *= 3.0;
+        const double slack = 5001.0 * e + 4.0 * u * (scale.maxAbsOffset + std::abs(threshold)) + 1e-3;
+        const float lowest = static_cast<float>(threshold - slack);
+        const float mx = static_cast<float>(mean.x), my = static_cast<float>(mean.y), mz = static_cast<float>(mean.z);
+        const std::array<double, 6>& cd = covariance.v;
+        const float c0 = static_cast<float>(cd[0]), c1 = static_cast<float>(cd[1]), c2 = static_cast<float>(cd[2]);
+        const float c3 = static_cast<float>(cd[3]), c4 = static_cast<float>(cd[4]), c5 = static_cast<float>(cd[5]);
+        const float* fx = single.meanX.data() + node.begin;
+        const float* fy = single.meanY.data() + node.begin;
+        const float* fz = single.meanZ.data() + node.begin;
+        const float* p0 = single.precision[0].data() + node.begin;
+        const float* p1 = single.precision[1].data() + node.begin;
+        const float* p2 = single.precision[2].data() + node.begin;
+        const float* p3 = single.precision[3].data() + node.begin;
+        const float* p4 = single.precision[4].data() + node.begin;
+        const float* p5 = single.precision[5].data() + node.begin;
+        const float* offset = single.offset.data() + node.begin;
+        const std::uint32_t count = node.end - node.begin;
+        alignas(16) std::array<float, kComponentLeafSize + 3> upper;
+        for (std::uint32_t i = 0; i < count; ++i) {
+            const float dx = mx - fx[i], dy = my - fy[i], dz = mz - fz[i];
+            const float n0 = c0 + dx * dx, n1 = c1 + dx * dy, n2 = c2 + dx * dz;
+            const float n3 = c3 + dy * dy, n4 = c4 + dy * dz, n5 = c5 + dz * dz;
+            const float diagonal = p0[i] * n0 + p3[i] * n3 + p5[i] * n5;
+            const float offDiagonal = p1[i] * n1 + p2[i] * n2 + p4[i] * n4;
+            upper[i] = offset[i] - 0.5f * (diagonal * (1.0f - 1e-3f) + 2.0f * offDiagonal);
+        }
+        // Few terms pass: four compared at once, and only the passing ones
+        // visited (in order). "Not below" lets a NaN through, as the double
+        // test does.
+        upper[count] = upper[count + 1] = upper[count + 2] = 0.0f;  // read below, masked off
+        std::uint32_t passing = 0;
+        const __m128 low = _mm_set1_ps(lowest);
+        for (std::uint32_t i = 0; i < count; i += 4) {
+            const unsigned valid = count - i >= 4 ? 0xFu : (1u << (count - i)) - 1u;
+            unsigned mask = static_cast<unsigned>(_mm_movemask_ps(_mm_cmpnlt_ps(_mm_load_ps(upper.data() + i), low))) & valid;
+            while (mask != 0u) {
+                position[passing++] = i + static_cast<std::uint32_t>(std::countr_zero(mask));
+                mask &= mask - 1u;
+            }
+        }
+        return passing;
     }
 
     // The terms of components [begin, end) for one cell, into `out`; the same
@@ -227,7 +344,7 @@ void allTerms(const std::vector<EmComponent>& components, const std::vector<doub
 
 // Best-first walk of the component tree for one cell (§5.3).
 void sparseTerms(const ComponentTree& tree, const Vec3d& mean, const Sym3& covariance, double tau,
-                 CellTerms& terms) {
+                 bool singlePrecisionFilter, CellTerms& terms) {
     const double spread = covariance.trace();
     const double reference = tree.logBound(0, mean, spread);
     terms.reference = reference;
@@ -262,17 +379,37 @@ void sparseTerms(const ComponentTree& tree, const Vec3d& mean, const Sym3& covar
                 const double skipBelow = found > 0.0 ? std::log(skipMass) : -std::numeric_limits<double>::infinity();
                 std::array<double, kComponentLeafSize> leafLogits;
                 const std::uint32_t leafCount = node.end - node.begin;
-                tree.logits(node.begin, node.end, mean, covariance, leafLogits.data());
                 // The terms above the skip bound are gathered without a branch
                 // (which of a leaf's terms pass is unpredictable) and
                 // exponentiated two at a time (fast_math.h, 1e-9 relative).
                 alignas(16) std::array<double, kComponentLeafSize + 1> relative;
                 std::array<std::uint32_t, kComponentLeafSize> position;
                 std::uint32_t passing = 0;
-                for (std::uint32_t i = 0; i < leafCount; ++i) {
-                    relative[passing] = leafLogits[i] - reference;
-                    position[passing] = i;
-                    passing += relative[passing] < skipBelow ? 0u : 1u;
+                const double threshold = reference + skipBelow;
+                if (singlePrecisionFilter && std::isfinite(threshold)) {
+                    // Most of a leaf's terms fall below the skip bound: a
+                    // single-precision pass with a bound on its error finds
+                    // those that may not, and only they are computed in
+                    // double, with the same arithmetic and the same test as
+                    // the loop below, so the same terms pass with the same
+                    // bits.
+                    std::array<std::uint32_t, kComponentLeafSize> candidate;
+                    const std::uint32_t candidates =
+                        tree.candidates(current.node, mean, covariance, threshold, candidate.data());
+                    for (std::uint32_t j = 0; j < candidates; ++j) {
+                        const std::uint32_t i = candidate[j];
+                        leafLogits[i] = tree.logit(node.begin + i, mean, covariance);
+                        relative[passing] = leafLogits[i] - reference;
+                        position[passing] = i;
+                        passing += relative[passing] < skipBelow ? 0u : 1u;
+                    }
+                } else {
+                    tree.logits(node.begin, node.end, mean, covariance, leafLogits.data());
+                    for (std::uint32_t i = 0; i < leafCount; ++i) {
+                        relative[passing] = leafLogits[i] - reference;
+                        position[passing] = i;
+                        passing += relative[passing] < skipBelow ? 0u : 1u;
+                    }
                 }
                 const std::uint32_t skipped = leafCount - passing;
                 queued += skipMass * static_cast<double>(skipped);
@@ -350,7 +487,8 @@ void sparseTerms(const ComponentTree& tree, const Vec3d& mean, const Sym3& covar
 
 double EmCells::totalCount() const { return std::accumulate(count.begin(), count.end(), 0.0); }
 
-double eStep(const EmCells& cells, const std::vector<EmComponent>& components, double tau, Responsibilities& out) {
+double eStep(const EmCells& cells, const std::vector<EmComponent>& components, double tau, Responsibilities& out,
+             bool singlePrecisionFilter) {
     const std::size_t cellCount = cells.size();
     const ComponentTree tree(components);
     struct Block {
@@ -373,7 +511,7 @@ double eStep(const EmCells& cells, const std::vector<EmComponent>& components, d
             terms.scaled.clear();
             terms.pruned = 0;
             terms.prunedShare = 0.0;
-            if (tau > 0.0) sparseTerms(tree, cells.mean[a], cells.covariance[a], tau, terms);
+            if (tau > 0.0) sparseTerms(tree, cells.mean[a], cells.covariance[a], tau, singlePrecisionFilter, terms);
             if (terms.component.empty()) allTerms(components, tree.logWeight, cells.mean[a], cells.covariance[a], terms);
             double top = -std::numeric_limits<double>::infinity();
             for (const double l : terms.logit) top = std::max(top, l);

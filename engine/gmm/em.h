@@ -92,7 +92,11 @@ Responsibilities concatenate(const Responsibilities& a, const Responsibilities& 
 double boundOf(const EmCells& cells, const Responsibilities& q);
 
 // E-step (Eq. 7) for all cells; returns F = sum_A n_A log Z_A.
-double eStep(const EmCells& cells, const std::vector<EmComponent>& components, double tau, Responsibilities& out);
+// singlePrecisionFilter = false computes every term of a leaf the walk opens
+// in double instead of only those a single-precision pass says may pass the
+// skip bound; the result is the same bit for bit (tested), only slower.
+double eStep(const EmCells& cells, const std::vector<EmComponent>& components, double tau, Responsibilities& out,
+             bool singlePrecisionFilter = true);
 // M-step (Eq. 9, centred), n_eff (Eq. 10) and powers from the responsibilities.
 // With updateParameters = false only n_eff and the powers are recomputed.
 void mStep(const EmCells& cells, const Responsibilities& q, double regCovar, std::vector<EmComponent>& components,

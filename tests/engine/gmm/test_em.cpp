@@ -321,6 +321,39 @@ TEST(GmmEm, SparseEStepPrunesWithinTolerance) {
     EXPECT_GT(largest, 0.0);  // something was left out
 }
 
+// The sparse E-step decides which of an opened leaf's terms pass its skip
+// bound from single-precision terms raised by a bound on their error, and
+// computes only those in double. That must change nothing: the same terms,
+// q and log Z, bit for bit, as computing every term in double, also for thin
+// Gaussians far from the origin (where the rounding of d = m_A - mu_s and of
+// the precisions is largest) and after EM has moved the components.
+TEST(GmmEm, SinglePrecisionFilterChangesNoBit) {
+    for (const double size : {0.2, 0.02}) {
+        for (const double shift : {0.0, 200.0}) {
+            Sample sample = mixtureSample(60000, 48, 31, size);
+            for (Vec3& p : sample.positions) p += Vec3(static_cast<float>(shift), static_cast<float>(-0.5 * shift), 0.0f);
+            EmTree tree;
+            tree.build(sample.positions, sample.power);
+            const EmCells cells = cellsOf(tree, tree.cut(4096));
+            std::vector<EmComponent> components = componentsFromCells(cellsOf(tree, tree.cut(512)), 1e-7);
+            for (int iteration = 0; iteration < 3; ++iteration) {
+                Responsibilities filtered, full;
+                eStep(cells, components, 1e-4, filtered, true);
+                eStep(cells, components, 1e-4, full, false);
+                ASSERT_EQ(filtered.offset, full.offset) << size << " " << shift;
+                ASSERT_EQ(filtered.component, full.component);
+                ASSERT_EQ(filtered.q, full.q);
+                ASSERT_EQ(filtered.logZ, full.logZ);
+                ASSERT_EQ(filtered.prunedPerCell, full.prunedPerCell);
+                EXPECT_EQ(filtered.maxPrunedShare, full.maxPrunedShare);
+                EXPECT_LE(filtered.maxPrunedShare, 1e-4);
+                mStep(cells, filtered, 1e-7, components);
+                dropWeakComponents(components, 1.0);
+            }
+        }
+    }
+}
+
 // A cut expansion's E-step over the old cut and the children of its nodes is
 // reused as the first E-step on the expanded cut (pem_fit). That is exact
 // only if a cell's responsibilities do not depend on which other cells are
