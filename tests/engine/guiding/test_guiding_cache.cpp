@@ -239,9 +239,9 @@ double momentRatio(const OneBounceVariance& v) { return (1.0 + v.mixture) / (1.0
 // by more than an order of magnitude and the record must guide. Quadrature of
 // the true radiance must agree on the side of 0.3. The estimate takes the
 // mixture for the radiance at its own training particles, which overstates
-// its gain (measured: a ratio of 0.012-0.013 against quadrature's
-// 0.025-0.03 for the gap, 0.84-0.87 against 1.0-1.01 for broad light); by no
-// more than a factor of 3.
+// its gain (measured: a ratio of 0.011-0.014 against quadrature's
+// 0.025-0.029 for the gap, 0.82-0.88 against 1.00-1.02 for broad light); by
+// no more than a factor of 3.
 TEST(GuidingCache, OneBounceVarianceDecidesWhereGuidingHelps) {
     const auto broad = [](const Vec3& w) { return 1.0 + 0.6 * w.x + 0.3 * w.z; };
     const auto gap = [](const Vec3& w) {
