@@ -136,6 +136,9 @@ def main():
     parser.add_argument("--spacing", type=float, default=1.0, help="cache_update new_record_spacing")
     parser.add_argument("--candidates", type=int, default=2, help="pt and importon guiding_candidates (M of Eq. 11)")
     parser.add_argument("--importon-spp", type=int, default=1, help="importon paths per pixel per training pass")
+    parser.add_argument("--guide-decision", default="variance", choices=["variance", "always"],
+                        help="cache_update guide_decision (always: every record's mixture is sampled, as before it existed)")
+    parser.add_argument("--guide-moment-ratio", type=float, default=0.3, help="cache_update guide_moment_ratio")
     parser.add_argument("--spp", type=int, default=512, help="guided pt samples per pixel")
     parser.add_argument("--reference-spp", type=int, default=4096)
     parser.add_argument("--threads", type=int, default=2)
@@ -160,13 +163,15 @@ def main():
         if not os.path.exists(reference):
             body = f"[passes.pt]\nspp = {args.reference_spp}\nmax_depth = 16\n"
             image, _, _ = run(args.binary, job(scene, width, height, body, "pt", seed=2), os.path.join(work, "reference.toml"), work, args.threads)
+        decision = (f"guide_decision = \"{args.guide_decision}\"\nguide_moment_ratio = {args.guide_moment_ratio}\n"
+                    if args.guide_decision != "variance" or args.guide_moment_ratio != 0.3 else "")
         guided_body = (f"[passes.importon]\nspp = {args.importon_spp}\nmax_depth = 16\nguiding_candidates = {args.candidates}\n"
                        f"[passes.photon]\nphotons = {args.photons}\nstore = \"global\"\ndifferentials = false\n"
                        f"guiding_candidates = {args.candidates}\n"
                        f"[passes.radiance_update]\ntraining_particles = {args.training_particles}\n"
-                       f"max_sweeps = {args.max_sweeps}\nnew_record_spacing = {args.spacing}\n"
+                       f"max_sweeps = {args.max_sweeps}\nnew_record_spacing = {args.spacing}\n{decision}"
                        f"[passes.importance_update]\ntraining_particles = {args.training_particles}\n"
-                       f"max_sweeps = {args.max_sweeps}\nnew_record_spacing = {args.spacing}\n"
+                       f"max_sweeps = {args.max_sweeps}\nnew_record_spacing = {args.spacing}\n{decision}"
                        f"[passes.pt]\nspp = {args.spp}\nmax_depth = 16\nguiding_candidates = {args.candidates}\n\n" + pipeline_text(args.training_passes, args.pipeline))
         guided, guided_time, rows = run(args.binary, job(scene, width, height, guided_body, seed=args.seed),
                                         os.path.join(work, "guided-pt.toml"), work, args.threads)

@@ -112,11 +112,10 @@ VertexGuide findGuide(const PathTracerScene& pts, const Bsdf& bsdf, const Surfac
     if (!pts.guiding || !guidableBsdf(bsdf)) return guide;
     const Vec3 facing = facingNormal(sp, toViewer);
     const std::optional<std::uint32_t> record = pts.guidingCovering && pts.guiding->hasCoverGrid()
-                                                     ? pts.guiding->lookupCovering(sp.p, facing)
+                                                     ? pts.guiding->lookupGuiding(sp.p, facing)
                                                      : pts.guiding->lookup(sp.p, facing, GuidingCacheQuery{pts.guidingCandidates});
-    if (!record) return guide;
+    if (!record || !pts.guiding->guides(*record)) return guide;
     const DirectionalGmm& gmm = pts.guiding->records.column<GuideMixture>()[*record];
-    if (!(pts.guiding->hasCoverGrid() ? pts.guiding->usable(*record) : gmm.usable())) return guide;
     // The record is rarely in cache; light sampling runs before the mixture is read.
     gmm.prefetch();
     guide.gmm = &gmm;
@@ -435,7 +434,9 @@ std::vector<ParamSpec> guidedSamplingParams() {
 }
 
 void guideByRadianceCache(PathTracerScene& pts, const GuidingCache& cache, const PassParams& params) {
-    pts.guiding = &cache;
+    // A cache whose records all leave their points to BSDF sampling guides
+    // nothing: the paths need not look it up.
+    pts.guiding = cache.anyGuides() ? &cache : nullptr;
     pts.guidingBsdfProbability = static_cast<float>(params.getFloat("guiding_bsdf_probability"));
     pts.guidingCandidates = static_cast<std::uint32_t>(params.getInt("guiding_candidates"));
     pts.guidingCovering = params.getString("guiding_query") == "covering";

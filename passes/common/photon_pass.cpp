@@ -461,11 +461,10 @@ private:
         const Vec3 facing = glm::dot(sp.ns, toSource) >= 0.0f ? sp.ns : -sp.ns;
         const bool covering = settings_.guidingCovering && cache->hasCoverGrid();
         const std::optional<std::uint32_t> record =
-            covering ? cache->lookupCovering(sp.p, facing)
+            covering ? cache->lookupGuiding(sp.p, facing)
                      : cache->lookup(sp.p, facing, GuidingCacheQuery{settings_.guidingCandidates});
-        if (!record) return std::nullopt;
+        if (!record || !cache->guides(*record)) return std::nullopt;
         const DirectionalGmm& gmm = cache->records.column<GuideMixture>()[*record];
-        if (!(cache->hasCoverGrid() ? cache->usable(*record) : gmm.usable())) return std::nullopt;
         return GuidedBsdfSampler{&bsdf, frame, wo, sp.texturePoint(), &gmm,
                                  Frame(cache->records.column<GuideNormal>()[*record]),
                                  settings_.guidingBsdfProbability};
@@ -654,7 +653,9 @@ public:
         settings.volumeBatch = static_cast<std::uint64_t>(params.getInt("volume_batch"));
         const bool guided = ctx.hasInput("importance_cache");
         if (guided) {
-            settings.importanceCache = &ctx.input<GuidingCache>("importance_cache");
+            // A cache none of whose records guides leaves every photon to BSDF sampling.
+            const GuidingCache& cache = ctx.input<GuidingCache>("importance_cache");
+            settings.importanceCache = cache.anyGuides() ? &cache : nullptr;
             settings.guidingBsdfProbability = static_cast<float>(params.getFloat("guiding_bsdf_probability"));
             settings.guidingCandidates = static_cast<std::uint32_t>(params.getInt("guiding_candidates"));
             settings.guidingCovering = params.getString("guiding_query") == "covering";

@@ -65,7 +65,30 @@ struct UpdateSettings {
     float klThreshold = 0.5f;
     float newRecordSpacing = 1.0f;  // × training radius: how far a new record's cover reaches while created
     EmSettings em;
+    bool decideByVariance = true;   // guide_decision = "variance"
+    float guideBelowRatio = 0.3f;   // guide_moment_ratio
+    float decisionBsdfProbability = 0.5f;
 };
+
+// Whether a record's mixture is worth sampling, from its training particles
+// (oneBounceVariance). A sampled mixture costs a guided path about 0.5x an
+// unguided sample's time on top of it (the lookup, the mixture's sampling and
+// density, the light sample's extra pdf; veach-ajar, README), so it pays only
+// where it cuts the estimate's variance by more than that. The one-bounce
+// estimate stands for the path: its second moment relative to its squared
+// mean, 1 + V, counts the rest of the path's variance as the 1, so a mixture
+// that cuts a small V (broad light, where even a perfect fit only quarters
+// it) gains little, and one that cuts a large V (light through a gap) gains
+// almost all of it. Where the ratio of the moments is not below
+// guide_moment_ratio, the record's α becomes 1 (BSDF sampling alone), which
+// as any fixed per-record α leaves the estimator unbiased: the paper's α
+// (§4.1), chosen per record instead of per scene.
+void decide(const UpdateSettings& settings, const DirectionalGmm& gmm, std::span<const WeightedPoint> points,
+            std::uint32_t& bsdfOnly, float& momentRatio) {
+    const OneBounceVariance v = oneBounceVariance(gmm, points, settings.decisionBsdfProbability);
+    momentRatio = static_cast<float>((1.0 + v.mixture) / (1.0 + std::max(0.0, v.bsdf)));
+    bsdfOnly = settings.decideByVariance && !(momentRatio < settings.guideBelowRatio) ? 1u : 0u;
+}
 
 Vec3 facingIncident(const Vec3& normal, const Vec3& incident) {
     return glm::dot(normal, incident) < 0.0f ? -normal : normal;
@@ -225,6 +248,9 @@ public:
         settings.em.priorB = params.getFloat("prior_b");
         settings.em.priorNu = params.getFloat("prior_nu");
         settings.em.effectiveCount = params.getString("prior_count") == "effective";
+        settings.decideByVariance = params.getString("guide_decision") == "variance";
+        settings.guideBelowRatio = static_cast<float>(params.getFloat("guide_moment_ratio"));
+        settings.decisionBsdfProbability = static_cast<float>(params.getFloat("decision_bsdf_probability"));
 
         const bool importance = ctx.hasInput("importance_training");
         if (!importance && !(ctx.hasInput("photons") && ctx.hasInput("index")))
@@ -285,10 +311,13 @@ public:
             auto stats = cache.records.column<GuideStatistics>();
             auto radii = cache.records.column<GuideValidityRadius>();
             const auto training = cache.records.column<GuideTrainingRadius>();
+            auto bsdfOnly = cache.records.column<GuideBsdfOnly>();
+            auto momentRatio = cache.records.column<GuideMomentRatio>();
             for (std::size_t i = r.begin; i != r.end; ++i) {
                 trainingPoints(particles, positions[i], normals[i], settings.trainingParticles, scratch);
                 onlineStepwiseEm(gmms[i], stats[i], scratch.points, settings.em);
                 radii[i] = validityRadius(gmms[i], training[i], settings.klThreshold);
+                decide(settings, gmms[i], scratch.points, bsdfOnly[i], momentRatio[i]);
             }
         });
         if (existing > 0) {
@@ -364,6 +393,7 @@ public:
                 record.get<GuideMixture>() = gmm;
                 record.get<GuideStatistics>() = stats;
                 record.get<GuideValidityRadius>() = validityRadius(gmm, radius, settings.klThreshold);
+                decide(settings, gmm, points, record.get<GuideBsdfOnly>(), record.get<GuideMomentRatio>());
                 cache.records.set(existing + k, record);
             }
         });
@@ -376,6 +406,9 @@ public:
         for (std::int32_t n : sweeps) totalSweeps += n;
         ctx.addCounter("offline_em_sweeps", totalSweeps);
         ctx.addCounter("records", static_cast<std::int64_t>(cache.records.size()));
+        std::int64_t bsdfOnly = 0;
+        for (std::uint32_t flag : cache.records.column<GuideBsdfOnly>()) bsdfOnly += flag;
+        ctx.addCounter("records_bsdf_only", bsdfOnly);
     }
 };
 
@@ -423,6 +456,16 @@ PassRegistration cacheUpdatePass() {
         {"prior_count", ParamType::String, std::string("effective"), 0, 0, {"particles", "effective"},
          "n of the priors in Eqs. 9-10: the particles' number (the paper) or their effective count n w^2/mean(w^2), "
          "which keeps a lobe from collapsing onto a few heavy particles"},
+        {"guide_decision", ParamType::String, std::string("variance"), 0, 0, {"variance", "always"},
+         "variance: a record's mixture is sampled only where, by its training particles, it cuts the second moment "
+         "of a one-bounce diffuse estimate below guide_moment_ratio x BSDF sampling's (elsewhere its points use "
+         "BSDF sampling alone); always: every usable mixture is sampled"},
+        {"guide_moment_ratio", ParamType::Float, 0.3, 0.0, 1e6, {},
+         "guide_decision = variance: the largest ratio of the guided to the BSDF-sampled second moment at which a "
+         "record still guides (below 1 / the cost of a guided sample relative to an unguided one, about 0.6, as "
+         "the estimate favours guiding)"},
+        {"decision_bsdf_probability", ParamType::Float, 0.5, 0.01, 1.0, {},
+         "alpha of the guided mixture the decision assumes (pt's guiding_bsdf_probability)"},
     };
     return {spec, [] { return std::make_unique<CacheUpdatePass>(); }, {}, {}};
 }

@@ -38,7 +38,11 @@ std::map<std::string, ParamValue> trainingParams(std::int64_t photons) {
             {"photon.differentials", false},
             // Fewer training particles than the paper's 250, to keep the tests short.
             {"radiance_update.training_particles", std::int64_t{64}},
-            {"importance_update.training_particles", std::int64_t{64}}};
+            {"importance_update.training_particles", std::int64_t{64}},
+            // Every record's mixture guides, so that the tests judge the guided
+            // photons themselves, not which records training left to BSDF sampling.
+            {"radiance_update.guide_decision", std::string("always")},
+            {"importance_update.guide_decision", std::string("always")}};
 }
 
 Scene ajarRoom() { return test::loadAjarRoom("guided-photons"); }

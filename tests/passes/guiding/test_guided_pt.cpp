@@ -24,6 +24,7 @@
 #include <cmath>
 #include <algorithm>
 #include <cstdio>
+#include <string>
 #include <cstring>
 #include <filesystem>
 
@@ -52,10 +53,22 @@ TEST(GuidedPt, FurnaceSphereHasUnitRadiance) {
 // Guided pt with a cache trained once, against pt, over `seeds` independent
 // renders of each. Guided pt must be unbiased for every cache, so one cache
 // serves all seeds and the training is paid once.
-test::MeanComparison compareMeans(const Scene& scene, int size, int seeds, std::int64_t spp, std::int64_t photons) {
+test::MeanComparison compareMeans(const Scene& scene, int size, int seeds, std::int64_t spp, std::int64_t photons,
+                                  const std::string& decision = "always") {
+    auto training = trainingParams(photons, spp);
+    training["radiance_update.guide_decision"] = decision;
     const BufferHandle cache = test::runPipeline(scene, guidedPipeline(2, "radiance_cache"), builtinRegistry().passes,
-                                                 trainingParams(photons, spp), test::smallFilm(size, size), "radiance_cache", 99);
-    EXPECT_GT(test::bufferAs<GuidingCache>(cache).records.size(), 10u);
+                                                 training, test::smallFilm(size, size), "radiance_cache", 99);
+    const GuidingCache& trained = test::bufferAs<GuidingCache>(cache);
+    EXPECT_GT(trained.records.size(), 10u);
+    std::size_t bsdfOnly = 0;
+    for (std::uint32_t flag : trained.records.column<GuideBsdfOnly>()) bsdfOnly += flag;
+    std::printf("%zu records, %zu left to BSDF sampling\n", trained.records.size(), bsdfOnly);
+    // With the per-record decision, both kinds of record must be there for the comparison to test their mix.
+    if (decision == "variance") {
+        EXPECT_GT(bsdfOnly, 0u);
+        EXPECT_LT(bsdfOnly, trained.records.size());
+    }
     const RayQuery rays(scene);
     const PassRegistration pt = pathTracerPass();
     const std::map<std::string, ParamValue> params{{"spp", spp}, {"max_depth", std::int64_t{12}}};
@@ -79,6 +92,13 @@ TEST(GuidedPt, SameMeanAsPtOnCornellBox) {
 TEST(GuidedPt, SameMeanAsPtInOccludedRoom) {
     const Scene scene = test::loadAjarRoom("guided-pt");
     expectSameMean(compareMeans(scene, 16, 20, 32, 20000), "occluded room");
+}
+
+// Records left to BSDF sampling by the training-time decision (a fixed α of 1
+// at their points) beside records that guide: still pt's mean.
+TEST(GuidedPt, SameMeanAsPtWithPerRecordDecision) {
+    const Scene scene = test::loadAjarRoom("guided-pt-decision");
+    expectSameMean(compareMeans(scene, 16, 20, 32, 20000, "variance"), "occluded room, per-record decision");
 }
 
 // The cache's file bytes: every column, the index and the counters, as --save writes them.

@@ -13,6 +13,10 @@
 // the record's hemisphere count (3 training passes of 20k photons; 60k gave
 // 1.00: this room's first hits see a broad incident radiance, 1.4-2.1 in
 // relative variance under BSDF sampling, which leaves guiding little to gain).
+// The same brute force checks the training-time decision (GuideBsdfOnly) at
+// the records themselves: those left to BSDF sampling on the Cornell box,
+// where guiding cannot help (the case where it helps, light through a gap,
+// is tests/engine/guiding/test_guiding_cache.cpp's).
 #include "engine/accel/ray_query.h"
 #include "engine/guiding/guiding_cache.h"
 #include "engine/scene/scene_loader.h"
@@ -27,6 +31,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -97,7 +102,8 @@ VarianceRatio oneBounceVarianceRatio(const Scene& scene, const GuidingCache& cac
             const Vec3 n = glm::dot(sp.ns, ray.direction) < 0.0f ? sp.ns : -sp.ns;
             const std::vector<double> radiance = incidentRadiance(pts, sp.p, n, static_cast<std::uint64_t>(y * raster + x));
             const std::optional<std::uint32_t> record = cache.lookupCovering(sp.p, n);
-            const bool guided = record && cache.usable(*record);
+            // The mixture's quality, whether or not training left the record to BSDF sampling.
+            const bool guided = record && gmms[*record].usable();
             const Frame frame(n), recordFrame(guided ? normals[*record] : n);
             // Integrand L cos and the densities on the square (BSDF: 2 cos; GMM: 2π pdf_ω).
             double integral = 0.0, bsdfMoment = 0.0, mixtureMoment = 0.0;
@@ -130,10 +136,15 @@ VarianceRatio oneBounceVarianceRatio(const Scene& scene, const GuidingCache& cac
 
 TEST(MixtureQuality, TrainedMixturesDoNotRaiseOneBounceVarianceInOccludedRoom) {
     const Scene scene = test::loadAjarRoom("mixture-quality");
+    // Every mixture guides in training: the records and mixtures judged are
+    // those of guided importons and photons, whichever training would leave
+    // to BSDF sampling.
     const std::map<std::string, ParamValue> params{
         {"importon.spp", std::int64_t{4}},       {"photon.photons", std::int64_t{20000}},
         {"photon.store", std::string("global")}, {"photon.differentials", false},
-        {"radiance_update.training_particles", std::int64_t{128}}};
+        {"radiance_update.training_particles", std::int64_t{128}},
+        {"radiance_update.guide_decision", std::string("always")},
+        {"importance_update.guide_decision", std::string("always")}};
     const BufferHandle cache =
         test::runPipeline(scene, test::guidedTrainingPipeline(3, "radiance_cache"), builtinRegistry().passes, params,
                           test::smallFilm(24, 24), "radiance_cache");
@@ -143,6 +154,89 @@ TEST(MixtureQuality, TrainedMixturesDoNotRaiseOneBounceVarianceInOccludedRoom) {
     EXPECT_GE(ratio.points, 12);
     EXPECT_GE(ratio.guided, ratio.points / 2);
     EXPECT_LT(ratio.geometricMean, 1.1);
+}
+
+// Brute-force ratio of the one-bounce estimate's second moment (relative to its
+// squared mean) under the record's mixture (α = 0.5) to that under BSDF
+// sampling, at the record's own point: the quantity cache_update's decision
+// estimates from the training particles (guide_moment_ratio, default 0.3).
+double recordVarianceRatio(const PathTracerScene& pts, const GuidingCache& cache, std::uint32_t i) {
+    const Vec3 p = cache.records.column<GuidePosition>()[i];
+    const Vec3 n = cache.records.column<GuideNormal>()[i];
+    const DirectionalGmm& gmm = cache.records.column<GuideMixture>()[i];
+    const std::vector<double> radiance = incidentRadiance(pts, p, n, 100000 + i);
+    double integral = 0.0, bsdfMoment = 0.0, mixtureMoment = 0.0;
+    for (int c = 0; c < kCells * kCells; ++c) {
+        const Vec2 s((static_cast<float>(c % kCells) + 0.5f) / kCells, (static_cast<float>(c / kCells) + 0.5f) / kCells);
+        const double z = squareToHemisphere(s).z;
+        const double bsdfPdf = 2.0 * z;
+        const double mixturePdf = kBsdfProbability * bsdfPdf + (1.0 - kBsdfProbability) * gmm.pdfSquare(s);
+        const double g = radiance[static_cast<std::size_t>(c)] * z;
+        const double area = 1.0 / (kCells * kCells);
+        integral += area * g;
+        bsdfMoment += area * g * g / bsdfPdf;
+        mixtureMoment += area * g * g / mixturePdf;
+    }
+    if (!(integral > 0.0)) return std::nan("");
+    return mixtureMoment / bsdfMoment;
+}
+
+struct DecisionCheck {
+    std::size_t records = 0, bsdfOnly = 0;
+    // Geometric means of the brute-force ratio over up to 24 records of each kind.
+    double guidedRatio = std::nan(""), bsdfOnlyRatio = std::nan("");
+    int guidedChecked = 0, bsdfOnlyChecked = 0;
+};
+
+DecisionCheck checkDecisions(const Scene& scene, const GuidingCache& cache) {
+    const RayQuery rays(scene);
+    const PathTracerScene pts(scene, rays);
+    DecisionCheck check;
+    check.records = cache.records.size();
+    const auto bsdfOnly = cache.records.column<GuideBsdfOnly>();
+    for (std::uint32_t flag : bsdfOnly) check.bsdfOnly += flag;
+    double logSum[2] = {0.0, 0.0};
+    int counts[2] = {0, 0};
+    const std::size_t stride = std::max<std::size_t>(1, cache.records.size() / 48);
+    for (std::uint32_t i = 0; i < cache.records.size(); i += static_cast<std::uint32_t>(stride)) {
+        const int kind = bsdfOnly[i] ? 1 : 0;
+        if (counts[kind] >= 24 || !cache.records.column<GuideMixture>()[i].usable()) continue;
+        const double ratio = recordVarianceRatio(pts, cache, i);
+        if (!(ratio > 0.0) || !std::isfinite(ratio)) continue;
+        logSum[kind] += std::log(ratio);
+        ++counts[kind];
+    }
+    if (counts[0] > 0) check.guidedRatio = std::exp(logSum[0] / counts[0]);
+    if (counts[1] > 0) check.bsdfOnlyRatio = std::exp(logSum[1] / counts[1]);
+    check.guidedChecked = counts[0];
+    check.bsdfOnlyChecked = counts[1];
+    std::printf("%zu records, %zu left to BSDF sampling; brute-force guided/BSDF second moment: %.3f over %d guiding, "
+                "%.3f over %d BSDF-only\n",
+                check.records, check.bsdfOnly, check.guidedRatio, counts[0], check.bsdfOnlyRatio, counts[1]);
+    return check;
+}
+
+BufferHandle trainedCache(const Scene& scene) {
+    const std::map<std::string, ParamValue> params{
+        {"importon.spp", std::int64_t{4}},       {"photon.photons", std::int64_t{20000}},
+        {"photon.store", std::string("global")}, {"photon.differentials", false},
+        {"radiance_update.training_particles", std::int64_t{128}},
+        {"radiance_update.guide_decision", std::string("variance")}};
+    return test::runPipeline(scene, test::guidedTrainingPipeline(3, "radiance_cache"), builtinRegistry().passes,
+                             params, test::smallFilm(24, 24), "radiance_cache");
+}
+
+// On the Cornell box every surface sees the whole lit box: at least three
+// quarters of the records are left to BSDF sampling, and by brute force their
+// mixtures would not have cut the second moment below 0.6 (about what a
+// guided sample's extra cost needs) on average.
+TEST(MixtureQuality, DecisionLeavesCornellBoxToBsdfSampling) {
+    const Scene scene = loadScene(test::sourcePath("data/cornell-box/cornell-box.toml"));
+    const BufferHandle cache = trainedCache(scene);
+    const DecisionCheck check = checkDecisions(scene, test::bufferAs<GuidingCache>(cache));
+    EXPECT_GE(check.bsdfOnly, check.records * 3 / 4);
+    EXPECT_GE(check.bsdfOnlyChecked, 12);
+    EXPECT_GT(check.bsdfOnlyRatio, 0.6);
 }
 
 }  // namespace
