@@ -28,7 +28,7 @@ standard error). Each seed sets both the photon paths and the eye samples
 the eye samples' own error in a crop (about 0.4 % of the indirect light in
 the first) would be one offset common to all rows, which no number of photon
 seeds shows. PM and RS share each seed's photon paths and eye vertices, so
-the photon set's error (1.2 % of the first crop's indirect light per seed
+the photon set's error (about 1.3 % of the first crop's indirect light per seed
 for PM) is largely common to both: the table adds RS - PM per seed, whose
 standard error is the one that tells the two methods' biases apart. Four
 seeds are too few for the bias itself: seeds 11-14 lie 1.3 points below the
