@@ -20,11 +20,21 @@ mean gather radius, §9 and Fig. 10): ray_splat's mean_hit_radius_ppm, R at
 the hits of the splatted rays; for PM the distance to the k-th nearest
 global photon, averaged over 3000 eye vertices drawn with a fixed seed from
 the saved eye vertices and photon map (the gather pass reports no radius).
-With --seeds the PM and RS rows are rendered again with those photon seeds
+With --seeds the PM and RS rows are rendered again with those seeds
 for the mean signed error in the concave corners (crops 20,20,16,16 and
 92,20,16,16, and the whole image, percent of the reference's mean there, ± its
-standard error);
-with --indirect those renders leave the direct light out (eye pass
+standard error). Each seed sets both the photon paths and the eye samples
+(--fixed-eye keeps the job's eye samples): with one eye seed for every run
+the eye samples' own error in a crop (about 0.4 % of the indirect light in
+the first) would be one offset common to all rows, which no number of photon
+seeds shows. PM and RS share each seed's photon paths and eye vertices, so
+the photon set's error (about 1.3 % of the first crop's indirect light per seed
+for PM) is largely common to both: the table adds RS - PM per seed, whose
+standard error is the one that tells the two methods' biases apart. Four
+seeds are too few for the bias itself: seeds 11-14 lie 1.3 points below the
+mean of 20 for PM in the first crop;
+with --corners-only nothing else is rendered and the corner table is only
+printed; with --indirect those renders leave the direct light out (eye pass
 direct_light = false) and are compared with the reference less a one-bounce
 pt image of --direct-spp samples, so that the eye pass's direct-light noise,
 common to both, does not enter the corner figures;
@@ -42,7 +52,8 @@ bytes of the photon rays (ray_bandwidth's output), the splat index
 map (ray_splat's outputs), from --stats, and the process's peak RSS.
 
     python3 tools/prs_report.py [--threads 1] [--photons 200000] [--out results/prs]
-                                [--seeds 11 12 13 14 [--indirect [--direct-spp 1024]]] [--scaling] [--footprint] [--memory]
+                                [--seeds 11 12 13 14 [--indirect [--direct-spp 1024]] [--fixed-eye] [--corners-only]]
+                                [--scaling] [--footprint] [--memory]
                                 [--repeats 3] [--set-pm KEY=VALUE ...] [--set-rs KEY=VALUE ...]
 """
 import argparse
@@ -241,6 +252,10 @@ def main():
     parser.add_argument("--seeds", type=int, nargs="*", default=[],
                         help="photon seeds for the corner-crop error of PM and RS (e.g. 11 12 13 14)")
     parser.add_argument("--indirect", action="store_true", help="corner crops of the indirect light alone")
+    parser.add_argument("--fixed-eye", action="store_true",
+                        help="keep the job's eye samples for every seed (only the photon paths change)")
+    parser.add_argument("--corners-only", action="store_true",
+                        help="render only the corner seeds of PM and RS and print their table (writes nothing)")
     parser.add_argument("--direct-spp", type=int, default=1024, help="samples of --indirect's one-bounce pt image")
     parser.add_argument("--crop-bandwidth", action="store_true",
                         help="PM's and RS's mean bandwidth in the corner crops (from the saved buffers)")
@@ -274,7 +289,7 @@ def main():
             ("PM-FG (pm-fg, k = 100, 16 FGRs)", os.path.join(SCENE_DIR, "pm-fg.toml")),
             ("RS-FG (prs-fg, C = 0.6, S = 0.8, 16 FGRs, 1 tile)", os.path.join(SCENE_DIR, "prs-fg.toml")),
         ]
-        for label, job in methods:
+        for label, job in methods if not args.corners_only else ():
             out_dir = os.path.join(scratch, str(len(rows)))
             os.makedirs(out_dir)
             print(f"rendering {label} ...", file=sys.stderr)
@@ -303,18 +318,25 @@ def main():
             target = indirect_reference(args.binary, Path(scratch), reference, args.direct_spp)
             ref_means = [crop_mean(target, 128, c) for c in corner_crops]
             corner_settings = ["--set", "passes.eye.direct_light=false"]
+        per_seed = {}
         for label, job in methods[:2] if args.seeds else ():
             errors = [[] for _ in corner_crops]
             for seed in args.seeds:
                 out_dir = os.path.join(scratch, f"seed-{len(rows)}-{seed}-{len(corners)}")
                 os.makedirs(out_dir)
-                print(f"rendering {label}, photon seed {seed} ...", file=sys.stderr)
+                print(f"rendering {label}, seed {seed} ...", file=sys.stderr)
+                seeds = ["--set", f"passes.photon.seed={seed}"] + ([] if args.fixed_eye else ["--set", f"seed={seed}"])
                 _, _, image = render(args.binary, job, out_dir, args.threads, args.photons,
-                                     ["--set", f"passes.photon.seed={seed}"] + corner_settings + rs_settings(label))
+                                     seeds + corner_settings + rs_settings(label))
                 pixels = read_exr_rgb(image)
                 for i, crop in enumerate(corner_crops):
                     errors[i].append(100.0 * (crop_mean(pixels, 128, crop) - ref_means[i]) / ref_means[i])
             corners[label] = [mean_and_error(e) for e in errors]
+            per_seed[label] = errors
+        if len(per_seed) == 2:
+            pm, rs = per_seed.values()
+            corners["RS - PM, seed by seed"] = [mean_and_error([r - p for r, p in zip(rs_e, pm_e)])
+                                                for rs_e, pm_e in zip(rs, pm)]
 
         scaling = {}
         base_photons = args.photons or 200000
@@ -349,6 +371,16 @@ def main():
                                     ["--set", "film.width=500", "--set", "film.height=500", "--set",
                                      "passes.eye.spp=1"] + rs_settings("RS "), peak=peak)
             memory.append((paths, counters, peak[0]))
+
+    if args.corners_only:
+        what = "of the indirect light against the reference less one-bounce pt" if args.indirect else ""
+        eye = "the job's eye samples" if args.fixed_eye else "each seed's own eye samples"
+        print(f"Corner crops, mean signed error {what} over seeds {args.seeds} ({eye}):\n")
+        print("| Method | " + " | ".join(f"crop {','.join(map(str, c))}" for c in corner_crops) + " |")
+        print("|---|" + "---:|" * len(corner_crops))
+        for label, cells in corners.items():
+            print(f"| {label} | " + " | ".join(f"{m:+.2f} % ± {e:.2f}" for m, e in cells) + " |")
+        return
 
     load = os.getloadavg()[0]
     lines = [
@@ -391,7 +423,8 @@ def main():
                               for c, (pm, rs) in zip(CROPS, rs_counters["crop_bandwidths"])) + "."]
     if corners:
         what = "of the indirect light against the reference less one-bounce pt" if args.indirect else ""
-        lines += ["", f"Corner crops, mean signed error {what} over photon seeds {args.seeds}:", "",
+        eye = "the job's eye samples" if args.fixed_eye else "each seed's own eye samples"
+        lines += ["", f"Corner crops, mean signed error {what} over seeds {args.seeds} ({eye}):", "",
                   "| Method | " + " | ".join(f"crop {','.join(map(str, c))}" for c in corner_crops) + " |",
                   "|---|" + "---:|" * len(corner_crops)]
         for label, cells in corners.items():
