@@ -330,10 +330,13 @@ BufferCodec guidingCacheCodec() {
 // The fitted Gaussian mixture of pem_fit and em_fit (Jakob et al. 2011 §5),
 // saved so that the next frame of an animation can seed its fit with it
 // (§5.4). Its codec version is the first scalar, so that a later layout is
-// refused rather than misread. A loaded mixture is rendered and refitted
-// without being factorised again: every component must be finite with a
-// positive Cholesky diagonal and a non-negative weight.
-constexpr std::uint32_t kGaussianMixtureCodecVersion = 1;
+// refused rather than misread. Version 2 writes the stored form of
+// GmmStoredBuffer (13 parameters and n_eff as floats, 56 bytes per Gaussian)
+// and expands it on loading as the fits do, so the loaded mixture equals
+// the saved one bit for bit; version 1 wrote every column in doubles,
+// derived ones included (216 bytes per Gaussian). A loaded mixture must be
+// usable: finite values, a non-negative weight, a positive Cholesky diagonal.
+constexpr std::uint32_t kGaussianMixtureCodecVersion = 2;
 
 template <class Buffer>
 bool validGaussianComponent(const Buffer& components, std::size_t s) {
@@ -353,21 +356,29 @@ bool validGaussianComponent(const Buffer& components, std::size_t s) {
 BufferCodec gaussianMixtureCodec() {
     return codecFor<GaussianMixture>(
         [](const GaussianMixture& mixture, CodecWriter& writer) {
-            writer.setItemCount(mixture.components.size());
+            const GmmBuffer& components = mixture.components;
+            GmmStoredBuffer stored(components.size());
+            for (std::size_t s = 0; s < components.size(); ++s) stored.set(s, storedComponent(components, s));
+            writer.setItemCount(components.size());
             writer.write<std::uint32_t>(kGaussianMixtureCodecVersion);
             writer.write<std::uint64_t>(mixture.photons);
-            writer.writeSoa("components", mixture.components);
+            writer.writeSoa("components", writer.own(std::move(stored)));
         },
         [](CodecReader& reader) {
             const auto version = reader.read<std::uint32_t>();
+            if (version == 1)
+                reader.fail("a Gaussian mixture in the layout of codec version 1 (doubles with derived columns); this "
+                            "build reads version 2 (floats): fit and save it again with this build");
             if (version != kGaussianMixtureCodecVersion)
                 reader.fail("a Gaussian mixture of codec version " + std::to_string(version) +
                             " (this build reads version " + std::to_string(kGaussianMixtureCodecVersion) + ")");
             GaussianMixture mixture;
             mixture.photons = reader.read<std::uint64_t>();
-            reader.readSoa("components", mixture.components);
-            for (std::size_t s = 0; s < mixture.components.size(); ++s)
-                if (!validGaussianComponent(mixture.components, s))
+            GmmStoredBuffer stored;
+            reader.readSoa("components", stored);
+            mixture.components.resize(stored.size());
+            for (std::size_t s = 0; s < stored.size(); ++s)
+                if (!expandStoredComponent(stored.get(s), mixture.components, s))
                     reader.fail("corrupt buffer: Gaussian component " + std::to_string(s));
             return mixture;
         });

@@ -26,6 +26,7 @@
 #include <cstring>
 #include <fstream>
 #include <functional>
+#include <memory>
 #include <span>
 #include <string>
 #include <string_view>
@@ -83,6 +84,15 @@ public:
     void writeSoa(const std::string& prefix, const SoaBuffer<Columns...>& buffer) {
         (writeVector(prefix + "." + Columns::name, buffer.template column<Columns>()), ...);
     }
+    // Keeps `value` until the payload is written and returns it: columns a
+    // codec computes while saving (a buffer's stored form) are written from it.
+    template <class T>
+    const T& own(T value) {
+        auto held = std::make_shared<const T>(std::move(value));
+        const T& kept = *held;
+        owned_.push_back(std::move(held));
+        return kept;
+    }
     // The buffer's item count for the header (photons, vertices, pixels, ...).
     void setItemCount(std::uint64_t items) { items_ = items; }
 
@@ -104,6 +114,7 @@ private:
     std::vector<Piece> pieces_;
     std::vector<CodecColumn> columns_;
     std::uint64_t items_ = 0;
+    std::vector<std::shared_ptr<const void>> owned_;
 };
 
 // Reads a buffer file: the header when constructed, then the payload as the

@@ -83,7 +83,14 @@ GaussianFactors factorise(const Sym3& s) {
     const double l22sq = s.v[5] - l20 * l20 - l21 * l21;
     if (!(l22sq > 0.0)) return f;
     const double l22 = std::sqrt(l22sq);
-    f.cholesky = Sym3{{l00, l10, l20, l11, l21, l22}};
+    return factorsFromCholesky(Sym3{{l00, l10, l20, l11, l21, l22}});
+}
+
+GaussianFactors factorsFromCholesky(const Sym3& l) {
+    GaussianFactors f;
+    const double l00 = l.v[0], l10 = l.v[1], l20 = l.v[2], l11 = l.v[3], l21 = l.v[4], l22 = l.v[5];
+    if (!(l00 > 0.0 && l11 > 0.0 && l22 > 0.0)) return f;
+    f.cholesky = l;
     // M = L^-1 (lower triangular), Sigma^-1 = M^T M.
     const double m00 = 1.0 / l00, m11 = 1.0 / l11, m22 = 1.0 / l22;
     const double m10 = -l10 * m00 / l11;
@@ -94,6 +101,16 @@ GaussianFactors factorise(const Sym3& s) {
     f.logNormaliser = -1.5 * kLog2Pi - (std::log(l00) + std::log(l11) + std::log(l22));
     f.valid = std::isfinite(f.logNormaliser);
     return f;
+}
+
+Gaussian Gaussian::fromCholesky(const Vec3d& mu, const Sym3& l) {
+    Gaussian g;
+    g.mean = mu;
+    // Sigma = L L^T entry by entry (L lower triangular).
+    g.covariance = Sym3{{l.v[0] * l.v[0], l.v[0] * l.v[1], l.v[0] * l.v[2], l.v[1] * l.v[1] + l.v[3] * l.v[3],
+                         l.v[1] * l.v[2] + l.v[3] * l.v[4], l.v[2] * l.v[2] + l.v[4] * l.v[4] + l.v[5] * l.v[5]}};
+    g.factors = factorsFromCholesky(l);
+    return g;
 }
 
 double Gaussian::logDensity(const Vec3d& x) const {

@@ -57,6 +57,10 @@ struct GaussianFactors {
     bool valid = false;          // false when Sigma is not positive definite
 };
 GaussianFactors factorise(const Sym3& covariance);
+// The same factors from the lower Cholesky factor L itself (L00, L10, L20,
+// L11, L21, L22); invalid unless its diagonal is positive. factorise(Sigma)
+// is factorsFromCholesky of Sigma's factor, bit for bit.
+GaussianFactors factorsFromCholesky(const Sym3& cholesky);
 
 struct Gaussian {
     Vec3d mean{0.0};
@@ -65,6 +69,10 @@ struct Gaussian {
 
     Gaussian() = default;
     Gaussian(const Vec3d& mu, const Sym3& sigma) : mean(mu), covariance(sigma), factors(factorise(sigma)) {}
+    // The Gaussian whose covariance is L L^T, for a mixture kept as its
+    // Cholesky factors (see GmmStoredBuffer): positive definite whenever L's
+    // diagonal is positive, however it was rounded.
+    static Gaussian fromCholesky(const Vec3d& mu, const Sym3& cholesky);
 
     // log g(x | Theta), Eq. 5.
     double logDensity(const Vec3d& x) const;

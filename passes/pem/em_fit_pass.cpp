@@ -57,7 +57,9 @@ PassRegistration emFitPass() {
     spec.doc = "Accelerated EM (Jakob et al. 2011 Alg. 1, sparse as §5.3) of a k-term Gaussian mixture on a fixed cut "
                "of the statistics tree; powers follow the responsibilities";
     spec.inputs = {{"tree", "EmTree", "statistics kd-tree (em_stats)"}};
-    spec.outputs = {{"gmm", "GaussianMixture", "the fitted mixture: weight, power, mean, covariance and factors, n_eff"}};
+    spec.outputs = {{"gmm", "GaussianMixture",
+                     "the fitted mixture: weight, power, mean, covariance and factors, n_eff (parameters rounded "
+                     "to the floats it is saved in)"}};
     spec.params = {
         {"k", ParamType::Int, std::int64_t{4096}, 1, 1 << 22, {}, "Gaussian components (initial guess: a k-cell cut)"},
         {"cut", ParamType::Int, std::int64_t{8}, 1, 1 << 10, {},

@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <stdexcept>
 #include <string>
 
 namespace fg {
@@ -28,15 +29,20 @@ double ridgeInSceneUnits(const EmTree& tree, double regCovar) {
     return regCovar * side * side;
 }
 
-void storeMixture(const std::vector<gmm::EmComponent>& components, std::uint64_t photons, GaussianMixture& mixture) {
+void storeMixture(const std::vector<gmm::EmComponent>& components, std::uint64_t photons, GaussianMixture& mixture,
+                  double powerScale) {
     mixture.photons = photons;
     mixture.components.resize(components.size());
     for (std::size_t s = 0; s < components.size(); ++s) {
         mixture.components.column<GmmWeight>()[s] = components[s].weight;
-        mixture.components.column<GmmPower>()[s] = components[s].power;
+        mixture.components.column<GmmPower>()[s] = components[s].power * powerScale;
         mixture.components.column<GmmEffectiveCount>()[s] = components[s].effectiveCount;
         setGaussianAt(mixture.components, s, components[s].gaussian);
     }
+    // Handed on in the single precision it is saved in (GmmStoredBuffer), so
+    // that a saved and loaded mixture renders and seeds exactly as this one.
+    if (!roundToStored(mixture.components))
+        throw std::logic_error("a fitted Gaussian component does not survive rounding to single precision");
 }
 
 void reportFit(PassContext& ctx, const gmm::EmRun& run, const std::vector<gmm::EmComponent>& components,

@@ -19,7 +19,10 @@ void refuseAnisotropicMedia(const PreflightContext& pf);
 // its longest side is 1); this is its value in scene units squared.
 double ridgeInSceneUnits(const EmTree& tree, double regCovar);
 
-void storeMixture(const std::vector<gmm::EmComponent>& components, std::uint64_t photons, GaussianMixture& mixture);
+// The fitted components as the fit's output, powers times powerScale, rounded
+// to the stored form (GmmStoredBuffer).
+void storeMixture(const std::vector<gmm::EmComponent>& components, std::uint64_t photons, GaussianMixture& mixture,
+                  double powerScale = 1.0);
 
 // Counters every fit reports.
 void reportFit(PassContext& ctx, const gmm::EmRun& run, const std::vector<gmm::EmComponent>& components,

@@ -162,10 +162,9 @@ public:
         fitNs_ += jobs::wallNanos() - start;
         GaussianMixture& mixture = ctx.createOutput<GaussianMixture>("gmm");
         if (!started_) return;
-        storeMixture(components_, photons_, mixture);
         // Powers over all paths the used photons came from (see the file comment).
         const double powerScale = static_cast<double>(firstEmitted_) / static_cast<double>(lastEmitted_);
-        for (glm::dvec3& p : mixture.components.column<GmmPower>()) p *= powerScale;
+        storeMixture(components_, photons_, mixture, powerScale);
         ctx.addItems(static_cast<std::int64_t>(photons_));
         ctx.addCounter("photons", static_cast<std::int64_t>(photons_));
         ctx.addCounter("batches", batches_);
@@ -462,7 +461,9 @@ PassRegistration pemFitPass() {
                     "components, not k) and starts the fit on a cut of seeded_cut cells per component (§5.4, temporal "
                     "coherence)",
                     false, true}};
-    spec.outputs = {{"gmm", "GaussianMixture", "the fitted mixture: weight, power, mean, covariance and factors, n_eff"}};
+    spec.outputs = {{"gmm", "GaussianMixture",
+                     "the fitted mixture: weight, power, mean, covariance and factors, n_eff (parameters rounded "
+                     "to the floats it is saved in)"}};
     spec.params = {
         {"k", ParamType::Int, std::int64_t{4096}, 1, 1 << 22, {}, "Gaussian components (initial guess: a k-cell cut)"},
         {"cut", ParamType::Int, std::int64_t{8}, 1, 1 << 10, {}, "cells of the initial cut per component (§5.1: 8)"},
