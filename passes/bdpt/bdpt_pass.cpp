@@ -54,6 +54,7 @@
 #include "passes/bdpt/bdpt_path.h"
 #include "passes/common/light_media.h"
 #include "passes/common/path_vertex.h"
+#include "passes/common/roulette.h"
 #include "passes/passes.h"
 
 #include "engine/accel/ray_query.h"
@@ -100,6 +101,7 @@ struct Settings {
     int spp = 16;
     int maxDepth = 17;  // Mitsuba's: longest path in segments
     int rrDepth = 5;
+    float rrThreshold = 1.0f;
     MisHeuristic heuristic = MisHeuristic::Power;
     int strategyLength = 0;  // write per-strategy AOVs for paths up to this many segments
     bool weightedStrategies = true;
@@ -145,19 +147,15 @@ struct PendingConnection {
 };
 
 // Russian roulette on the throughput relative to the subpath's start.
-bool survives(int scatterings, int rrDepth, float startMax, float etaScale, Rgb& beta, jobs::Rng& rng) {
+bool survives(int scatterings, int rrDepth, float rrThreshold, float startMax, float etaScale, Rgb& beta,
+              jobs::Rng& rng) {
     if (scatterings < rrDepth) return true;
-    const float m = maxComponent(beta * etaScale) / startMax;
-    if (m >= 1.0f) return true;
-    const float q = std::max(0.05f, 1.0f - m);
-    if (rng.uniform() < q) return false;
-    beta /= 1.0f - q;
-    return true;
+    return rouletteSurvives(maxComponent(beta * etaScale) / startMax, rrThreshold, rng, beta);
 }
 
 // Extends path[0] (the camera or a light origin) by a random walk; returns the vertex count.
 int randomWalk(const BdptScene& bs, Ray ray, Rgb beta, float pdfDirection, int medium, TransportMode mode,
-               int maxVertices, int rrDepth, jobs::Rng& rng, BdptVertex* path) {
+               int maxVertices, int rrDepth, float rrThreshold, jobs::Rng& rng, BdptVertex* path) {
     const Scene& scene = bs.scene;
     int count = 1;
     float etaScale = 1.0f;
@@ -198,7 +196,7 @@ int randomWalk(const BdptScene& bs, Ray ray, Rgb beta, float pdfDirection, int m
                 path[count - 2].pdfRev = bdptConvertDensity(ps.pdf, added, path[count - 2]) * added.distancePdfRev;
                 pdfDirection = ps.pdf;
                 ray = Ray{added.p, ps.wi, kInfinity};
-                if (!survives(count - 1, rrDepth, startMax, etaScale, beta, rng)) break;
+                if (!survives(count - 1, rrDepth, rrThreshold, startMax, etaScale, beta, rng)) break;
                 continue;
             }
         }
@@ -291,7 +289,7 @@ int randomWalk(const BdptScene& bs, Ray ray, Rgb beta, float pdfDirection, int m
         }
         pdfDirection = pdfForward;
         ray = Ray{offsetRayOrigin(sp.p, sp.ng, wi), wi, kInfinity};
-        if (!survives(count - 1, rrDepth, startMax, etaScale, beta, rng)) break;
+        if (!survives(count - 1, rrDepth, rrThreshold, startMax, etaScale, beta, rng)) break;
     }
     return count;
 }
@@ -452,6 +450,7 @@ public:
         settings.spp = static_cast<int>(params.getInt("spp"));
         settings.maxDepth = static_cast<int>(params.getInt("max_depth"));
         settings.rrDepth = static_cast<int>(params.getInt("rr_depth"));
+        settings.rrThreshold = static_cast<float>(params.getFloat("rr_threshold"));
         settings.heuristic = params.getString("heuristic") == "balance" ? MisHeuristic::Balance : MisHeuristic::Power;
         settings.strategyLength = static_cast<int>(params.getInt("strategy_aovs"));
         settings.weightedStrategies = params.getBool("strategy_weighted");
@@ -532,7 +531,7 @@ public:
                         const Ray ray = camera.generateRay(raster[i]);
                         cameraLength[i] = static_cast<std::uint16_t>(randomWalk(
                             bs, ray, Rgb(1.0f), 0.0f, camera.medium, TransportMode::Radiance, cameraMax,
-                            settings.rrDepth, rngs[i], path));
+                            settings.rrDepth, settings.rrThreshold, rngs[i], path));
                     }
                 });
 
@@ -661,7 +660,7 @@ private:
         ray.direction = emission->direction;
         ray.tMax = kInfinity;
         return randomWalk(bs, ray, emission->flux / pmf, emission->pdfDirection, medium, TransportMode::Importance,
-                          lightMax, settings.rrDepth, rng, path);
+                          lightMax, settings.rrDepth, settings.rrThreshold, rng, path);
     }
 
     // Every strategy (s, t) of one sample: s = 0 is added at once, the others
@@ -872,6 +871,10 @@ PassRegistration bdptPass() {
          "(pt's max_depth + 1)"},
         {"rr_depth", ParamType::Int, std::int64_t{5}, 1, 4096, {},
          "scattering events on a subpath before Russian roulette may end it"},
+        {"rr_threshold", ParamType::Float, 1.0, 1e-30, 1.0, {},
+         "throughput, relative to the subpath's start, below which Russian roulette may end it: it survives "
+         "with probability min(throughput / rr_threshold, 0.95); 1 = classic roulette, 1e-5 = Vorba et al. 2014 "
+         "§4.5 (for guided paths)"},
         {"heuristic", ParamType::String, std::string("power"), 0, 0, {"power", "balance"},
          "MIS heuristic combining the strategies (Veach 1997 §9.2)"},
         {"strategy_aovs", ParamType::Int, std::int64_t{0}, 0, 6, {},

@@ -15,6 +15,7 @@
 // vertices, and every vertex without a cache, draw exactly the numbers and
 // values of the unguided tracer.
 #include "passes/common/path_vertex.h"
+#include "passes/common/roulette.h"
 
 #include "engine/guiding/guided_sampling.h"
 #include "engine/guiding/guiding_cache.h"
@@ -126,12 +127,7 @@ VertexGuide findGuide(const PathTracerScene& pts, const Bsdf& bsdf, const Surfac
 
 bool russianRoulette(const PathLimits& limits, PathVertexState& s) {
     if (s.history.depth < limits.rrDepth) return true;
-    const float m = maxComponent(s.throughput * s.history.etaScale);
-    if (m >= 1.0f) return true;
-    const float q = std::max(0.05f, 1.0f - m);
-    if (s.rng.uniform() < q) return false;
-    s.throughput /= 1.0f - q;
-    return true;
+    return rouletteSurvives(maxComponent(s.throughput * s.history.etaScale), limits.rrThreshold, s.rng, s.throughput);
 }
 
 }  // namespace

@@ -53,6 +53,7 @@ void guideByRadianceCache(PathTracerScene& pts, const GuidingCache& cache, const
 struct PathLimits {
     int maxDepth = 16;
     int rrDepth = 5;
+    float rrThreshold = 1.0f;  // roulette.h
 };
 
 // What MIS and medium tracking need to remember about the previous vertex.

@@ -96,6 +96,7 @@
 #include "passes/passes.h"
 #include "passes/common/light_media.h"
 #include "passes/common/path_vertex.h"
+#include "passes/common/roulette.h"
 
 #include "engine/shading/differentials.h"
 #include "engine/core/error.h"
@@ -140,6 +141,7 @@ struct Settings {
     std::uint64_t volumeTarget = 0;  // 0: emit `photons` paths
     int maxDepth = 16;
     int rrDepth = 5;
+    float rrThreshold = 1.0f;
     bool storeCaustic = true;
     bool storeGlobal = true;
     bool storeVolume = true;
@@ -297,12 +299,7 @@ public:
 
         const auto survivesRoulette = [&] {
             if (depth < settings_.rrDepth) return true;
-            const float m = maxComponent(throughput);
-            if (m >= 1.0f) return true;
-            const float q = std::max(0.05f, 1.0f - m);
-            if (rng.uniform() < q) return false;
-            throughput /= 1.0f - q;
-            return true;
+            return rouletteSurvives(maxComponent(throughput), settings_.rrThreshold, rng, throughput);
         };
 
         while (true) {
@@ -634,6 +631,7 @@ public:
         settings.volumeTarget = static_cast<std::uint64_t>(params.getInt("volume_photons"));
         settings.maxDepth = static_cast<int>(params.getInt("max_depth"));
         settings.rrDepth = static_cast<int>(params.getInt("rr_depth"));
+        settings.rrThreshold = static_cast<float>(params.getFloat("rr_threshold"));
         const std::string& store = params.getString("store");
         settings.storeCaustic = store == "caustic" || store == "surface" || store == "all";
         settings.storeGlobal = store == "global" || store == "surface" || store == "all";
@@ -940,6 +938,10 @@ PassRegistration photonPass() {
          "maximum scattering events (surface or medium) per photon path; 1 = only the first event"},
         {"rr_depth", ParamType::Int, std::int64_t{5}, 1, 4096, {},
          "scattering events before Russian roulette may end a photon path"},
+        {"rr_threshold", ParamType::Float, 1.0, 1e-30, 1.0, {},
+         "throughput, relative to the photon path's start, below which Russian roulette may end it: it survives "
+         "with probability min(throughput / rr_threshold, 0.95); 1 = classic roulette, 1e-5 = Vorba et al. 2014 "
+         "§4.5 (for guided paths)"},
         {"store", ParamType::String, std::string("all"), 0, 0, {"caustic", "global", "surface", "volume", "all", "none"},
          "which photons to keep: caustic (L S+ D), global (after a non-specular event), surface (both), "
          "volume (medium events), all, or none (photon rays only)"},

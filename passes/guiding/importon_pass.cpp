@@ -15,9 +15,9 @@
 // buffer is the same for any thread count.
 //
 // Not yet here (issue 20): exit points of importons leaving the scene (for
-// guided environment emission, §4.4) and the weight-based Russian roulette of
-// §4.5; the importons' weights are stored for the importance cache that will
-// train on them.
+// guided environment emission, §4.4). The weight-based Russian roulette of
+// §4.5 is pt's with `rr_threshold` below 1 (roulette.h); the importons'
+// weights are stored for the importance cache that will train on them.
 #include "passes/common/path_vertex.h"
 #include "passes/passes.h"
 
@@ -49,6 +49,7 @@ public:
         PathLimits limits;
         limits.maxDepth = static_cast<int>(params.getInt("max_depth"));
         limits.rrDepth = static_cast<int>(params.getInt("rr_depth"));
+        limits.rrThreshold = static_cast<float>(params.getFloat("rr_threshold"));
 
         const Camera camera = ctx.filmCamera();
         PathTracerScene pts(scene, ctx.rays());
@@ -135,6 +136,10 @@ PassRegistration importonPass() {
          "maximum number of scattering events per path (as pt's)"},
         {"rr_depth", ParamType::Int, std::int64_t{5}, 1, 4096, {},
          "scattering events before Russian roulette may end a path (as pt's)"},
+        {"rr_threshold", ParamType::Float, 1.0, 1e-30, 1.0, {},
+         "throughput, relative to the path's start, below which Russian roulette may end it: it survives "
+         "with probability min(throughput / rr_threshold, 0.95); 1 = classic roulette, 1e-5 = Vorba et al. 2014 "
+         "§4.5 (for guided paths)"},
     };
     const std::vector<ParamSpec> guided = guidedSamplingParams();
     spec.params.insert(spec.params.end(), guided.begin(), guided.end());

@@ -246,6 +246,7 @@ public:
         settings.spp = static_cast<int>(params.getInt("spp"));
         settings.limits.maxDepth = static_cast<int>(params.getInt("max_depth"));
         settings.limits.rrDepth = static_cast<int>(params.getInt("rr_depth"));
+        settings.limits.rrThreshold = static_cast<float>(params.getFloat("rr_threshold"));
         settings.waveSize = static_cast<std::size_t>(params.getInt("wave_size"));
         settings.wavefront = params.getString("schedule") == "wavefront";
 
@@ -366,6 +367,10 @@ PassRegistration pathTracerPass() {
          "max_depth"},
         {"rr_depth", ParamType::Int, std::int64_t{5}, 1, 4096, {},
          "scattering events before Russian roulette may end a path"},
+        {"rr_threshold", ParamType::Float, 1.0, 1e-30, 1.0, {},
+         "throughput, relative to the path's start, below which Russian roulette may end it: it survives "
+         "with probability min(throughput / rr_threshold, 0.95); 1 = classic roulette, 1e-5 = Vorba et al. 2014 "
+         "§4.5 (for guided paths)"},
         {"schedule", ParamType::String, std::string("wavefront"), 0, 0, {"wavefront", "tile"},
          "wavefront: SoA path queues advanced stage by stage; tile: each pixel's paths traced to completion"},
         {"wave_size", ParamType::Int, std::int64_t{1 << 18}, 1, 1 << 26, {},
