@@ -67,7 +67,7 @@ CLI::App* addCompareSubcommand(CLI::App& app, CompareOptions& options) {
         ->required();
     compare->add_option("reference", options.referencePath, "reference image, same size")->required();
     compare->add_option("--metric", options.metric, "metric line(s) to print")
-        ->check(CLI::IsMember({"rmse", "relmse", "mae", "ssim", "psnr", "all"}));
+        ->check(CLI::IsMember({"rmse", "relmse", "mae", "ssim", "psnr", "worst_relse", "all"}));
     compare->add_option("--heatmap", options.heatmapPath, "write a false-colour relative-error PNG");
     compare->add_option("--crop", options.crop, "compare only the rectangle x,y,width,height (y down from the top)");
     return compare;
@@ -96,7 +96,7 @@ int runCompare(const CompareOptions& options) {
 
         const std::vector<std::pair<const char*, double>> lines = {
             {"rmse", metrics.rmse}, {"relmse", metrics.relmse}, {"mae", metrics.mae},
-            {"ssim", metrics.ssim}, {"psnr", metrics.psnr},
+            {"ssim", metrics.ssim}, {"psnr", metrics.psnr}, {"worst_relse", metrics.worstRelse},
         };
         for (const auto& [name, value] : lines)
             if (options.metric == "all" || options.metric == name) std::cout << name << ' ' << formatValue(value) << '\n';

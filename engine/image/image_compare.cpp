@@ -179,15 +179,19 @@ double ssimToneMappedLuminance(const Rgb& linear) {
 ImageMetrics compareImages(const ImageChannels& test, const ImageChannels& reference, std::optional<CropRect> crop) {
     const CropRect region = checkedRegion(test, reference, crop);
     const std::size_t pixels = static_cast<std::size_t>(region.width) * static_cast<std::size_t>(region.height);
-    double squared = 0.0, relative = 0.0, absolute = 0.0;
+    double squared = 0.0, relative = 0.0, absolute = 0.0, worst = 0.0;
     std::vector<double> lumaTest(pixels), lumaReference(pixels);
     forEachPixel(test, reference, region, [&](const Rgb& v, const Rgb& r, std::size_t i) {
+        double pixelRelative = 0.0;
         for (int c = 0; c < 3; ++c) {
             const double difference = static_cast<double>(v[c]) - static_cast<double>(r[c]);
             squared += difference * difference;
             absolute += std::abs(difference);
-            relative += relativeSquaredError(v[c], r[c]);
+            const double channelRelative = relativeSquaredError(v[c], r[c]);
+            relative += channelRelative;
+            pixelRelative += channelRelative;
         }
+        worst = std::max(worst, pixelRelative / 3.0);
         lumaTest[i] = ssimToneMappedLuminance(v);
         lumaReference[i] = ssimToneMappedLuminance(r);
     });
@@ -196,6 +200,7 @@ ImageMetrics compareImages(const ImageChannels& test, const ImageChannels& refer
     const double mse = squared / values;
     metrics.rmse = std::sqrt(mse);
     metrics.relmse = relative / values;
+    metrics.worstRelse = worst;
     metrics.mae = absolute / values;
     metrics.psnr = mse == 0.0 ? std::numeric_limits<double>::infinity() : 10.0 * std::log10(kPsnrPeak * kPsnrPeak / mse);
     metrics.ssim = meanSsim(lumaTest, lumaReference, region.width, region.height);

@@ -25,6 +25,9 @@ struct ImageMetrics {
     double mae = 0.0;
     double ssim = 0.0;
     double psnr = 0.0;
+    // Largest per-pixel relative squared error (mean over the channels): relmse
+    // of a few pixels can dominate the image's, and this tells them apart.
+    double worstRelse = 0.0;
 };
 
 // A pixel rectangle: top-left corner (x to the right, y down from the top row) and size.

@@ -98,13 +98,14 @@ TEST(CliCompare, PrintsTheLibraryValuesAndMetricSelectsOneLine) {
                                                 {"relmse", expected.relmse},
                                                 {"mae", expected.mae},
                                                 {"ssim", expected.ssim},
-                                                {"psnr", expected.psnr}};
+                                                {"psnr", expected.psnr},
+                                                {"worst_relse", expected.worstRelse}};
 
     const CommandResult all = runCompare(dir, {testPath, refPath, "--metric", "all"});
     ASSERT_EQ(all.exitCode, 0) << all.err;
     const auto lines = parseLines(all.out);
-    ASSERT_EQ(lines.size(), 5u) << all.out;
-    const char* order[] = {"rmse", "relmse", "mae", "ssim", "psnr"};
+    ASSERT_EQ(lines.size(), 6u) << all.out;
+    const char* order[] = {"rmse", "relmse", "mae", "ssim", "psnr", "worst_relse"};
     for (std::size_t i = 0; i < lines.size(); ++i) {
         EXPECT_EQ(lines[i].first, order[i]);
         EXPECT_NEAR(lines[i].second, want.at(order[i]), 1e-9 * std::abs(want.at(order[i])));

@@ -90,6 +90,8 @@ TEST(ImageCompare, RelMseWorkedByHand) {
     EXPECT_NEAR(m.relmse, 3.25 / 6.0, 1e-5);
     EXPECT_NEAR(m.mae, 2.11 / 6.0, 1e-6);
     EXPECT_NEAR(m.rmse, std::sqrt(2.0101 / 6.0), 1e-6);
+    // Worst pixel: pixel 0's mean over its channels, 2 / 3 (pixel 1's is 1.25 / 3).
+    EXPECT_NEAR(m.worstRelse, 2.0 / 3.0, 1e-5);
     // relMSE divides by the reference, not the test image: swapping them changes it.
     EXPECT_GT(std::abs(compareImages(reference, test).relmse - m.relmse), 0.1);
 }
