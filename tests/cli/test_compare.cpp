@@ -83,7 +83,7 @@ TEST(CliCompare, IdenticalImagesPrintEveryMetricInOrder) {
     const std::string a = writeImage(dir, "a.exr", texturedImage(16, 12, 0.0f));
     const CommandResult r = runCompare(dir, {a, a});
     EXPECT_EQ(r.exitCode, 0) << r.err;
-    EXPECT_EQ(r.out, "rmse 0\nrelmse 0\nmae 0\nssim 1\npsnr inf\n");
+    EXPECT_EQ(r.out, "rmse 0\nrelmse 0\nmae 0\nssim 1\npsnr inf\nworst_relse 0\n");
     EXPECT_EQ(r.err, "");
 }
 
