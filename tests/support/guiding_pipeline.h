@@ -5,11 +5,16 @@
 #pragma once
 
 #include "engine/core/job.h"
+#include "engine/core/math.h"
 #include "engine/core/pass.h"
 
+#include <gtest/gtest.h>
+
 #include <cstdint>
+#include <cstring>
 #include <map>
 #include <string>
+#include <vector>
 
 namespace fg::test {
 
@@ -95,6 +100,27 @@ inline std::map<std::string, ParamValue> trainingParams(std::int64_t photons, st
             // Fewer training particles and a looser off-line EM than the paper's, to keep the tests short.
             {"radiance_update.training_particles", std::int64_t{64}},
             {"radiance_update.tolerance", 1e-3}};
+}
+
+// Training of both caches (importance from importons, radiance from photons)
+// for the built-in guided bdpt and guided-photon pipelines.
+inline std::map<std::string, ParamValue> bothCachesTrainingParams(std::int64_t photons) {
+    return {{"importon.spp", std::int64_t{4}},
+            {"photon.photons", photons},
+            {"photon.store", std::string("global")},
+            {"photon.differentials", false},
+            // Fewer training particles than the paper's 250, to keep the tests short.
+            {"radiance_update.training_particles", std::int64_t{64}},
+            {"importance_update.training_particles", std::int64_t{64}}};
+}
+
+// A guided image must not be black and must be the same bytes at 1 and 2 threads.
+inline void expectSameNonBlackImage(const std::vector<Rgb>& one, const std::vector<Rgb>& two) {
+    ASSERT_EQ(one.size(), two.size());
+    double sum = 0.0;
+    for (const Rgb& p : one) sum += p.x + p.y + p.z;
+    EXPECT_GT(sum, 0.0);
+    EXPECT_EQ(std::memcmp(one.data(), two.data(), one.size() * sizeof(Rgb)), 0);
 }
 
 }  // namespace fg::test

@@ -32,17 +32,12 @@ namespace fg {
 namespace {
 
 std::map<std::string, ParamValue> trainingParams(std::int64_t photons) {
-    return {{"importon.spp", std::int64_t{4}},
-            {"photon.photons", photons},
-            {"photon.store", std::string("global")},
-            {"photon.differentials", false},
-            // Fewer training particles than the paper's 250, to keep the tests short.
-            {"radiance_update.training_particles", std::int64_t{64}},
-            {"importance_update.training_particles", std::int64_t{64}},
-            // Every record's mixture guides, so that the tests judge the guided
-            // photons themselves, not which records training left to BSDF sampling.
-            {"radiance_update.guide_decision", std::string("always")},
-            {"importance_update.guide_decision", std::string("always")}};
+    auto params = test::bothCachesTrainingParams(photons);
+    // Every record's mixture guides, so that the tests judge the guided
+    // photons themselves, not which records training left to BSDF sampling.
+    params["radiance_update.guide_decision"] = std::string("always");
+    params["importance_update.guide_decision"] = std::string("always");
+    return params;
 }
 
 Scene ajarRoom() { return test::loadAjarRoom("guided-photons"); }
