@@ -871,10 +871,7 @@ PassRegistration bdptPass() {
          "(pt's max_depth + 1)"},
         {"rr_depth", ParamType::Int, std::int64_t{5}, 1, 4096, {},
          "scattering events on a subpath before Russian roulette may end it"},
-        {"rr_threshold", ParamType::Float, 1.0, 1e-30, 1.0, {},
-         "throughput, relative to the subpath's start, below which Russian roulette may end it: it survives "
-         "with probability min(throughput / rr_threshold, 0.95); 1 = classic roulette, 1e-5 = Vorba et al. 2014 "
-         "§4.5 (for guided paths)"},
+        rouletteThresholdParam("subpath"),
         {"heuristic", ParamType::String, std::string("power"), 0, 0, {"power", "balance"},
          "MIS heuristic combining the strategies (Veach 1997 §9.2)"},
         {"strategy_aovs", ParamType::Int, std::int64_t{0}, 0, 6, {},

@@ -416,6 +416,13 @@ void resolveShadowRays(const PathTracerScene& pts, std::span<const std::uint32_t
     if (n > 0) flush();
 }
 
+ParamSpec rouletteThresholdParam(const std::string& pathName) {
+    return {"rr_threshold", ParamType::Float, 1.0, 1e-30, 1.0, {},
+            "throughput, relative to the " + pathName + "'s start, below which Russian roulette may end it: it "
+            "survives with probability min(throughput / rr_threshold, 0.95); 1 = classic roulette, 1e-5 = Vorba "
+            "et al. 2014 §4.5 (for guided paths)"};
+}
+
 std::vector<ParamSpec> guidedSamplingParams() {
     return {
         {"guiding_bsdf_probability", ParamType::Float, 0.5, 0.01, 1.0, {},

@@ -47,6 +47,10 @@ struct PathTracerScene {
 // radiance cache (pt, importon), declared once so that their defaults and
 // documentation agree.
 std::vector<ParamSpec> guidedSamplingParams();
+// `rr_threshold` of every pass whose paths end by roulette.h's rule (pt,
+// importon, photon, bdpt), declared once; `pathName` names what the
+// throughput is relative to the start of ("path", "subpath", ...).
+ParamSpec rouletteThresholdParam(const std::string& pathName);
 // Guides pts's paths by `cache` with the parameters above.
 void guideByRadianceCache(PathTracerScene& pts, const GuidingCache& cache, const PassParams& params);
 

@@ -938,10 +938,7 @@ PassRegistration photonPass() {
          "maximum scattering events (surface or medium) per photon path; 1 = only the first event"},
         {"rr_depth", ParamType::Int, std::int64_t{5}, 1, 4096, {},
          "scattering events before Russian roulette may end a photon path"},
-        {"rr_threshold", ParamType::Float, 1.0, 1e-30, 1.0, {},
-         "throughput, relative to the photon path's start, below which Russian roulette may end it: it survives "
-         "with probability min(throughput / rr_threshold, 0.95); 1 = classic roulette, 1e-5 = Vorba et al. 2014 "
-         "§4.5 (for guided paths)"},
+        rouletteThresholdParam("photon path"),
         {"store", ParamType::String, std::string("all"), 0, 0, {"caustic", "global", "surface", "volume", "all", "none"},
          "which photons to keep: caustic (L S+ D), global (after a non-specular event), surface (both), "
          "volume (medium events), all, or none (photon rays only)"},

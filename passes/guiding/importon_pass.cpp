@@ -136,10 +136,7 @@ PassRegistration importonPass() {
          "maximum number of scattering events per path (as pt's)"},
         {"rr_depth", ParamType::Int, std::int64_t{5}, 1, 4096, {},
          "scattering events before Russian roulette may end a path (as pt's)"},
-        {"rr_threshold", ParamType::Float, 1.0, 1e-30, 1.0, {},
-         "throughput, relative to the path's start, below which Russian roulette may end it: it survives "
-         "with probability min(throughput / rr_threshold, 0.95); 1 = classic roulette, 1e-5 = Vorba et al. 2014 "
-         "§4.5 (for guided paths)"},
+        rouletteThresholdParam("path"),
     };
     const std::vector<ParamSpec> guided = guidedSamplingParams();
     spec.params.insert(spec.params.end(), guided.begin(), guided.end());

@@ -367,10 +367,7 @@ PassRegistration pathTracerPass() {
          "max_depth"},
         {"rr_depth", ParamType::Int, std::int64_t{5}, 1, 4096, {},
          "scattering events before Russian roulette may end a path"},
-        {"rr_threshold", ParamType::Float, 1.0, 1e-30, 1.0, {},
-         "throughput, relative to the path's start, below which Russian roulette may end it: it survives "
-         "with probability min(throughput / rr_threshold, 0.95); 1 = classic roulette, 1e-5 = Vorba et al. 2014 "
-         "§4.5 (for guided paths)"},
+        rouletteThresholdParam("path"),
         {"schedule", ParamType::String, std::string("wavefront"), 0, 0, {"wavefront", "tile"},
          "wavefront: SoA path queues advanced stage by stage; tile: each pixel's paths traced to completion"},
         {"wave_size", ParamType::Int, std::int64_t{1 << 18}, 1, 1 << 26, {},
