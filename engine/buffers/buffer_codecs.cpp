@@ -18,6 +18,7 @@
 #include "engine/image/film.h"
 
 #include <cmath>
+#include <functional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -34,10 +35,11 @@ int readSamplesPerPixel(CodecReader& reader) {
 }
 
 template <class T, class Write, class Read>
-BufferCodec codecFor(Write write, Read read) {
+BufferCodec codecFor(Write write, Read read, std::function<void(CodecReader&)> checkVersion = {}) {
     BufferCodec codec;
     codec.type = BufferTypeName<T>::value;
     codec.write = [write](const void* buffer, CodecWriter& writer) { write(*static_cast<const T*>(buffer), writer); };
+    codec.checkVersion = std::move(checkVersion);
     codec.read = [read](CodecReader& reader) { return makeBufferHandle<T>(read(reader)); };
     return codec;
 }
@@ -365,13 +367,6 @@ BufferCodec gaussianMixtureCodec() {
             writer.writeSoa("components", writer.own(std::move(stored)));
         },
         [](CodecReader& reader) {
-            const auto version = reader.read<std::uint32_t>();
-            if (version == 1)
-                reader.fail("a Gaussian mixture in the layout of codec version 1 (doubles with derived columns); this "
-                            "build reads version 2 (floats): fit and save it again with this build");
-            if (version != kGaussianMixtureCodecVersion)
-                reader.fail("a Gaussian mixture of codec version " + std::to_string(version) +
-                            " (this build reads version " + std::to_string(kGaussianMixtureCodecVersion) + ")");
             GaussianMixture mixture;
             mixture.photons = reader.read<std::uint64_t>();
             GmmStoredBuffer stored;
@@ -381,6 +376,17 @@ BufferCodec gaussianMixtureCodec() {
                 if (!expandStoredComponent(stored.get(s), mixture.components, s))
                     reader.fail("corrupt buffer: Gaussian component " + std::to_string(s));
             return mixture;
+        },
+        [](CodecReader& reader) {
+            const auto version = reader.read<std::uint32_t>();
+            // Version 1 files were written by earlier builds of this one, so
+            // their owners are told how to get a readable file.
+            if (version == 1)
+                reader.fail("a Gaussian mixture in the layout of codec version 1 (doubles with derived columns); this "
+                            "build reads version 2 (floats): fit and save it again with this build");
+            if (version != kGaussianMixtureCodecVersion)
+                reader.fail("a Gaussian mixture of codec version " + std::to_string(version) +
+                            " (this build reads version " + std::to_string(kGaussianMixtureCodecVersion) + ")");
         });
 }
 
@@ -421,16 +427,13 @@ BufferCodec gmmPyramidCodec() {
             writer.writeSoa("nodes", pyramid.nodes);
         },
         [](CodecReader& reader) {
-            const auto version = reader.read<std::uint32_t>();
-            if (version != kGmmPyramidCodecVersion)
-                reader.fail("a Gaussian pyramid of codec version " + std::to_string(version) + " (this build reads version " +
-                            std::to_string(kGmmPyramidCodecVersion) + ")");
             GmmPyramid pyramid;
             pyramid.levels = reader.read<std::uint32_t>();
             reader.readSoa("nodes", pyramid.nodes);
             if (const std::string defect = pyramidDefect(pyramid); !defect.empty()) reader.fail("corrupt buffer: " + defect);
             return pyramid;
-        });
+        },
+        codecVersionCheck(kGmmPyramidCodecVersion, "a Gaussian pyramid"));
 }
 
 BufferCodec gmmBbhCodec() {
@@ -442,10 +445,6 @@ BufferCodec gmmBbhCodec() {
             writer.writeSoa("nodes", bbh.nodes);
         },
         [](CodecReader& reader) {
-            const auto version = reader.read<std::uint32_t>();
-            if (version != kGmmBbhCodecVersion)
-                reader.fail("a Gaussian BBH of codec version " + std::to_string(version) + " (this build reads version " +
-                            std::to_string(kGmmBbhCodecVersion) + ")");
             GmmBbh bbh;
             bbh.truncation = reader.read<double>();
             if (!(bbh.truncation > 0.0 && bbh.truncation < 1.0))
@@ -465,7 +464,8 @@ BufferCodec gmmBbhCodec() {
                 if (!finite || !ordered) reader.fail("corrupt buffer: BBH node " + std::to_string(j));
             }
             return bbh;
-        });
+        },
+        codecVersionCheck(kGmmBbhCodecVersion, "a Gaussian BBH"));
 }
 
 }  // namespace

@@ -8,6 +8,7 @@
 #include "engine/buffers/photon_ray_buffers.h"
 #include "engine/buffers/radiance_cache_buffers.h"
 
+#include <functional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -17,10 +18,11 @@ namespace fg {
 namespace {
 
 template <class T, class Write, class Read>
-BufferCodec codecOf(Write write, Read read) {
+BufferCodec codecOf(Write write, Read read, std::function<void(CodecReader&)> checkVersion = {}) {
     BufferCodec codec;
     codec.type = BufferTypeName<T>::value;
     codec.write = [write](const void* buffer, CodecWriter& writer) { write(*static_cast<const T*>(buffer), writer); };
+    codec.checkVersion = std::move(checkVersion);
     codec.read = [read](CodecReader& reader) { return makeBufferHandle<T>(read(reader)); };
     return codec;
 }
@@ -147,17 +149,14 @@ BufferCodec cacheRecordsCodec() {
             writer.writeSoa("records", cache.records);
         },
         [](CodecReader& reader) {
-            const auto version = reader.read<std::uint32_t>();
-            if (version != kCacheRecordsCodecVersion)
-                reader.fail("cache records of codec version " + std::to_string(version) + " (this build reads version " +
-                            std::to_string(kCacheRecordsCodecVersion) + ")");
             CacheRecords cache;
             cache.error = reader.read<float>();
             reader.readSoa("records", cache.records);
             for (float radius : cache.records.column<CacheRadius>())
                 if (!(radius > 0.0f)) reader.fail("corrupt buffer: cache record radius " + std::to_string(radius));
             return cache;
-        });
+        },
+        codecVersionCheck(kCacheRecordsCodecVersion, "cache records"));
 }
 
 }  // namespace fg

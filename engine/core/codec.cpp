@@ -294,8 +294,20 @@ void saveBuffer(const BufferHandle& buffer, const std::string& path, const std::
     writeAtomically(path, [&](const std::string& temporary) { writeBufferFile(buffer, path, temporary, jobText); });
 }
 
-BufferHandle loadBuffer(const std::string& path, const std::string& expectedType, const std::string& bufferName) {
-    CodecReader reader(path);
+std::function<void(CodecReader&)> codecVersionCheck(std::uint32_t supported, std::string what) {
+    return [supported, what = std::move(what)](CodecReader& reader) {
+        const auto version = reader.read<std::uint32_t>();
+        if (version != supported)
+            reader.fail(what + " of codec version " + std::to_string(version) + " (this build reads version " +
+                        std::to_string(supported) + ")");
+    };
+}
+
+namespace {
+
+// Everything loadBuffer checks before the codec's read; leaves `reader` at the
+// first payload byte after the codec's version.
+const BufferCodec& checkedCodec(CodecReader& reader, const std::string& expectedType, const std::string& bufferName) {
     const std::string& type = reader.type();
     if (!expectedType.empty() && type != expectedType)
         reader.fail("holds " + article(type) + type + " buffer, but " +
@@ -303,9 +315,24 @@ BufferHandle loadBuffer(const std::string& path, const std::string& expectedType
                                         : "'" + bufferName + "' is " + article(expectedType) + expectedType));
     const BufferCodec* codec = findCodec(type);
     if (!codec) reader.fail("holds " + article(type) + type + " buffer, which this build cannot read");
+    if (codec->checkVersion) codec->checkVersion(reader);
+    return *codec;
+}
+
+}  // namespace
+
+void checkBufferFile(const std::string& path, const std::string& expectedType, const std::string& bufferName) {
+    CodecReader reader(path);
+    checkedCodec(reader, expectedType, bufferName);
+}
+
+BufferHandle loadBuffer(const std::string& path, const std::string& expectedType, const std::string& bufferName) {
+    CodecReader reader(path);
+    const BufferCodec& codec = checkedCodec(reader, expectedType, bufferName);
+    const std::string& type = reader.type();
     BufferHandle handle;
     try {
-        handle = codec->read(reader);
+        handle = codec.read(reader);
     } catch (const std::invalid_argument& error) {
         // The buffer types' own checks (Film::restore, KdTree::restore, ...) on
         // arrays that are complete but do not fit together.

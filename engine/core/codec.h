@@ -197,8 +197,20 @@ private:
 struct BufferCodec {
     std::string type;  // BufferTypeName
     std::function<void(const void* buffer, CodecWriter&)> write;
-    std::function<BufferHandle(CodecReader&)> read;  // returns a handle with type, data, bytes set
+    // For a codec whose layout has changed or may change: its write begins the
+    // payload with the layout's version, and this reads that version and
+    // refuses (reader.fail) one this build cannot read. Kept apart from `read`
+    // so that checking a file (checkBufferFile, used by validate) refuses the
+    // same files as loading it without reading the arrays. Empty: no version.
+    std::function<void(CodecReader&)> checkVersion;
+    // Reads what follows the version; returns a handle with type, data, bytes set.
+    std::function<BufferHandle(CodecReader&)> read;
 };
+
+// The checkVersion of a codec that writes a u32 `supported` first: any other
+// version is refused as "<what> of codec version N (this build reads version
+// <supported>)".
+std::function<void(CodecReader&)> codecVersionCheck(std::uint32_t supported, std::string what);
 
 // A handle owning `value`, as codecs' read functions return it.
 template <class T>
@@ -232,6 +244,12 @@ void writeBufferFile(const BufferHandle& buffer, const std::string& path, const 
 // a buffer file, unsupported format version, truncated or corrupt, and a type
 // other than expectedType (empty: any), naming the buffer `bufferName` if given.
 BufferHandle loadBuffer(const std::string& path, const std::string& expectedType, const std::string& bufferName = "");
+// Refuses, with loadBuffer's messages, every file that loadBuffer would refuse
+// before it reads the arrays: the header, the type, a type without a codec
+// and the codec's own version. The rest of the payload is not read, so a file
+// cut short inside its last scalars or holding inconsistent arrays passes here
+// and is refused when it is loaded.
+void checkBufferFile(const std::string& path, const std::string& expectedType, const std::string& bufferName = "");
 
 struct BufferFileInfo {
     std::string type;

@@ -764,5 +764,68 @@ TEST(CodecRegistry, RegisteredCodecIsUsed) {
     EXPECT_EQ(readBufferInfo(path).columns, std::vector<std::string>{"history"});
 }
 
+// InputError's line, or "" when `f` does not throw one.
+std::string refusal(const std::function<void()>& f) {
+    try {
+        f();
+    } catch (const InputError& error) {
+        return error.what();
+    }
+    return "";
+}
+
+// checkBufferFile (what validate runs on imported files) refuses a codec
+// version as loadBuffer does, with the same line, without running the codec's
+// read; loadBuffer runs the version check and then the read.
+TEST(CodecRegistry, CheckingAFileRunsTheVersionCheckButNotTheRead) {
+    auto reads = std::make_shared<int>(0);
+    BufferCodec codec;
+    codec.type = "CodecTestCounter";
+    codec.write = [](const void* buffer, CodecWriter& writer) {
+        const auto& counter = *static_cast<const CodecTestCounter*>(buffer);
+        writer.setItemCount(counter.history.size());
+        writer.write<std::uint32_t>(7);
+        writer.write(counter.value);
+        writer.writeVector("history", counter.history);
+    };
+    codec.checkVersion = codecVersionCheck(7, "a counter");
+    codec.read = [reads](CodecReader& reader) {
+        ++*reads;
+        CodecTestCounter counter;
+        counter.value = reader.read<std::uint64_t>();
+        counter.history = reader.readVector<std::int16_t>("history");
+        return makeBufferHandle(std::move(counter));
+    };
+    registerCodec(codec);
+
+    const fs::path dir = scratchDirectory();
+    const std::string path = (dir / "versioned.fgbuf").string();
+    auto counter = std::make_shared<CodecTestCounter>();
+    counter->value = 9;
+    counter->history = {1, 2, 3};
+    saveBuffer(makeBuffer(counter), path, "");
+    EXPECT_EQ(refusal([&] { checkBufferFile(path, "CodecTestCounter", "counter"); }), "");
+    EXPECT_EQ(*reads, 0);
+    EXPECT_EQ(test::bufferAs<CodecTestCounter>(loadBuffer(path, "CodecTestCounter")).value, 9u);
+    EXPECT_EQ(*reads, 1);
+
+    // The payload ends with the version, the value and the history.
+    std::string bytes = readBytes(path);
+    const std::size_t version = bytes.size() - sizeof(std::int16_t) * 3 - sizeof(std::uint64_t) - sizeof(std::uint32_t);
+    ASSERT_EQ(bytes[version], '\x07');
+    bytes[version] = '\x08';
+    const std::string other = (dir / "version8.fgbuf").string();
+    writeBytes(other, bytes);
+    const std::string checked = refusal([&] { checkBufferFile(other, "CodecTestCounter", "counter"); });
+    EXPECT_EQ(checked, other + ": a counter of codec version 8 (this build reads version 7)");
+    EXPECT_EQ(refusal([&] { loadBuffer(other, "CodecTestCounter", "counter"); }), checked);
+    EXPECT_EQ(*reads, 1);
+
+    // The type is checked first, with loadBuffer's line too.
+    const std::string wrongType = refusal([&] { checkBufferFile(other, "Film", "image"); });
+    EXPECT_NE(wrongType.find("'image' is a Film"), std::string::npos) << wrongType;
+    EXPECT_EQ(refusal([&] { loadBuffer(other, "Film", "image"); }), wrongType);
+}
+
 }  // namespace
 }  // namespace fg
