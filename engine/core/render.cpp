@@ -275,12 +275,10 @@ ExecutionPlan validateJob(const Job& job, const Registry& registry) {
     FilmSettings film = jobFilm(job, scene);
     ExecutionPlan plan = planWithSceneHints(job, scene, film, registry);
     runPreflights(plan, scene, film);
-    for (const auto& [version, typeAndPath] : plan.imports()) {
-        const BufferFileInfo info = readBufferInfo(typeAndPath.second);
-        if (info.type != typeAndPath.first)
-            throw InputError(typeAndPath.second + ": holds a " + info.type + " buffer, but '" + version + "' is a " +
-                             typeAndPath.first);
-    }
+    // The checks loadImports makes before decoding, so that a file render
+    // would refuse on loading is refused here with the same line.
+    for (const auto& [version, typeAndPath] : plan.imports())
+        checkBufferFile(typeAndPath.second, typeAndPath.first, version);
     return plan;
 }
 

@@ -33,6 +33,7 @@
 #include <map>
 #include <memory>
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace fg {
@@ -196,8 +197,9 @@ TEST(PemCoherence, BadMixtureFilesAreRefusedWithOneLineBeforeAnyWork) {
     saveBuffer(other, (dir / "photons.fgbuf").string(), "# test\n");
     const std::string mixture = test::readText(dir / "gmm.fgbuf");
     test::writeText(dir / "half.fgbuf", mixture.substr(0, mixture.size() / 2));
-    // The header is intact and only the payload is short: found when the
-    // file is loaded for the run (validate reads headers only).
+    // The header is intact and only the payload's last bytes are missing:
+    // found when the file is loaded for the run (validate reads the header
+    // and the codec version only).
     test::writeText(dir / "short.fgbuf", mixture.substr(0, mixture.size() - 9));
     test::writeText(dir / "garbage.fgbuf", "FGBUF and then nothing that makes sense");
     const std::string job = test::sourcePath("data/spot-fog/pem.toml");
@@ -339,9 +341,8 @@ TEST(PemCoherence, SeededWithTheConvergedMixtureItNeedsFewerIterationsForTheSame
 }
 
 // A file of the first layout (every column in doubles, derived ones
-// included, codec version 1) is refused by render with one line that names
-// the file and the layout, exit code 2 (validate reads headers only, and the
-// codec version is in the payload).
+// included, codec version 1) is refused by render and by validate with one
+// line that names the file and the layout, exit code 2.
 TEST(PemCoherence, OldLayoutFilesAreRefusedWithOneLine) {
     const fs::path dir = test::scratchDirectory("pem-coherence");
     registerBuiltinCodecs();
@@ -368,6 +369,59 @@ TEST(PemCoherence, OldLayoutFilesAreRefusedWithOneLine) {
     EXPECT_NE(r.err.find("old.fgbuf"), std::string::npos) << r.err;
     EXPECT_NE(r.err.find("codec version 1"), std::string::npos) << r.err;
     EXPECT_FALSE(fs::exists(dir / "refused"));
+    const test::CommandResult v = test::runFluxgraph(dir, {"validate", job, "--import", "previous_gmm=old.fgbuf"});
+    EXPECT_EQ(v.exitCode, 2) << v.err;
+    EXPECT_EQ(v.err, r.err);
+}
+
+// The codec version is the first scalar of the payload, after the header:
+// validate reads it too, so a mixture or a pyramid file that render refuses
+// on loading for its codec version is refused by validate with the same line
+// and exit code 2, before any work; the files as saved pass both.
+TEST(PemCoherence, ValidateRefusesTheCodecVersionsRenderRefuses) {
+    const fs::path dir = test::scratchDirectory("pem-coherence-versions");
+    registerBuiltinCodecs();
+    FilmSettings film;
+    film.width = film.height = 4;
+    const auto pyramid =
+        test::runPass(*findPass("gmm_pyramid"), spotFog(), nullptr, film, {{"gmm", handleOf(smallMixture())}});
+    ASSERT_EQ(pyramid.count("pyramid"), 1u);
+    ASSERT_GT(test::bufferAs<GmmPyramid>(pyramid.at("pyramid")).nodes.size(), 1u);
+    saveBuffer(handleOf(smallMixture()), (dir / "gmm.fgbuf").string(), "# test\n");
+    saveBuffer(pyramid.at("pyramid"), (dir / "pyramid.fgbuf").string(), "# test\n");
+    const auto withVersion = [&](const std::string& from, const std::string& to, char expected, char version) {
+        std::string bytes = test::readText(dir / from);
+        const std::size_t at = bytes.find("# test\n") + std::string("# test\n").size();
+        ASSERT_EQ(bytes[at], expected) << from;
+        bytes[at] = version;
+        test::writeText(dir / to, bytes);
+    };
+    withVersion("gmm.fgbuf", "gmm-v1.fgbuf", '\x02', '\x01');
+    withVersion("gmm.fgbuf", "gmm-v3.fgbuf", '\x02', '\x03');
+    withVersion("pyramid.fgbuf", "pyramid-v2.fgbuf", '\x01', '\x02');
+
+    const std::string job = test::sourcePath("data/spot-fog/pem.toml");
+    const test::CommandResult good = test::runFluxgraph(
+        dir, {"validate", job, "--import", "previous_gmm=gmm.fgbuf", "--import", "gmm_pyramid=pyramid.fgbuf"});
+    EXPECT_EQ(good.exitCode, 0) << good.err;
+
+    const std::vector<std::pair<std::string, std::string>> refused = {
+        {"previous_gmm=gmm-v1.fgbuf", "codec version 1 (doubles with derived columns)"},
+        {"previous_gmm=gmm-v3.fgbuf", "a Gaussian mixture of codec version 3 (this build reads version 2)"},
+        {"gmm_pyramid=pyramid-v2.fgbuf", "a Gaussian pyramid of codec version 2 (this build reads version 1)"}};
+    for (const auto& [import, message] : refused) {
+        const std::string file = import.substr(import.find('=') + 1);
+        const test::CommandResult v = test::runFluxgraph(dir, {"validate", job, "--import", import});
+        EXPECT_EQ(v.exitCode, 2) << import << ": " << v.err;
+        EXPECT_EQ(std::count(v.err.begin(), v.err.end(), '\n'), 1) << v.err;
+        EXPECT_NE(v.err.find(file + ": "), std::string::npos) << v.err;
+        EXPECT_NE(v.err.find(message), std::string::npos) << v.err;
+        const test::CommandResult r =
+            test::runFluxgraph(dir, {"render", job, "-q", "--out", "refused", "--import", import});
+        EXPECT_EQ(r.exitCode, 2) << import << ": " << r.err;
+        EXPECT_EQ(v.err, r.err);
+        EXPECT_FALSE(fs::exists(dir / "refused"));
+    }
 }
 
 // The coherent fit (§5.4) through a file: the next frame seeded from the
