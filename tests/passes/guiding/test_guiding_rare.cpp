@@ -1,9 +1,10 @@
 // Where guiding is rare (cache_update's min_guiding_share, signal
-// guiding_rare): the built-in guided-pt pipeline ends its training after the
-// first pass in a box whose broad light leaves nothing worth guiding, and
-// goes on in the occluded room, whose light reaches the camera's side through
-// a gap; at the threshold the signal follows the share of query points that
-// find a guiding record, and a rare cache guides nowhere.
+// guiding_rare): the built-in guided-pt and guided-bdpt pipelines end their
+// training after the first pass in a box whose broad light leaves nothing
+// worth guiding, and guided-pt goes on in the occluded room, whose light
+// reaches the camera's side through a gap; at the threshold the signal
+// follows the share of query points that find a guiding record, and a rare
+// cache guides nowhere.
 #include "engine/accel/ray_query.h"
 #include "engine/core/job.h"
 #include "engine/core/scheduler.h"
@@ -54,10 +55,11 @@ Scene loadLitBox() {
     return loadScene((dir / "lit-box.toml").string());
 }
 
-// The built-in guided-pt pipeline, at most `passes` training passes, run for
-// its radiance cache.
-RunResult trainBuiltin(const Scene& scene, int passes, std::map<std::string, ParamValue> params, std::uint64_t seed) {
-    Pipeline pipeline = *builtinRegistry().findPipeline("guided-pt");
+// A built-in guided pipeline, at most `passes` training passes, run for its
+// radiance cache.
+RunResult trainBuiltin(const Scene& scene, int passes, std::map<std::string, ParamValue> params, std::uint64_t seed,
+                       const std::string& name = "guided-pt") {
+    Pipeline pipeline = *builtinRegistry().findPipeline(name);
     EXPECT_EQ(pipeline.blocks.size(), 1u);
     EXPECT_EQ(pipeline.blocks[0].until, "radiance_update.guiding_rare");
     pipeline.blocks[0].count = passes;
@@ -106,6 +108,13 @@ TEST(GuidingRare, TrainingStopsAfterFirstPassWhereNothingGuides) {
     EXPECT_GT(cache.records.size(), 10u);
     EXPECT_EQ(guidingRecords(cache), 0u);
     EXPECT_FALSE(cache.anyGuides());
+}
+
+TEST(GuidingRare, GuidedBdptTrainingStopsToo) {
+    const Scene scene = loadLitBox();
+    const RunResult run = trainBuiltin(scene, 3, {}, 1, "guided-bdpt");
+    EXPECT_EQ(run.iterations.at("train"), 1);
+    EXPECT_FALSE(radianceCache(run).anyGuides());
 }
 
 TEST(GuidingRare, TrainingGoesOnWhereRecordsGuide) {
