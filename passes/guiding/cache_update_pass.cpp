@@ -68,6 +68,8 @@ struct UpdateSettings {
     bool decideByVariance = true;   // guide_decision = "variance"
     float guideBelowRatio = 0.3f;   // guide_moment_ratio
     float decisionBsdfProbability = 0.5f;
+    double minGuidingShare = 0.1;   // min_guiding_share
+    bool radianceCache = true;      // without importance_training
 };
 
 // Whether a record's mixture is worth sampling, from its training particles
@@ -89,6 +91,8 @@ void decide(const UpdateSettings& settings, const DirectionalGmm& gmm, std::span
     momentRatio = static_cast<float>((1.0 + v.mixture) / (1.0 + std::max(0.0, v.bsdf)));
     bsdfOnly = settings.decideByVariance && !(momentRatio < settings.guideBelowRatio) ? 1u : 0u;
 }
+
+constexpr const char* kGuidingRare = "guiding_rare";
 
 Vec3 facingIncident(const Vec3& normal, const Vec3& incident) {
     return glm::dot(normal, incident) < 0.0f ? -normal : normal;
@@ -251,8 +255,16 @@ public:
         settings.decideByVariance = params.getString("guide_decision") == "variance";
         settings.guideBelowRatio = static_cast<float>(params.getFloat("guide_moment_ratio"));
         settings.decisionBsdfProbability = static_cast<float>(params.getFloat("decision_bsdf_probability"));
+        settings.minGuidingShare = params.getFloat("min_guiding_share");
 
         const bool importance = ctx.hasInput("importance_training");
+        // Only a radiance cache: its cost is paid in the rendering pass, the
+        // budget guiding must earn back, and its query points (this pass's
+        // importons) are where that pass looks it up. An importance cache's
+        // first pass has only the importons to stand for the photons that will
+        // query it, which gave 4-13 % in the occluded room and on veach-ajar,
+        // scenes where it guides later passes' photons.
+        settings.radianceCache = !importance;
         if (!importance && !(ctx.hasInput("photons") && ctx.hasInput("index")))
             throw InputError("pass '" + ctx.instanceName() +
                                  "': bind `photons` and `index` (a radiance cache), or `importance_training` "
@@ -400,6 +412,43 @@ public:
         cache.rebuildIndex();
         clampNeighbourRadii(cache, settings.query.candidates);
         cache.buildCoverGrid();
+        // The scene-wide half of the decision: where few of the paths'
+        // vertices find a guiding record, guiding cannot pay for what it costs
+        // every path. This pass's importons stand for those vertices, so the
+        // share counts records by how often paths reach them, not by their
+        // number: new records keep being made where paths rarely go, which
+        // lowered the records' share on veach-ajar and in the tests' occluded
+        // room pass after pass (28 to 19 %, 23 to 11 %) while the importons'
+        // held or grew (19-26 % to 28-34 %, 21 to 23 %). A few guiding records
+        // with wide validity radii still make the paths look the cache up in
+        // much of the scene: on the Cornell box (report job, 64x48) 13 of 199
+        // records, found by 5 % of the importons, guided after the first
+        // training pass and cost every sample 1.17-1.18x an unguided one for no
+        // measured per-sample gain. Below min_guiding_share no record guides
+        // (§4.1's α = 1 at every record, which keeps the estimator unbiased
+        // and spares the paths the lookup: a cache that guides nowhere is not
+        // looked up) and the pass raises guiding_rare, on which a training
+        // block may end.
+        if (settings.decideByVariance && settings.radianceCache && cache.records.size() > 0) {
+            std::vector<std::uint8_t> guided(queryCount, 0);
+            jobs::parallelForChunks(queryCount, 1024, [&](jobs::IndexRange r) {
+                for (std::size_t q = r.begin; q != r.end; ++q) {
+                    const std::optional<std::uint32_t> record =
+                        cache.hasCoverGrid() ? cache.lookupCovering(queryPositions[q], queryNormals[q])
+                                             : cache.lookup(queryPositions[q], queryNormals[q], settings.query);
+                    guided[q] = record && cache.guides(*record) ? 1 : 0;
+                }
+            });
+            std::int64_t guidedQueries = 0;
+            for (std::uint8_t g : guided) guidedQueries += g;
+            ctx.addCounter("guided_queries", guidedQueries);
+            ctx.addCounter("queries", static_cast<std::int64_t>(queryCount));
+            if (static_cast<double>(guidedQueries) < settings.minGuidingShare * static_cast<double>(queryCount)) {
+                for (std::uint32_t& flag : cache.records.column<GuideBsdfOnly>()) flag = 1;
+                cache.buildCoverGrid();
+                ctx.signal(kGuidingRare);
+            }
+        }
         ctx.addItems(static_cast<std::int64_t>(cache.records.size()));
         ctx.addCounter("records_created", static_cast<std::int64_t>(fresh.size()));
         std::int64_t totalSweeps = 0;
@@ -466,7 +515,13 @@ PassRegistration cacheUpdatePass() {
          "the estimate favours guiding)"},
         {"decision_bsdf_probability", ParamType::Float, 0.5, 0.01, 1.0, {},
          "alpha of the guided mixture the decision assumes (pt's guiding_bsdf_probability)"},
+        {"min_guiding_share", ParamType::Float, 0.1, 0.0, 1.0, {},
+         "guide_decision = variance, a radiance cache: where fewer than this share of the query points (importons, "
+         "or photons without them) find a guiding record after the update, no record guides (every record "
+         "bsdf_only, so paths skip the lookup) and the pass raises guiding_rare, on which a training block may end "
+         "(0: never; importance caches: never)"},
     };
+    spec.signals = {kGuidingRare};
     return {spec, [] { return std::make_unique<CacheUpdatePass>(); }, {}, {}};
 }
 
