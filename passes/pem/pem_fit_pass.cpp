@@ -98,17 +98,27 @@
 // converged mixture on 8 k cells first would blur it towards the coarse
 // cells (their covariances add to the components') and the expansions would
 // then have to recover what the previous frame had already found. A seeded
-// fit therefore starts on a cut of seeded_cut (28) cells per component,
-// near where the outer loop of an independent fit stops (0.85 to 0.86 of the
-// leaves, 27.5 cells per component at the default n0 and leaf size), and
-// treats the seed as the warm start it is: its first inner loop, like a
-// refit, runs at most max_refit_iterations. The outer loop is Alg. 2's
-// unchanged: maps while a component is short, expansions while one gains
-// outer_epsilon. Seeded on 16 cells per component with the first loop's 8
-// iterations, the fit took as long as an independent one (spot-fog,
-// k = 1024, a mixture of seed 1 seeding a fit of seed 2: 3.89 against
-// 3.64 CPU s; the loop used all 8 iterations without F/n settling); with
-// one iteration on 28 cells per component, 1.37 s (one or two runs each).
+// fit therefore starts on a cut of seeded_cut (31) cells per component,
+// where the outer loop of a seeded fit stops, and treats the seed as the
+// warm start it is: its first inner loop, like a refit, runs at most
+// max_refit_iterations. The outer loop is Alg. 2's unchanged: maps while a
+// component is short, expansions while one gains outer_epsilon. Seeded on
+// 16 cells per component with the first loop's 8 iterations, the fit took
+// as long as an independent one (spot-fog, k = 1024, a mixture of seed 1
+// seeding a fit of seed 2: 3.89 against 3.64 CPU s; the loop used all 8
+// iterations without F/n settling). Started on 28 cells per component
+// (where an independent fit stops: 0.85 to 0.86 of the leaves, 27.5 cells
+// per component at the default n0 and leaf size), seeded fits of spot-fog
+// ended on 31 (7,936 cells at k = 256, 31,744 at k = 1024, of 32 leaves per
+// component) after two expansions, the first gaining more than
+// outer_epsilon and the second less, each with an E-step over the whole
+// cut and a map before it. Started on 31, the first expansion's gain is
+// already below outer_epsilon (0.0040 and 0.0027 nats per photon against
+// 0.008) and line 11 ends the fit after one expansion and one map: at
+// k = 256 and 1024, 0.065 and 0.49 CPU s against 0.10 and 0.75 (frame 1
+// of tools/pem_animation.py seeded by frame 0, one run each); 30 is the
+// smallest that ended after one expansion there, at k = 256 with a gain of
+// 0.0071, too near the threshold to count on.
 //
 // Powers: the first map's powers are normalised to its paths (`emitted`), a
 // later map's to the paths up to its last photon. The tree holds every
@@ -467,7 +477,7 @@ PassRegistration pemFitPass() {
     spec.params = {
         {"k", ParamType::Int, std::int64_t{4096}, 1, 1 << 22, {}, "Gaussian components (initial guess: a k-cell cut)"},
         {"cut", ParamType::Int, std::int64_t{8}, 1, 1 << 10, {}, "cells of the initial cut per component (§5.1: 8)"},
-        {"seeded_cut", ParamType::Int, std::int64_t{28}, 1, 1 << 10, {},
+        {"seeded_cut", ParamType::Int, std::int64_t{31}, 1, 1 << 10, {},
          "cells of the initial cut per component when a previous mixture seeds the fit (§5.4)"},
         {"tau", ParamType::Float, 1e-4, 0.0, 1.0, {},
          "sparsity: pruned responsibility mass per cell <= tau Z_A (0: all cell-component pairs)"},
