@@ -11,10 +11,17 @@ References: data/<scene>/reference/reference.exr is used only if it has the
 size rendered here; otherwise a pt reference at --reference-spp is rendered
 once into the output folder, with a seed of its own (with the judged images'
 seed its first samples would be pt's, and pt's error would look smaller than
-it is). Its noise is part of both relMSE figures: compare the ratio, not the
-absolute values.
+it is). Its own noise adds to both relMSE figures and pulls their ratio
+towards 1, so a second reference of the same spp and another seed is rendered
+as well: relMSE(reference, second) / 2 estimates the reference's share of
+every relMSE ("ref noise"), and the ratio with that share taken out of both
+figures is printed beside the raw one. Where the share is not well below pt's
+relMSE, the reference cannot judge that budget.
 
-    tools/guiding_report.py --out results/guiding   # the defaults: 64x48, 512 guided spp, 4096-spp reference
+Each budget of --spp (the guided pt pass's samples per pixel; the guided run's
+CPU time, training included, is the budget pt gets) is one row.
+
+    tools/guiding_report.py --out results/guiding   # the defaults: 64x48, 512/1024/2048 guided spp, 4096-spp reference
 
 Time shares of the guided pt pass (cache query, GMM sampling and density,
 BSDF, Embree) from a profile:
@@ -141,7 +148,8 @@ def main():
     parser.add_argument("--guide-decision", default="variance", choices=["variance", "always"],
                         help="cache_update guide_decision (always: every record's mixture is sampled, as before it existed)")
     parser.add_argument("--guide-moment-ratio", type=float, default=0.3, help="cache_update guide_moment_ratio")
-    parser.add_argument("--spp", type=int, default=512, help="guided pt samples per pixel")
+    parser.add_argument("--spp", type=int, nargs="+", default=[512, 1024, 2048],
+                        help="guided pt samples per pixel, one budget each")
     parser.add_argument("--rr-threshold", type=float, default=1.0,
                         help="rr_threshold of the guided job's importon, photon and pt passes (1e-5: Vorba et al. §4.5)")
     parser.add_argument("--pt-rr-threshold", type=float, default=1.0, help="rr_threshold of the unguided pt runs")
@@ -158,45 +166,54 @@ def main():
         return
     width, height = (int(v) for v in args.size.split("x"))
     os.makedirs(args.out, exist_ok=True)
-    lines = ["| scene | guided CPU s | training share | guided pt share | guided relMSE (worst pixel) | pt spp | pt CPU s | "
-             "pt relMSE (worst pixel) | guided/pt relMSE |",
-             "|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| scene | guided spp | guided CPU s | training share | guided pt share | guided relMSE (worst pixel) | pt spp | "
+             "pt CPU s | pt relMSE (worst pixel) | ref noise | guided/pt relMSE | less ref noise |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for name in args.scenes.split(","):
         scene = SCENES[name]
         work = os.path.join(args.out, name)
         os.makedirs(work, exist_ok=True)
         reference = os.path.join(work, "reference.exr")
-        if not os.path.exists(reference):
-            body = f"[passes.pt]\nspp = {args.reference_spp}\nmax_depth = 16\n"
-            image, _, _ = run(args.binary, job(scene, width, height, body, "pt", seed=2), os.path.join(work, "reference.toml"), work, args.threads)
+        second = os.path.join(work, "reference-second.exr")
+        for path, seed in ((reference, 2), (second, 3)):
+            if not os.path.exists(path):
+                body = f"[passes.pt]\nspp = {args.reference_spp}\nmax_depth = 16\n"
+                toml = os.path.splitext(path)[0] + ".toml"
+                run(args.binary, job(scene, width, height, body, "pt", seed=seed), toml, work, args.threads)
+        # Two independent references of equal spp differ by twice the noise of one.
+        reference_noise = relmse(args.binary, second, reference)[0] / 2.0
         decision = (f"guide_decision = \"{args.guide_decision}\"\nguide_moment_ratio = {args.guide_moment_ratio}\n"
                     if args.guide_decision != "variance" or args.guide_moment_ratio != 0.3 else "")
         rr = f"rr_threshold = {args.rr_threshold!r}\n" if args.rr_threshold != 1.0 else ""
         plain_rr = f"rr_threshold = {args.pt_rr_threshold!r}\n" if args.pt_rr_threshold != 1.0 else ""
-        guided_body = (f"[passes.importon]\nspp = {args.importon_spp}\nmax_depth = 16\nguiding_candidates = {args.candidates}\n{rr}"
-                       f"[passes.photon]\nphotons = {args.photons}\nstore = \"global\"\ndifferentials = false\n{rr}"
-                       f"guiding_candidates = {args.candidates}\n"
-                       f"[passes.radiance_update]\ntraining_particles = {args.training_particles}\n"
-                       f"max_sweeps = {args.max_sweeps}\nnew_record_spacing = {args.spacing}\n{decision}"
-                       f"[passes.importance_update]\ntraining_particles = {args.training_particles}\n"
-                       f"max_sweeps = {args.max_sweeps}\nnew_record_spacing = {args.spacing}\n{decision}"
-                       f"[passes.pt]\nspp = {args.spp}\nmax_depth = 16\nguiding_candidates = {args.candidates}\n{rr}\n" + pipeline_text(args.training_passes, args.pipeline))
-        guided, guided_time, rows = run(args.binary, job(scene, width, height, guided_body, seed=args.seed),
-                                        os.path.join(work, "guided-pt.toml"), work, args.threads)
-        training = sum(v for k, v in rows.items() if k.startswith("train["))
-        pt_share = rows.get("pt", 0.0)
-        # pt's time per sample from a short run, then the spp that fills the guided budget.
+        # pt's time per sample from a short run, then the spp that fills each guided budget.
         probe_spp = 32
         _, probe_time, probe_rows = run(args.binary, job(scene, width, height, f"[passes.pt]\nspp = {probe_spp}\nmax_depth = 16\n{plain_rr}", "pt"),
                                         os.path.join(work, "probe.toml"), work, args.threads)
         per_spp = probe_rows.get("pt", probe_time) / probe_spp
-        spp = max(1, int(round(guided_time / per_spp)))
-        plain, plain_time, _ = run(args.binary, job(scene, width, height, f"[passes.pt]\nspp = {spp}\nmax_depth = 16\n{plain_rr}", "pt"),
-                                   os.path.join(work, "pt.toml"), work, args.threads)
-        (g, gw), (p, pw) = relmse(args.binary, guided, reference), relmse(args.binary, plain, reference)
-        lines.append(f"| {name} | {guided_time:.1f} | {training / guided_time:.0%} | {pt_share / guided_time:.0%} | "
-                     f"{g:.4g} ({gw:.3g}) | {spp} | {plain_time:.1f} | {p:.4g} ({pw:.3g}) | {g / p:.3f} |")
-        print(lines[-1], flush=True)
+        for guided_spp in args.spp:
+            guided_body = (f"[passes.importon]\nspp = {args.importon_spp}\nmax_depth = 16\nguiding_candidates = {args.candidates}\n{rr}"
+                           f"[passes.photon]\nphotons = {args.photons}\nstore = \"global\"\ndifferentials = false\n{rr}"
+                           f"guiding_candidates = {args.candidates}\n"
+                           f"[passes.radiance_update]\ntraining_particles = {args.training_particles}\n"
+                           f"max_sweeps = {args.max_sweeps}\nnew_record_spacing = {args.spacing}\n{decision}"
+                           f"[passes.importance_update]\ntraining_particles = {args.training_particles}\n"
+                           f"max_sweeps = {args.max_sweeps}\nnew_record_spacing = {args.spacing}\n{decision}"
+                           f"[passes.pt]\nspp = {guided_spp}\nmax_depth = 16\nguiding_candidates = {args.candidates}\n{rr}\n"
+                           + pipeline_text(args.training_passes, args.pipeline))
+            guided, guided_time, rows = run(args.binary, job(scene, width, height, guided_body, seed=args.seed),
+                                            os.path.join(work, f"guided-pt-{guided_spp}.toml"), work, args.threads)
+            training = sum(v for k, v in rows.items() if k.startswith("train["))
+            pt_share = rows.get("pt", 0.0)
+            spp = max(1, int(round(guided_time / per_spp)))
+            plain, plain_time, _ = run(args.binary, job(scene, width, height, f"[passes.pt]\nspp = {spp}\nmax_depth = 16\n{plain_rr}", "pt"),
+                                       os.path.join(work, f"pt-{guided_spp}.toml"), work, args.threads)
+            (g, gw), (p, pw) = relmse(args.binary, guided, reference), relmse(args.binary, plain, reference)
+            corrected = (g - reference_noise) / (p - reference_noise) if p > 2.0 * reference_noise else float("nan")
+            lines.append(f"| {name} | {guided_spp} | {guided_time:.1f} | {training / guided_time:.0%} | {pt_share / guided_time:.0%} | "
+                         f"{g:.4g} ({gw:.3g}) | {spp} | {plain_time:.1f} | {p:.4g} ({pw:.3g}) | {reference_noise:.3g} | "
+                         f"{g / p:.3f} | {corrected:.3f} |")
+            print(lines[-1], flush=True)
     report = "\n".join(lines) + "\n"
     with open(os.path.join(args.out, "README.md"), "w") as f:
         f.write("# Guided vs unguided pt at equal time\n\n" + " ".join(sys.argv) + "\n\n" + report)
