@@ -11,16 +11,19 @@ side-wall corners, 20,20,16,16 and 92,20,16,16 of the 128 x 128 image, and
 the whole image), the mean signed error against
 data/cornell-box/reference/reference.exr in percent of the reference's mean
 there, averaged over the seeds, with its standard error; prs-fg once per
---origin-boundary (fg_splat's origin_boundary: cut, the paper's estimator,
-and renormalise) and, seed by seed, each prs-fg row less pm-fg with its
-standard error. Each seed sets both the photon paths and the eye samples
-(and so the gather rays; --fixed-eye keeps the job's eye seed for every run):
-with one eye seed the eye samples' own error in a crop is one offset common
-to every run, which no number of photon seeds shows. pm-fg and prs-fg share
-each seed's photon paths and eye samples, so the paired difference's
-standard error is the one that tells their biases apart. Renders of
-different seeds and jobs may run side by side (--jobs); each is on one
-thread, so the images do not depend on it. Also the splat / gather time T_S (fg_splat's splat_us against
+--origin-boundary given (fg_splat's origin_boundary: cut, the paper's
+estimator, and renormalise; without it once, as the job and --set-prs say)
+and, seed by seed, each prs-fg row less pm-fg with its standard error.
+Each seed sets both the photon paths and the eye samples, and with them the
+gather rays (--fixed-eye keeps the job's seed for the eye pass and the
+gather rays of every run): with one such seed the gather rays' own error in
+a crop is one offset per job, which no number of photon seeds shows.
+pm-fg and prs-fg share each seed's photon paths and eye vertices; their
+gather rays are drawn apart (the stream is the pass's, final_gather or
+fg_splat), so the paired difference removes the photon set's error but
+not the gather rays'. Renders of different seeds and jobs may run side by
+side (--jobs); each is on one thread, so the images do not depend on it.
+Also the splat / gather time T_S (fg_splat's splat_us against
 final_gather's gather_cpu_us, process CPU time; the paper's 0.66x) and the
 gather rays' trace time. Renders run on one thread (--threads 1); on a
 shared machine CPU times are still noisy.
@@ -138,8 +141,8 @@ def main():
     parser.add_argument("--jobs", type=int, default=1, help="renders side by side (each on one thread)")
     parser.add_argument("--photons", type=int, default=0, help="override the jobs' photon count")
     parser.add_argument("--fg-rays", type=int, default=0, help="override the jobs' final-gather rays")
-    parser.add_argument("--origin-boundary", nargs="+", default=["cut"], choices=["cut", "renormalise"],
-                        help="fg_splat's origin_boundary, one prs-fg row each")
+    parser.add_argument("--origin-boundary", nargs="+", default=[], choices=["cut", "renormalise"],
+                        help="fg_splat's origin_boundary, one prs-fg row each (default: one row, as the job and --set-prs)")
     parser.add_argument("--indirect", action="store_true", help="indirect light only, with RMSE and block error")
     parser.add_argument("--direct-spp", type=int, default=1024, help="samples of the one-bounce pt image")
     parser.add_argument("--set-prs", nargs="*", default=[], help="extra --set for prs-fg (e.g. passes.ray_bandwidth.smoothness=1)")
@@ -154,9 +157,10 @@ def main():
     crops = list(CROPS) + [WHOLE]
 
     methods = [("pm-fg", "pm-fg", "final_gather", "gather_cpu_us", "mean_gather_radius_ppm", args.set_pm)]
-    for boundary in args.origin_boundary:
-        methods.append((f"prs-fg ({boundary})", "prs-fg", "fg_splat", "splat_cpu_us", "mean_hit_radius_ppm",
-                        list(args.set_prs) + [f"passes.fg_splat.origin_boundary={boundary}"]))
+    for boundary in args.origin_boundary or [None]:
+        settings = [f"passes.fg_splat.origin_boundary={boundary}"] if boundary else []
+        methods.append((f"prs-fg ({boundary})" if boundary else "prs-fg", "prs-fg", "fg_splat", "splat_cpu_us",
+                        "mean_hit_radius_ppm", list(args.set_prs) + settings))
     rows, quality, per_seed = {}, {}, {}
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
