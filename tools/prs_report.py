@@ -70,7 +70,8 @@ import tempfile
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from caustics_report import read_exr_rgb  # noqa: E402
-from prs_fg_report import CROPS, crop_mean, indirect_reference, mean_and_error  # noqa: E402
+from prs_fg_report import (CROPS, WHOLE, crop_mean, indirect_reference, mean_and_error, paired_errors,  # noqa: E402
+                           seed_settings)
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SCENE_DIR = os.path.join(ROOT, "data", "cornell-box")
@@ -269,7 +270,7 @@ def main():
     args = parser.parse_args()
     reference = read_exr_rgb(REFERENCE)
     # The corner crops, then the whole image for comparison.
-    corner_crops = list(CROPS) + [(0, 0, 128, 128)]
+    corner_crops = list(CROPS) + [WHOLE]
     ref_means = [crop_mean(reference, 128, c) for c in corner_crops]
 
     def rs_settings(label):
@@ -325,9 +326,8 @@ def main():
                 out_dir = os.path.join(scratch, f"seed-{len(rows)}-{seed}-{len(corners)}")
                 os.makedirs(out_dir)
                 print(f"rendering {label}, seed {seed} ...", file=sys.stderr)
-                seeds = ["--set", f"passes.photon.seed={seed}"] + ([] if args.fixed_eye else ["--set", f"seed={seed}"])
                 _, _, image = render(args.binary, job, out_dir, args.threads, args.photons,
-                                     seeds + corner_settings + rs_settings(label))
+                                     seed_settings(seed, args.fixed_eye) + corner_settings + rs_settings(label))
                 pixels = read_exr_rgb(image)
                 for i, crop in enumerate(corner_crops):
                     errors[i].append(100.0 * (crop_mean(pixels, 128, crop) - ref_means[i]) / ref_means[i])
@@ -335,8 +335,7 @@ def main():
             per_seed[label] = errors
         if len(per_seed) == 2:
             pm, rs = per_seed.values()
-            corners["RS - PM, seed by seed"] = [mean_and_error([r - p for r, p in zip(rs_e, pm_e)])
-                                                for rs_e, pm_e in zip(rs, pm)]
+            corners["RS - PM, seed by seed"] = paired_errors(rs, pm)
 
         scaling = {}
         base_photons = args.photons or 200000
