@@ -29,8 +29,6 @@
 #include <cstddef>
 #include <cstdint>
 #include <limits>
-#include <memory>
-#include <new>
 #include <ranges>
 #include <span>
 #include <stdexcept>
@@ -49,43 +47,6 @@ namespace fg {
     }
 
 namespace soa_detail {
-
-// Items a column may leave unwritten when it grows: nothing to construct,
-// nothing to destroy, so the bytes are whatever the memory held.
-template <class T>
-inline constexpr bool kLeftUninitialised =
-    std::is_trivially_default_constructible_v<T> && std::is_trivially_destructible_v<T>;
-
-// Column storage whose growth without a value default-initialises, which for
-// kLeftUninitialised types writes nothing: the zero fill of std::vector's
-// resize touches every new page once more before producers overwrite it.
-// Other types are value-initialised as std::vector would.
-template <class T>
-struct ColumnAllocator : std::allocator<T> {
-    using value_type = T;
-    template <class U>
-    struct rebind {
-        using other = ColumnAllocator<U>;
-    };
-    ColumnAllocator() noexcept = default;
-    template <class U>
-    ColumnAllocator(const ColumnAllocator<U>&) noexcept {}
-
-    template <class U>
-    void construct(U* p) noexcept(std::is_nothrow_default_constructible_v<U>) {
-        if constexpr (kLeftUninitialised<U>)
-            ::new (static_cast<void*>(p)) U;
-        else
-            ::new (static_cast<void*>(p)) U();
-    }
-    template <class U, class... Args>
-    void construct(U* p, Args&&... args) noexcept(std::is_nothrow_constructible_v<U, Args...>) {
-        std::construct_at(p, std::forward<Args>(args)...);
-    }
-};
-
-template <class T>
-using ColumnStorage = std::vector<T, ColumnAllocator<T>>;
 
 // Position of Column in Columns..., or sizeof...(Columns) if it is not there.
 template <class Column, class... Columns>
@@ -175,36 +136,8 @@ public:
     std::size_t size() const { return size_; }
     bool empty() const { return size_ == 0; }
 
-    // New items are value-initialised (zero for arithmetic types), as with std::vector.
     void resize(std::size_t n) {
-        const std::size_t old = size_;
-        resizeUninitialized(n);
-        if (n <= old) return;
-        std::apply(
-            [old](auto&... col) {
-                const auto zero = [old](auto& c) {
-                    if constexpr (soa_detail::kLeftUninitialised<typename std::decay_t<decltype(c)>::value_type>)
-                        std::uninitialized_value_construct(c.data() + old, c.data() + c.size());
-                };
-                (zero(col), ...);
-            },
-            columns_);
-    }
-    // New items of trivial types are left unwritten: only for callers that
-    // write every item of [size(), n) in every column before anything reads it.
-    void resizeUninitialized(std::size_t n) {
-        // GCC 12 at -O3 warns of an overflow in the move of the old items into
-        // a fresh allocation when it inlines growth from an empty column (a
-        // false positive: no item is moved), where columns use an allocator of
-        // their own.
-#if defined(__GNUC__) && !defined(__clang__)
-#pragma GCC diagnostic push
-#pragma GCC diagnostic ignored "-Wstringop-overflow"
-#endif
         std::apply([n](auto&... col) { (col.resize(n), ...); }, columns_);
-#if defined(__GNUC__) && !defined(__clang__)
-#pragma GCC diagnostic pop
-#endif
         size_ = n;
     }
     void clear() { resize(0); }
@@ -249,7 +182,7 @@ public:
     // Appends one record; returns its index.
     std::size_t append(const Record& record) {
         const std::size_t i = size_;
-        resizeUninitialized(i + 1);
+        resize(i + 1);
         set(i, record);
         return i;
     }
@@ -258,7 +191,7 @@ public:
         requires std::is_convertible_v<const std::ranges::range_value_t<Records>&, const Record&>
     void append(const Records& records) {
         const std::size_t first = size_;
-        resizeUninitialized(first + static_cast<std::size_t>(std::ranges::size(records)));
+        resize(first + static_cast<std::size_t>(std::ranges::size(records)));
         // Column pointers held in locals, so the loop does not reload them after each store.
         auto destination = std::apply([first](auto&... col) { return std::tuple(col.data() + first...); }, columns_);
         std::size_t k = 0;
@@ -313,7 +246,7 @@ private:
             std::index_sequence_for<Columns...>{});
     }
 
-    std::tuple<soa_detail::ColumnStorage<typename Columns::value_type>...> columns_;
+    std::tuple<std::vector<typename Columns::value_type>...> columns_;
     std::size_t size_ = 0;
     std::atomic<std::size_t> appendCursor_{0};
 };

@@ -830,12 +830,10 @@ public:
                         break;
                     }
                 }
-                // The takes tile each grown range exactly and set() writes every
-                // column, so the new items need no zero fill first.
-                causticMap->photons.resizeUninitialized(causticEnd);
-                globalMap->photons.resizeUninitialized(globalEnd);
-                volumeMap->photons.resizeUninitialized(volumeEnd);
-                photonRays.rays.resizeUninitialized(raysEnd);
+                causticMap->photons.resize(causticEnd);
+                globalMap->photons.resize(globalEnd);
+                volumeMap->photons.resize(volumeEnd);
+                photonRays.rays.resize(raysEnd);
                 jobs::parallelFor(usedChunks, 1, [&](std::size_t c) {
                     const ChunkResult& chunk = chunks[c];
                     Take& take = takes[c];

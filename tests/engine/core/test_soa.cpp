@@ -1,7 +1,5 @@
 #include "engine/core/soa.h"
 
-#include "engine/core/math.h"
-
 #include "jobs/parallel.h"
 
 #include <gtest/gtest.h>
@@ -72,89 +70,6 @@ TEST(SoaBuffer, ResizeKeepsThePrefixAndResizesEveryColumn) {
     buffer.clear();
     EXPECT_TRUE(buffer.empty());
     EXPECT_EQ(buffer.column<ItemId>().size(), 0u);
-}
-
-// No member initialisers: default-initialising one writes nothing.
-struct Plain {
-    float x, y, z;
-};
-FG_SOA_COLUMN(PlainPosition, Plain, "plain");
-using PlainBuffer = SoaBuffer<ItemId, ItemWeight, PlainPosition>;
-
-// The photon maps' columns must stay types whose growth can skip the fill.
-static_assert(soa_detail::kLeftUninitialised<Vec3> && soa_detail::kLeftUninitialised<std::uint8_t>);
-static_assert(soa_detail::kLeftUninitialised<Plain> && !soa_detail::kLeftUninitialised<Triple>);
-
-TEST(SoaBuffer, ResizeZeroesItemsEvenInMemoryItHeldBefore) {
-    PlainBuffer buffer(64);
-    for (std::size_t i = 0; i < 64; ++i)
-        buffer.set(i, PlainBuffer::Record{7u, 3.5, Plain{1.0f, 2.0f, 3.0f}});
-    const std::uint32_t* ids = buffer.column<ItemId>().data();
-    buffer.resize(8);
-    buffer.resize(64);
-    ASSERT_EQ(buffer.column<ItemId>().data(), ids) << "the capacity is reused, with the old bytes in it";
-    for (std::size_t i = 8; i < 64; ++i) {
-        EXPECT_EQ(buffer.column<ItemId>()[i], 0u) << i;
-        EXPECT_EQ(buffer.column<ItemWeight>()[i], 0.0) << i;
-        const Plain p = buffer.column<PlainPosition>()[i];
-        EXPECT_TRUE(p.x == 0.0f && p.y == 0.0f && p.z == 0.0f) << i;
-    }
-    EXPECT_EQ(buffer.column<ItemId>()[7], 7u);
-}
-
-TEST(SoaBuffer, ResizeUninitializedKeepsThePrefixAcrossReallocation) {
-    PlainBuffer buffer;
-    for (std::uint32_t i = 0; i < 5; ++i) buffer.append(PlainBuffer::Record{i, 0.5 * i, Plain{1.0f * i, 0.0f, 0.0f}});
-    buffer.resizeUninitialized(100000);
-    ASSERT_EQ(buffer.size(), 100000u);
-    ASSERT_EQ(buffer.column<ItemWeight>().size(), 100000u);
-    ASSERT_EQ(buffer.column<PlainPosition>().size(), 100000u);
-    for (std::size_t i = 5; i < buffer.size(); ++i)
-        buffer.set(i, PlainBuffer::Record{static_cast<std::uint32_t>(i), 0.5 * static_cast<double>(i),
-                                          Plain{static_cast<float>(i), 0.0f, 0.0f}});
-    for (std::size_t i = 0; i < buffer.size(); i += 997) {
-        EXPECT_EQ(buffer.column<ItemId>()[i], i);
-        EXPECT_EQ(buffer.column<ItemWeight>()[i], 0.5 * static_cast<double>(i));
-        EXPECT_EQ(buffer.column<PlainPosition>()[i].x, static_cast<float>(i));
-    }
-    buffer.resizeUninitialized(3);
-    EXPECT_EQ(buffer.size(), 3u);
-    EXPECT_EQ(buffer.column<ItemId>()[2], 2u);
-}
-
-// Columns of types with constructors and destructors.
-struct Named {
-    std::string name;
-    int count;  // no initialiser: zero only if value-initialised
-};
-FG_SOA_COLUMN(ItemName, std::string, "name");
-FG_SOA_COLUMN(ItemNamed, Named, "named");
-using NamedBuffer = SoaBuffer<ItemName, ItemNamed, ItemId>;
-
-TEST(SoaBuffer, NonTrivialColumnsGrowValueInitialisedEitherWay) {
-    static_assert(!soa_detail::kLeftUninitialised<Named>);
-    NamedBuffer buffer;
-    const std::string longName(100, 'x');  // past the small-string buffer
-    for (std::uint32_t i = 0; i < 3; ++i) buffer.append(NamedBuffer::Record{longName, Named{longName, 5}, i});
-    buffer.resize(1000);  // reallocates: the strings are moved
-    for (std::size_t i = 0; i < 3; ++i) {
-        EXPECT_EQ(buffer.column<ItemName>()[i], longName);
-        EXPECT_EQ(buffer.column<ItemNamed>()[i].name, longName);
-        EXPECT_EQ(buffer.column<ItemNamed>()[i].count, 5);
-    }
-    for (std::size_t i = 3; i < 1000; ++i) buffer.set(i, NamedBuffer::Record{longName, Named{longName, 5}, 9u});
-    for (const auto grow : {&NamedBuffer::resize, &NamedBuffer::resizeUninitialized}) {
-        buffer.resize(2);
-        (buffer.*grow)(1000);
-        for (std::size_t i = 2; i < 1000; ++i) {
-            EXPECT_TRUE(buffer.column<ItemName>()[i].empty()) << i;
-            EXPECT_TRUE(buffer.column<ItemNamed>()[i].name.empty()) << i;
-            EXPECT_EQ(buffer.column<ItemNamed>()[i].count, 0) << i;
-        }
-        for (std::size_t i = 2; i < 1000; ++i) buffer.set(i, NamedBuffer::Record{longName, Named{longName, 5}, 9u});
-    }
-    EXPECT_EQ(buffer.column<ItemId>()[0], 0u);
-    EXPECT_EQ(buffer.column<ItemName>()[1], longName);
 }
 
 TEST(SoaBuffer, BytesFollowCapacity) {
