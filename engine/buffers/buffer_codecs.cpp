@@ -18,7 +18,6 @@
 #include "engine/image/film.h"
 
 #include <cmath>
-#include <functional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -34,18 +33,8 @@ int readSamplesPerPixel(CodecReader& reader) {
     return samplesPerPixel;
 }
 
-template <class T, class Write, class Read>
-BufferCodec codecFor(Write write, Read read, std::function<void(CodecReader&)> checkVersion = {}) {
-    BufferCodec codec;
-    codec.type = BufferTypeName<T>::value;
-    codec.write = [write](const void* buffer, CodecWriter& writer) { write(*static_cast<const T*>(buffer), writer); };
-    codec.checkVersion = std::move(checkVersion);
-    codec.read = [read](CodecReader& reader) { return makeBufferHandle<T>(read(reader)); };
-    return codec;
-}
-
 BufferCodec filmCodec() {
-    return codecFor<Film>(
+    return makeBufferCodec<Film>(
         [](const Film& film, CodecWriter& writer) {
             const FilmSettings& settings = film.settings();
             writer.setItemCount(film.pixelCount());
@@ -93,7 +82,7 @@ BufferCodec filmCodec() {
 }
 
 BufferCodec photonMapCodec() {
-    return codecFor<PhotonMap>(
+    return makeBufferCodec<PhotonMap>(
         [](const PhotonMap& map, CodecWriter& writer) {
             writer.setItemCount(map.photons.size());
             writer.write<std::uint64_t>(map.emitted);
@@ -112,7 +101,7 @@ BufferCodec photonMapCodec() {
 }
 
 BufferCodec volumePhotonMapCodec() {
-    return codecFor<VolumePhotonMap>(
+    return makeBufferCodec<VolumePhotonMap>(
         [](const VolumePhotonMap& map, CodecWriter& writer) {
             writer.setItemCount(map.photons.size());
             writer.write<std::uint64_t>(map.emitted);
@@ -127,7 +116,7 @@ BufferCodec volumePhotonMapCodec() {
 }
 
 BufferCodec filmNoiseCodec() {
-    return codecFor<FilmNoise>(
+    return makeBufferCodec<FilmNoise>(
         [](const FilmNoise& noise, CodecWriter& writer) {
             writer.setItemCount(noise.mean.size());
             writer.write<std::int64_t>(noise.batches);
@@ -153,7 +142,7 @@ BufferCodec filmNoiseCodec() {
 }
 
 BufferCodec eyeVerticesCodec() {
-    return codecFor<EyeVertices>(
+    return makeBufferCodec<EyeVertices>(
         [](const EyeVertices& eye, CodecWriter& writer) {
             writer.setItemCount(eye.vertices.size());
             writer.write<std::int32_t>(eye.samplesPerPixel);
@@ -168,7 +157,7 @@ BufferCodec eyeVerticesCodec() {
 }
 
 BufferCodec photonRadiiCodec() {
-    return codecFor<PhotonRadii>(
+    return makeBufferCodec<PhotonRadii>(
         [](const PhotonRadii& radii, CodecWriter& writer) {
             writer.setItemCount(radii.radii.size());
             writer.write<std::uint32_t>(radii.neighbours);
@@ -185,7 +174,7 @@ BufferCodec photonRadiiCodec() {
 }
 
 BufferCodec eyeSegmentsCodec() {
-    return codecFor<EyeSegments>(
+    return makeBufferCodec<EyeSegments>(
         [](const EyeSegments& segments, CodecWriter& writer) {
             writer.setItemCount(segments.segments.size());
             writer.write<std::int32_t>(segments.samplesPerPixel);
@@ -200,7 +189,7 @@ BufferCodec eyeSegmentsCodec() {
 }
 
 BufferCodec pointIndexCodec() {
-    return codecFor<PointIndex>(
+    return makeBufferCodec<PointIndex>(
         [](const PointIndex& index, CodecWriter& writer) {
             const KdTree& tree = index.tree();
             writer.setItemCount(index.size());
@@ -223,7 +212,7 @@ BufferCodec pointIndexCodec() {
 }
 
 BufferCodec photonBvhCodec() {
-    return codecFor<PhotonBvh>(
+    return makeBufferCodec<PhotonBvh>(
         [](const PhotonBvh& bvh, CodecWriter& writer) {
             writer.setItemCount(bvh.size());
             writer.write<std::uint32_t>(bvh.depth());
@@ -271,7 +260,7 @@ bool validMixture(const DirectionalGmm& gmm) {
 }
 
 BufferCodec importonMapCodec() {
-    return codecFor<ImportonMap>(
+    return makeBufferCodec<ImportonMap>(
         [](const ImportonMap& map, CodecWriter& writer) {
             writer.setItemCount(map.importons.size());
             writer.write<std::uint64_t>(map.paths);
@@ -286,7 +275,7 @@ BufferCodec importonMapCodec() {
 }
 
 BufferCodec guidingCacheCodec() {
-    return codecFor<GuidingCache>(
+    return makeBufferCodec<GuidingCache>(
         [](const GuidingCache& cache, CodecWriter& writer) {
             const KdTree& tree = cache.tree();
             writer.setItemCount(cache.records.size());
@@ -328,7 +317,6 @@ BufferCodec guidingCacheCodec() {
         });
 }
 
-
 // The fitted Gaussian mixture of pem_fit and em_fit (Jakob et al. 2011 §5),
 // saved so that the next frame of an animation can seed its fit with it
 // (§5.4). Its codec version is the first scalar, so that a later layout is
@@ -356,7 +344,7 @@ bool validGaussianComponent(const Buffer& components, std::size_t s) {
 }
 
 BufferCodec gaussianMixtureCodec() {
-    return codecFor<GaussianMixture>(
+    return makeBufferCodec<GaussianMixture>(
         [](const GaussianMixture& mixture, CodecWriter& writer) {
             const GmmBuffer& components = mixture.components;
             GmmStoredBuffer stored(components.size());
@@ -419,7 +407,7 @@ std::string pyramidDefect(const GmmPyramid& pyramid) {
 }
 
 BufferCodec gmmPyramidCodec() {
-    return codecFor<GmmPyramid>(
+    return makeBufferCodec<GmmPyramid>(
         [](const GmmPyramid& pyramid, CodecWriter& writer) {
             writer.setItemCount(pyramid.nodes.size());
             writer.write<std::uint32_t>(kGmmPyramidCodecVersion);
@@ -437,7 +425,7 @@ BufferCodec gmmPyramidCodec() {
 }
 
 BufferCodec gmmBbhCodec() {
-    return codecFor<GmmBbh>(
+    return makeBufferCodec<GmmBbh>(
         [](const GmmBbh& bbh, CodecWriter& writer) {
             writer.setItemCount(bbh.nodes.size());
             writer.write<std::uint32_t>(kGmmBbhCodecVersion);

@@ -8,7 +8,6 @@
 #include "engine/buffers/photon_ray_buffers.h"
 #include "engine/buffers/radiance_cache_buffers.h"
 
-#include <functional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -16,16 +15,6 @@
 namespace fg {
 
 namespace {
-
-template <class T, class Write, class Read>
-BufferCodec codecOf(Write write, Read read, std::function<void(CodecReader&)> checkVersion = {}) {
-    BufferCodec codec;
-    codec.type = BufferTypeName<T>::value;
-    codec.write = [write](const void* buffer, CodecWriter& writer) { write(*static_cast<const T*>(buffer), writer); };
-    codec.checkVersion = std::move(checkVersion);
-    codec.read = [read](CodecReader& reader) { return makeBufferHandle<T>(read(reader)); };
-    return codec;
-}
 
 // The scalars PhotonRays and SplatRays share, in the order both files hold them.
 template <class Rays>
@@ -56,7 +45,7 @@ void refuseUnknownRayClasses(const Rays& rays, CodecReader& reader) {
 }  // namespace
 
 BufferCodec photonRaysCodec() {
-    return codecOf<PhotonRays>(
+    return makeBufferCodec<PhotonRays>(
         [](const PhotonRays& rays, CodecWriter& writer) {
             writeRayScalars(rays, writer);
             writer.write(rays.hasBandwidths);
@@ -73,7 +62,7 @@ BufferCodec photonRaysCodec() {
 }
 
 BufferCodec splatRaysCodec() {
-    return codecOf<SplatRays>(
+    return makeBufferCodec<SplatRays>(
         [](const SplatRays& rays, CodecWriter& writer) {
             writeRayScalars(rays, writer);
             writer.writeSoa("rays", rays.rays);
@@ -88,7 +77,7 @@ BufferCodec splatRaysCodec() {
 }
 
 BufferCodec splatIndexCodec() {
-    return codecOf<SplatIndex>(
+    return makeBufferCodec<SplatIndex>(
         [](const SplatIndex& index, CodecWriter& writer) {
             const SplatKdTree& tree = index.tree;
             writer.setItemCount(tree.size());
@@ -124,7 +113,7 @@ BufferCodec splatIndexCodec() {
 }
 
 BufferCodec radianceMapCodec() {
-    return codecOf<RadianceMap>(
+    return makeBufferCodec<RadianceMap>(
         [](const RadianceMap& map, CodecWriter& writer) {
             writer.setItemCount(map.vertices.size());
             writer.writeSoa("vertices", map.vertices);
@@ -141,7 +130,7 @@ BufferCodec radianceMapCodec() {
 inline constexpr std::uint32_t kCacheRecordsCodecVersion = 1;
 
 BufferCodec cacheRecordsCodec() {
-    return codecOf<CacheRecords>(
+    return makeBufferCodec<CacheRecords>(
         [](const CacheRecords& cache, CodecWriter& writer) {
             writer.setItemCount(cache.records.size());
             writer.write<std::uint32_t>(kCacheRecordsCodecVersion);

@@ -223,6 +223,18 @@ BufferHandle makeBufferHandle(T value) {
     return handle;
 }
 
+// The codec of buffer type T from its typed write and read functions, and for
+// a versioned layout its checkVersion (codecVersionCheck).
+template <class T, class Write, class Read>
+BufferCodec makeBufferCodec(Write write, Read read, std::function<void(CodecReader&)> checkVersion = {}) {
+    BufferCodec codec;
+    codec.type = BufferTypeName<T>::value;
+    codec.write = [write](const void* buffer, CodecWriter& writer) { write(*static_cast<const T*>(buffer), writer); };
+    codec.checkVersion = std::move(checkVersion);
+    codec.read = [read](CodecReader& reader) { return makeBufferHandle<T>(read(reader)); };
+    return codec;
+}
+
 // One table, looked up by type; a codec for a type already there replaces it.
 void registerCodec(BufferCodec codec);
 const BufferCodec* findCodec(const std::string& type);
