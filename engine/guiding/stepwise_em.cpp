@@ -185,8 +185,15 @@ double weightedLogLikelihood(const DirectionalGmm& gmm, std::span<const Weighted
 
 int offlineStepwiseEm(DirectionalGmm& gmm, GmmStatistics& stats, std::span<const WeightedPoint> points,
                       const EmSettings& settings) {
-    stats = GmmStatistics{};
-    if (points.empty()) return 0;
+    OfflineEmProgress progress;
+    continueOfflineStepwiseEm(gmm, stats, progress, points, settings, settings.maxSweeps);
+    return progress.sweeps;
+}
+
+void continueOfflineStepwiseEm(DirectionalGmm& gmm, GmmStatistics& stats, OfflineEmProgress& progress,
+                               std::span<const WeightedPoint> points, const EmSettings& settings, int sweepLimit) {
+    if (progress.sweeps == 0) stats = GmmStatistics{};
+    if (points.empty()) return;
     const auto total = static_cast<std::uint64_t>(points.size());
     const auto interval = static_cast<std::uint64_t>(std::max(1, settings.mStepInterval));
     double totalWeight = 0.0;
@@ -199,9 +206,8 @@ int offlineStepwiseEm(DirectionalGmm& gmm, GmmStatistics& stats, std::span<const
     // anything there (2435 sweeps for 203 new records in a pass, at most 12
     // each). The first sweep has nothing to be compared with, so a record
     // settles after two sweeps at the earliest.
-    double previous = std::numeric_limits<double>::quiet_NaN();
-    int sweeps = 0;
-    while (sweeps < settings.maxSweeps) {
+    const int limit = std::min(sweepLimit, settings.maxSweeps);
+    while (!progress.settled && progress.sweeps < limit) {
         MixtureTerms terms(gmm);
         double current = 0.0;
         for (const WeightedPoint& p : points) {
@@ -213,7 +219,7 @@ int offlineStepwiseEm(DirectionalGmm& gmm, GmmStatistics& stats, std::span<const
                 terms = MixtureTerms(gmm);
             }
         }
-        ++sweeps;
+        ++progress.sweeps;
         if (stats.count % interval != 0)
             gmmMaximisation(gmm, stats, static_cast<double>(std::min(stats.count, total)), settings);
         // Relative to |L|, but never to less than the total weight: a nearly
@@ -222,11 +228,9 @@ int offlineStepwiseEm(DirectionalGmm& gmm, GmmStatistics& stats, std::span<const
         // maxSweeps (measured: 91 of at most 100 sweeps on average over the
         // records of a Cornell-box training pass).
         const double scale = std::max(std::abs(current), totalWeight);
-        const bool settled = std::abs(current - previous) < settings.tolerance * scale;
-        previous = current;
-        if (settled) break;
+        progress.settled = std::abs(current - progress.previousLikelihood) < settings.tolerance * scale;
+        progress.previousLikelihood = current;
     }
-    return sweeps;
 }
 
 void onlineStepwiseEm(DirectionalGmm& gmm, GmmStatistics& stats, std::span<const WeightedPoint> points,

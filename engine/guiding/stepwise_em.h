@@ -10,6 +10,7 @@
 
 #include <array>
 #include <cstdint>
+#include <limits>
 #include <span>
 
 namespace fg {
@@ -73,6 +74,22 @@ double weightedLogLikelihood(const DirectionalGmm& gmm, std::span<const Weighted
 // the number of sweeps over the points.
 int offlineStepwiseEm(DirectionalGmm& gmm, GmmStatistics& stats, std::span<const WeightedPoint> points,
                       const EmSettings& settings);
+
+// Where an off-line EM stands between sweeps, so that it can be stopped after
+// a few sweeps and resumed later: a fit resumed up to maxSweeps is the fit of
+// one offlineStepwiseEm call, bit for bit (the cache update decides whether
+// guiding is rare on the first sweeps and finishes the fits only if not).
+struct OfflineEmProgress {
+    double previousLikelihood = std::numeric_limits<double>::quiet_NaN();  // the last sweep's running L
+    int sweeps = 0;
+    bool settled = false;  // the convergence test ended it
+};
+
+// Off-line stepwise EM continued from `progress` (a default one: from the
+// start, `stats` reset) until it settles or has run min(sweepLimit,
+// settings.maxSweeps) sweeps in all.
+void continueOfflineStepwiseEm(DirectionalGmm& gmm, GmmStatistics& stats, OfflineEmProgress& progress,
+                               std::span<const WeightedPoint> points, const EmSettings& settings, int sweepLimit);
 
 // On-line stepwise EM: every point once, continuing the counter i (n = i).
 void onlineStepwiseEm(DirectionalGmm& gmm, GmmStatistics& stats, std::span<const WeightedPoint> points,

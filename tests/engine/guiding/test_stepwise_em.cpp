@@ -241,6 +241,44 @@ TEST(StepwiseEm, EffectiveCountKeepsHeavyParticlesFromCollapsingALobe) {
     }
 }
 
+// An off-line fit stopped after a few sweeps and resumed is the fit of one
+// call, bit for bit (the cache update judges guiding on stopped fits and
+// finishes them only where it is not rare); stopped, it has run no more than
+// it was allowed.
+TEST(StepwiseEm, ResumedOfflineFitEqualsOneCall) {
+    const std::vector<WeightedPoint> points = drawPoints(knownMixture(), 256, 7, 2.0f);
+    EmSettings settings;
+    settings.maxSweeps = 12;
+    DirectionalGmm whole = initialGmm(points, settings);
+    GmmStatistics wholeStats;
+    const int sweeps = offlineStepwiseEm(whole, wholeStats, points, settings);
+    ASSERT_GT(sweeps, 3);
+    for (int first : {1, 2, 3}) {
+        DirectionalGmm gmm = initialGmm(points, settings);
+        GmmStatistics stats;
+        OfflineEmProgress progress;
+        continueOfflineStepwiseEm(gmm, stats, progress, points, settings, first);
+        EXPECT_EQ(progress.sweeps, first);
+        EXPECT_FALSE(progress.settled);
+        EXPECT_EQ(stats.count, static_cast<std::uint64_t>(first) * points.size());
+        continueOfflineStepwiseEm(gmm, stats, progress, points, settings, settings.maxSweeps);
+        EXPECT_EQ(progress.sweeps, sweeps);
+        EXPECT_EQ(stats.count, wholeStats.count);
+        EXPECT_EQ(stats.meanWeight, wholeStats.meanWeight);
+        EXPECT_EQ(stats.meanSquaredWeight, wholeStats.meanSquaredWeight);
+        for (std::size_t j = 0; j < kGmmComponents; ++j) {
+            const GmmComponent &a = gmm.components[j], &b = whole.components[j];
+            EXPECT_TRUE(a.weight == b.weight && a.mean == b.mean && a.covXX == b.covXX && a.covXY == b.covXY &&
+                        a.covYY == b.covYY)
+                << "component " << j << ", resumed after " << first;
+            const ComponentStatistics &u = stats.components[j], &v = wholeStats.components[j];
+            EXPECT_TRUE(u.gamma == v.gamma && u.sx == v.sx && u.sy == v.sy && u.sxx == v.sxx && u.sxy == v.sxy &&
+                        u.syy == v.syy)
+                << "component " << j << ", resumed after " << first;
+        }
+    }
+}
+
 TEST(StepwiseEm, OnlineConvergesToStreamedMixture) {
     const DirectionalGmm truth = knownMixture();
     EmSettings settings;

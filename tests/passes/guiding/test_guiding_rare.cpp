@@ -4,8 +4,11 @@
 // worth guiding, and guided-pt goes on in the occluded room, whose light
 // reaches the camera's side through a gap; at the threshold the signal
 // follows the share of query points that find a guiding record, and a rare
-// cache guides nowhere.
+// cache guides nowhere. The share is judged first on fits stopped after
+// decision_sweeps sweeps: where that is rare the fits are not finished, and
+// elsewhere the finished cache is the one a single stage makes.
 #include "engine/accel/ray_query.h"
+#include "engine/core/codec.h"
 #include "engine/core/job.h"
 #include "engine/core/scheduler.h"
 #include "engine/guiding/guiding_cache.h"
@@ -86,6 +89,13 @@ std::size_t guidingRecords(const GuidingCache& cache) {
     return n;
 }
 
+// The cache's file bytes: every column, the index and the counters, as --save writes them.
+std::string cacheBytes(const RunResult& run, const std::string& name) {
+    const std::filesystem::path path = test::scratchDirectory("guiding-rare") / (name + ".fgbuf");
+    saveBuffer(run.results.at("radiance_cache"), path.string(), "");
+    return test::readText(path);
+}
+
 // The counters of the radiance update of training pass `pass`.
 std::map<std::string, std::int64_t> radianceCounters(const RunResult& run, int pass) {
     const std::string instance = "train[" + std::to_string(pass) + "].radiance_update";
@@ -133,10 +143,15 @@ TEST(GuidingRare, TrainingGoesOnWhereRecordsGuide) {
 
 // The same first pass with the threshold half a query point above and below
 // the share it measured: only above is the block stopped and every record
-// left to BSDF sampling; below, the records guide as with no threshold.
+// left to BSDF sampling; below, the records guide as with no threshold. The
+// share judged here is the finished fits' (decision_sweeps = 0).
 TEST(GuidingRare, SignalAtItsThreshold) {
     const Scene scene = test::loadAjarRoom("guiding-rare");
-    const RunResult free = trainBuiltin(scene, 1, {{"radiance_update.min_guiding_share", 0.0}}, 3);
+    const auto train = [](const Scene& s, int passes, std::map<std::string, ParamValue> params, std::uint64_t seed) {
+        params["radiance_update.decision_sweeps"] = std::int64_t{0};
+        return trainBuiltin(s, passes, std::move(params), seed);
+    };
+    const RunResult free = train(scene, 1, {{"radiance_update.min_guiding_share", 0.0}}, 3);
     const auto counters = radianceCounters(free, 0);
     const double guided = static_cast<double>(counters.at("guided_queries"));
     const double queries = static_cast<double>(counters.at("queries"));
@@ -145,19 +160,98 @@ TEST(GuidingRare, SignalAtItsThreshold) {
     const std::size_t guiding = guidingRecords(radianceCache(free));
     ASSERT_GT(guiding, 0u);
 
-    const RunResult above = trainBuiltin(scene, 2, {{"radiance_update.min_guiding_share", (guided + 0.5) / queries}}, 3);
+    const RunResult above = train(scene, 2, {{"radiance_update.min_guiding_share", (guided + 0.5) / queries}}, 3);
     EXPECT_EQ(radianceCounters(above, 0).at("guided_queries"), counters.at("guided_queries"));
     EXPECT_EQ(above.iterations.at("train"), 1);
     EXPECT_EQ(radianceCache(above).records.size(), radianceCache(free).records.size());
     EXPECT_EQ(guidingRecords(radianceCache(above)), 0u);
 
-    const RunResult below = trainBuiltin(scene, 2, {{"radiance_update.min_guiding_share", (guided - 0.5) / queries}}, 3);
+    const RunResult below = train(scene, 2, {{"radiance_update.min_guiding_share", (guided - 0.5) / queries}}, 3);
     EXPECT_EQ(radianceCounters(below, 0).at("guided_queries"), counters.at("guided_queries"));
     EXPECT_EQ(below.iterations.at("train"), 2);
 
     // One pass below the threshold: the cache of the run with none.
-    const RunResult belowOnce = trainBuiltin(scene, 1, {{"radiance_update.min_guiding_share", (guided - 0.5) / queries}}, 3);
+    const RunResult belowOnce = train(scene, 1, {{"radiance_update.min_guiding_share", (guided - 0.5) / queries}}, 3);
     EXPECT_EQ(guidingRecords(radianceCache(belowOnce)), guiding);
+}
+
+// Where guiding is rare the new records' off-line EM stops after the
+// decision's sweeps: the lit box's first pass runs at most decision_sweeps
+// (2) sweeps per record, against the up to max_sweeps (12) of a pass that
+// finishes the fits before it judges, and ends the same way.
+TEST(GuidingRare, RareCacheLeavesFitsUnfinished) {
+    const Scene scene = loadLitBox();
+    const RunResult early = trainBuiltin(scene, 3, {}, 1);
+    const RunResult late = trainBuiltin(scene, 3, {{"radiance_update.decision_sweeps", std::int64_t{0}}}, 1);
+    const auto e = radianceCounters(early, 0), l = radianceCounters(late, 0);
+    std::printf("lit box: %lld off-line sweeps for %lld new records (%lld query points guided), %lld with the fits "
+                "finished (%lld guided)\n",
+                static_cast<long long>(e.at("offline_em_sweeps")), static_cast<long long>(e.at("records_created")),
+                static_cast<long long>(e.at("guided_queries")), static_cast<long long>(l.at("offline_em_sweeps")),
+                static_cast<long long>(l.at("guided_queries")));
+    EXPECT_EQ(early.iterations.at("train"), 1);
+    EXPECT_EQ(late.iterations.at("train"), 1);
+    EXPECT_EQ(e.at("records_created"), l.at("records_created"));
+    EXPECT_EQ(e.at("guided_queries"), e.at("decision_guided_queries"));
+    EXPECT_EQ(l.count("decision_guided_queries"), 0u);
+    EXPECT_LE(e.at("offline_em_sweeps"), 2 * e.at("records_created"));
+    EXPECT_GT(l.at("offline_em_sweeps"), 4 * l.at("records_created"));
+    EXPECT_FALSE(radianceCache(early).anyGuides());
+}
+
+// Where the stopped fits' share reaches the threshold, the fits are finished
+// and the cache, after one pass and after two, is the one judged on finished
+// fits alone makes, byte for byte (the early stage's neighbour clamping of
+// the records already there is undone).
+TEST(GuidingRare, FinishedFitsEqualSingleStage) {
+    const Scene scene = test::loadAjarRoom("guiding-rare");
+    for (int passes : {1, 2}) {
+        const RunResult staged = trainBuiltin(scene, passes, {}, 1);
+        const RunResult single = trainBuiltin(scene, passes, {{"radiance_update.decision_sweeps", std::int64_t{0}}}, 1);
+        EXPECT_EQ(staged.iterations.at("train"), passes);
+        EXPECT_EQ(single.iterations.at("train"), passes);
+        for (int pass = 0; pass < passes; ++pass) {
+            const auto counters = radianceCounters(staged, pass);
+            EXPECT_EQ(counters.at("guided_queries"), radianceCounters(single, pass).at("guided_queries"));
+            EXPECT_GT(counters.at("records_created"), 0);
+            std::printf("occluded room, pass %d: %lld query points guided by the stopped fits, %lld by the finished\n",
+                        pass, static_cast<long long>(counters.at("decision_guided_queries")),
+                        static_cast<long long>(counters.at("guided_queries")));
+        }
+        EXPECT_TRUE(cacheBytes(staged, "staged") == cacheBytes(single, "single")) << passes << " passes";
+    }
+}
+
+// The early judgement at its own threshold (early_guiding_share, with
+// min_guiding_share half a query point above the stopped fits' share so that
+// it does not cap it): half a query point above the stopped fits' share ends
+// the block with the fits unfinished; half a point below it (and below the
+// finished fits' share) they are finished, into the cache of the default run.
+TEST(GuidingRare, EarlySignalAtItsThreshold) {
+    const Scene scene = test::loadAjarRoom("guiding-rare");
+    const RunResult plain = trainBuiltin(scene, 1, {}, 3);
+    const auto counters = radianceCounters(plain, 0);
+    const double early = static_cast<double>(counters.at("decision_guided_queries"));
+    const double queries = static_cast<double>(counters.at("queries"));
+    ASSERT_GT(early, 0.0);
+    ASSERT_LT(early + 0.5, static_cast<double>(counters.at("guided_queries")));
+    const auto thresholds = [&](double earlyShare) -> std::map<std::string, ParamValue> {
+        return {{"radiance_update.min_guiding_share", (early + 0.5) / queries},
+                {"radiance_update.early_guiding_share", earlyShare}};
+    };
+
+    const RunResult above = trainBuiltin(scene, 2, thresholds((early + 0.5) / queries), 3);
+    const auto a = radianceCounters(above, 0);
+    EXPECT_EQ(above.iterations.at("train"), 1);
+    EXPECT_EQ(a.at("guided_queries"), counters.at("decision_guided_queries"));
+    EXPECT_LE(a.at("offline_em_sweeps"), 2 * a.at("records_created"));
+    EXPECT_LT(a.at("offline_em_sweeps"), counters.at("offline_em_sweeps"));
+    EXPECT_FALSE(radianceCache(above).anyGuides());
+
+    const RunResult below = trainBuiltin(scene, 2, thresholds((early - 0.5) / queries), 3);
+    EXPECT_EQ(below.iterations.at("train"), 2);
+    const RunResult belowOnce = trainBuiltin(scene, 1, thresholds((early - 0.5) / queries), 3);
+    EXPECT_TRUE(cacheBytes(belowOnce, "below") == cacheBytes(plain, "plain"));
 }
 
 // guide_decision = always samples every usable mixture: nothing is rare.
