@@ -17,6 +17,7 @@
 #include "engine/guiding/importons.h"
 #include "engine/image/film.h"
 
+#include <algorithm>
 #include <cmath>
 #include <string>
 #include <utility>
@@ -274,11 +275,41 @@ BufferCodec importonMapCodec() {
         });
 }
 
+// The guiding cache's records gain columns as guiding does (bsdf_only and
+// moment_ratio were added to the first layout), so its payload begins with
+// its codec version and other versions are refused rather than misread.
+// Versions 1 and 2 are the two layouts saved before the version was written:
+// 1 without bsdf_only and moment_ratio, 2 with them. Neither holds a version
+// to read, but the payload's size tells them from a versioned file: their
+// scalars (training passes, leaf size) are 12 bytes besides the columns, a
+// versioned file's 16.
+constexpr std::uint32_t kGuidingCacheCodecVersion = 3;
+constexpr std::uint64_t kGuidingCacheScalarBytes = sizeof(std::uint32_t) + sizeof(std::uint64_t) + sizeof(std::uint32_t);
+
+void checkGuidingCacheVersion(CodecReader& reader) {
+    const auto what = [](std::uint32_t version) {
+        return "a guiding cache of codec version " + std::to_string(version) + " (this build reads version " +
+               std::to_string(kGuidingCacheCodecVersion) + ")";
+    };
+    if (reader.remaining() == reader.columnBytes() + kGuidingCacheScalarBytes - sizeof(std::uint32_t)) {
+        const auto& columns = reader.columns();
+        const bool decided = std::any_of(columns.begin(), columns.end(),
+                                         [](const CodecColumn& c) { return c.name == "records.bsdf_only"; });
+        // These were written by earlier builds of this one, so their owners
+        // are told how to get a readable file.
+        reader.fail(what(decided ? 2 : 1) + ", saved before the version was written: train and save it again with "
+                                            "this build");
+    }
+    const auto version = reader.read<std::uint32_t>();
+    if (version != kGuidingCacheCodecVersion) reader.fail(what(version));
+}
+
 BufferCodec guidingCacheCodec() {
     return makeBufferCodec<GuidingCache>(
         [](const GuidingCache& cache, CodecWriter& writer) {
             const KdTree& tree = cache.tree();
             writer.setItemCount(cache.records.size());
+            writer.write<std::uint32_t>(kGuidingCacheCodecVersion);
             writer.write<std::uint64_t>(cache.trainingPasses);
             writer.writeSoa("records", cache.records);
             writer.write<std::uint32_t>(tree.maxLeafSize());
@@ -314,7 +345,8 @@ BufferCodec guidingCacheCodec() {
             }
             cache.buildCoverGrid();
             return cache;
-        });
+        },
+        checkGuidingCacheVersion);
 }
 
 // The fitted Gaussian mixture of pem_fit and em_fit (Jakob et al. 2011 §5),

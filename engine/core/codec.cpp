@@ -159,6 +159,7 @@ CodecReader::CodecReader(const std::string& path) : path_(path) {
             fail("truncated buffer file: column '" + column.name + "' needs more bytes than the file has left");
         columnBytes += column.count * column.elementSize;
     }
+    columnBytes_ = columnBytes;
 }
 
 void CodecReader::fail(const std::string& message) const { throw InputError(path_, 0, message); }

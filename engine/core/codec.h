@@ -133,6 +133,10 @@ public:
     const std::string& jobText() const { return jobText_; }
     std::uint64_t itemCount() const { return items_; }
     const std::vector<CodecColumn>& columns() const { return columns_; }
+    // Bytes of the file not read yet.
+    std::uint64_t remaining() const { return remaining_; }
+    // The bytes of every column the header lists.
+    std::uint64_t columnBytes() const { return columnBytes_; }
 
     template <class T>
     T read() {
@@ -191,6 +195,7 @@ private:
     std::string jobText_;
     std::uint64_t items_ = 0;
     std::vector<CodecColumn> columns_;
+    std::uint64_t columnBytes_ = 0;
     std::size_t nextColumn_ = 0;
 };
 
