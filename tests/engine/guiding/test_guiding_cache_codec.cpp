@@ -173,10 +173,11 @@ TEST(GuidingCacheCodec, OtherVersionsAreRefusedByVersionWithOneLine) {
     }
 }
 
-// The job: pt on an imported cache, small.
-std::string importingJob(const fs::path& dir) {
+// The job: pt on an imported cache, small, on `scene`.
+std::string importingJob(const fs::path& dir,
+                         const std::string& scene = test::sourcePath("data/cornell-box/cornell-box.toml")) {
     const std::string job = (dir / "imported-cache.toml").string();
-    test::writeText(job, "scene = \"" + test::sourcePath("data/cornell-box/cornell-box.toml") +
+    test::writeText(job, "scene = \"" + scene +
                              "\"\n[film]\nwidth = 8\nheight = 8\n[passes.pt]\nspp = 1\n"
                              "[pipeline]\nname = \"pt-on-a-cache\"\nresults = [\"image\"]\n"
                              "[[pipeline.pass]]\npass = \"pt\"\ninputs = { radiance_cache = \"radiance_cache\" }\n");
@@ -202,6 +203,37 @@ TEST(GuidingCacheCodec, ValidateAndRenderRefuseOtherVersionsWithOneLine) {
         EXPECT_EQ(r.err, v.err);
         EXPECT_FALSE(fs::exists(files.dir / "refused"));
     }
+}
+
+// replay checks its input files (--inputs) and its imports like validate,
+// before the scene loads: with a scene that does not exist, a cache of
+// another version is what is refused; the cache as saved passes on to the
+// scene.
+TEST(GuidingCacheCodec, ReplayRefusesOtherVersionsBeforeLoadingTheScene) {
+    const CacheFiles files = makeCacheFiles("guiding-cache-codec-replay");
+    const std::string job = importingJob(files.dir, "no-such-scene.toml");
+    fs::create_directories(files.dir / "inputs");
+    fs::copy_file(files.future, files.dir / "inputs" / "radiance_cache.fgbuf");
+    const std::vector<std::string> replay = {"replay", job, "--pass", "pt", "--repeat", "1"};
+    const auto run = [&](std::vector<std::string> extra) {
+        std::vector<std::string> args = replay;
+        args.insert(args.end(), extra.begin(), extra.end());
+        const test::CommandResult r = test::runFluxgraph(files.dir, args);
+        EXPECT_EQ(r.exitCode, 2) << r.err;
+        EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
+        return r.err;
+    };
+    const std::string fromInputs = run({"--import", "radiance_cache=cache.fgbuf", "--inputs", "inputs"});
+    EXPECT_NE(fromInputs.find((fs::path("inputs") / "radiance_cache.fgbuf").string() +
+                              ": a guiding cache of codec version 4 (this build reads version 3)"),
+              std::string::npos)
+        << fromInputs;
+    const std::string imported = run({"--import", "radiance_cache=cache-v4.fgbuf"});
+    EXPECT_NE(imported.find("cache-v4.fgbuf: a guiding cache of codec version 4"), std::string::npos) << imported;
+    const std::string unversioned = run({"--import", "radiance_cache=cache-layout1.fgbuf"});
+    EXPECT_NE(unversioned.find("cache-layout1.fgbuf: a guiding cache of codec version 1"), std::string::npos)
+        << unversioned;
+    EXPECT_NE(run({"--import", "radiance_cache=cache.fgbuf"}).find("no-such-scene.toml"), std::string::npos);
 }
 
 }  // namespace
