@@ -17,6 +17,7 @@
 #include "engine/guiding/importons.h"
 #include "engine/image/film.h"
 
+#include <algorithm>
 #include <cmath>
 #include <string>
 #include <utility>
@@ -34,7 +35,7 @@ int readSamplesPerPixel(CodecReader& reader) {
 }
 
 BufferCodec filmCodec() {
-    return makeBufferCodec<Film>(
+    BufferCodec codec = makeBufferCodec<Film>(
         [](const Film& film, CodecWriter& writer) {
             const FilmSettings& settings = film.settings();
             writer.setItemCount(film.pixelCount());
@@ -79,10 +80,19 @@ BufferCodec filmCodec() {
             return Film::restore(settings, std::move(weightedSums), std::move(weightSums), std::move(direct),
                                  hasDirect, std::move(aovs));
         });
+    // Size, filter, radius, sigma, the direct flag, the AOV count and each
+    // AOV's name, which its column's name repeats after "aov.".
+    codec.scalarBytes = [](std::span<const CodecColumn> columns) {
+        std::uint64_t bytes = 5 * sizeof(std::int32_t) + 1 + sizeof(std::uint32_t);
+        for (const CodecColumn& column : columns)
+            if (column.name.rfind("aov.", 0) == 0) bytes += sizeof(std::uint32_t) + column.name.size() - 4;
+        return bytes;
+    };
+    return codec;
 }
 
 BufferCodec photonMapCodec() {
-    return makeBufferCodec<PhotonMap>(
+    return withScalarBytes(makeBufferCodec<PhotonMap>(
         [](const PhotonMap& map, CodecWriter& writer) {
             writer.setItemCount(map.photons.size());
             writer.write<std::uint64_t>(map.emitted);
@@ -97,11 +107,12 @@ BufferCodec photonMapCodec() {
             map.hasDifferentials = reader.read<bool>();
             reader.readSoa("photons", map.photons);
             return map;
-        });
+        }),
+        2 * sizeof(std::uint64_t) + 1);
 }
 
 BufferCodec volumePhotonMapCodec() {
-    return makeBufferCodec<VolumePhotonMap>(
+    return withScalarBytes(makeBufferCodec<VolumePhotonMap>(
         [](const VolumePhotonMap& map, CodecWriter& writer) {
             writer.setItemCount(map.photons.size());
             writer.write<std::uint64_t>(map.emitted);
@@ -112,11 +123,12 @@ BufferCodec volumePhotonMapCodec() {
             map.emitted = reader.read<std::uint64_t>();
             reader.readSoa("photons", map.photons);
             return map;
-        });
+        }),
+        sizeof(std::uint64_t));
 }
 
 BufferCodec filmNoiseCodec() {
-    return makeBufferCodec<FilmNoise>(
+    return withScalarBytes(makeBufferCodec<FilmNoise>(
         [](const FilmNoise& noise, CodecWriter& writer) {
             writer.setItemCount(noise.mean.size());
             writer.write<std::int64_t>(noise.batches);
@@ -138,11 +150,12 @@ BufferCodec filmNoiseCodec() {
             if (noise.previousSums.size() != pixels || noise.previousWeights.size() != pixels || noise.m2.size() != pixels)
                 reader.fail("FilmNoise columns disagree in length");
             return noise;
-        });
+        }),
+        sizeof(std::int64_t) + sizeof(double));
 }
 
 BufferCodec eyeVerticesCodec() {
-    return makeBufferCodec<EyeVertices>(
+    return withScalarBytes(makeBufferCodec<EyeVertices>(
         [](const EyeVertices& eye, CodecWriter& writer) {
             writer.setItemCount(eye.vertices.size());
             writer.write<std::int32_t>(eye.samplesPerPixel);
@@ -153,11 +166,12 @@ BufferCodec eyeVerticesCodec() {
             eye.samplesPerPixel = readSamplesPerPixel(reader);
             reader.readSoa("vertices", eye.vertices);
             return eye;
-        });
+        }),
+        sizeof(std::int32_t));
 }
 
 BufferCodec photonRadiiCodec() {
-    return makeBufferCodec<PhotonRadii>(
+    return withScalarBytes(makeBufferCodec<PhotonRadii>(
         [](const PhotonRadii& radii, CodecWriter& writer) {
             writer.setItemCount(radii.radii.size());
             writer.write<std::uint32_t>(radii.neighbours);
@@ -170,11 +184,12 @@ BufferCodec photonRadiiCodec() {
             radii.scale = reader.read<float>();
             reader.readSoa("radii", radii.radii);
             return radii;
-        });
+        }),
+        sizeof(std::uint32_t) + sizeof(float));
 }
 
 BufferCodec eyeSegmentsCodec() {
-    return makeBufferCodec<EyeSegments>(
+    return withScalarBytes(makeBufferCodec<EyeSegments>(
         [](const EyeSegments& segments, CodecWriter& writer) {
             writer.setItemCount(segments.segments.size());
             writer.write<std::int32_t>(segments.samplesPerPixel);
@@ -185,11 +200,12 @@ BufferCodec eyeSegmentsCodec() {
             segments.samplesPerPixel = readSamplesPerPixel(reader);
             reader.readSoa("segments", segments.segments);
             return segments;
-        });
+        }),
+        sizeof(std::int32_t));
 }
 
 BufferCodec pointIndexCodec() {
-    return makeBufferCodec<PointIndex>(
+    return withScalarBytes(makeBufferCodec<PointIndex>(
         [](const PointIndex& index, CodecWriter& writer) {
             const KdTree& tree = index.tree();
             writer.setItemCount(index.size());
@@ -208,11 +224,12 @@ BufferCodec pointIndexCodec() {
             return PointIndex::restore(
                 KdTree::restore(std::move(positions), std::move(permutation), std::move(splits), leafSize),
                 std::move(ids));
-        });
+        }),
+        sizeof(std::uint32_t));
 }
 
 BufferCodec photonBvhCodec() {
-    return makeBufferCodec<PhotonBvh>(
+    return withScalarBytes(makeBufferCodec<PhotonBvh>(
         [](const PhotonBvh& bvh, CodecWriter& writer) {
             writer.setItemCount(bvh.size());
             writer.write<std::uint32_t>(bvh.depth());
@@ -226,7 +243,8 @@ BufferCodec photonBvhCodec() {
             reader.readSoa("nodes", nodes);
             reader.readSoa("spheres", spheres);
             return PhotonBvh::restore(std::move(nodes), std::move(spheres), depth);
-        });
+        }),
+        sizeof(std::uint32_t));
 }
 
 // A loaded mixture is used for sampling at once: every component must be a
@@ -260,7 +278,7 @@ bool validMixture(const DirectionalGmm& gmm) {
 }
 
 BufferCodec importonMapCodec() {
-    return makeBufferCodec<ImportonMap>(
+    return withScalarBytes(makeBufferCodec<ImportonMap>(
         [](const ImportonMap& map, CodecWriter& writer) {
             writer.setItemCount(map.importons.size());
             writer.write<std::uint64_t>(map.paths);
@@ -271,14 +289,45 @@ BufferCodec importonMapCodec() {
             map.paths = reader.read<std::uint64_t>();
             reader.readSoa("importons", map.importons);
             return map;
-        });
+        }),
+        sizeof(std::uint64_t));
+}
+
+// The guiding cache's records gain columns as guiding does (bsdf_only and
+// moment_ratio were added to the first layout), so its payload begins with
+// its codec version and other versions are refused rather than misread.
+// Versions 1 and 2 are the two layouts saved before the version was written:
+// 1 without bsdf_only and moment_ratio, 2 with them. Neither holds a version
+// to read, but the payload's size tells them from a versioned file: their
+// scalars (training passes, leaf size) are 12 bytes besides the columns, a
+// versioned file's 16.
+constexpr std::uint32_t kGuidingCacheCodecVersion = 3;
+constexpr std::uint64_t kGuidingCacheScalarBytes = sizeof(std::uint32_t) + sizeof(std::uint64_t) + sizeof(std::uint32_t);
+
+void checkGuidingCacheVersion(CodecReader& reader) {
+    const auto what = [](std::uint32_t version) {
+        return "a guiding cache of codec version " + std::to_string(version) + " (this build reads version " +
+               std::to_string(kGuidingCacheCodecVersion) + ")";
+    };
+    if (reader.remaining() == reader.columnBytes() + kGuidingCacheScalarBytes - sizeof(std::uint32_t)) {
+        const auto& columns = reader.columns();
+        const bool decided = std::any_of(columns.begin(), columns.end(),
+                                         [](const CodecColumn& c) { return c.name == "records.bsdf_only"; });
+        // These were written by earlier builds of this one, so their owners
+        // are told how to get a readable file.
+        reader.fail(what(decided ? 2 : 1) + ", saved before the version was written: train and save it again with "
+                                            "this build");
+    }
+    const auto version = reader.read<std::uint32_t>();
+    if (version != kGuidingCacheCodecVersion) reader.fail(what(version));
 }
 
 BufferCodec guidingCacheCodec() {
-    return makeBufferCodec<GuidingCache>(
+    BufferCodec codec = makeBufferCodec<GuidingCache>(
         [](const GuidingCache& cache, CodecWriter& writer) {
             const KdTree& tree = cache.tree();
             writer.setItemCount(cache.records.size());
+            writer.write<std::uint32_t>(kGuidingCacheCodecVersion);
             writer.write<std::uint64_t>(cache.trainingPasses);
             writer.writeSoa("records", cache.records);
             writer.write<std::uint32_t>(tree.maxLeafSize());
@@ -314,7 +363,9 @@ BufferCodec guidingCacheCodec() {
             }
             cache.buildCoverGrid();
             return cache;
-        });
+        },
+        checkGuidingCacheVersion);
+    return withScalarBytes(std::move(codec), kGuidingCacheScalarBytes);
 }
 
 // The fitted Gaussian mixture of pem_fit and em_fit (Jakob et al. 2011 §5),
@@ -344,7 +395,7 @@ bool validGaussianComponent(const Buffer& components, std::size_t s) {
 }
 
 BufferCodec gaussianMixtureCodec() {
-    return makeBufferCodec<GaussianMixture>(
+    return withScalarBytes(makeBufferCodec<GaussianMixture>(
         [](const GaussianMixture& mixture, CodecWriter& writer) {
             const GmmBuffer& components = mixture.components;
             GmmStoredBuffer stored(components.size());
@@ -375,7 +426,8 @@ BufferCodec gaussianMixtureCodec() {
             if (version != kGaussianMixtureCodecVersion)
                 reader.fail("a Gaussian mixture of codec version " + std::to_string(version) +
                             " (this build reads version " + std::to_string(kGaussianMixtureCodecVersion) + ")");
-        });
+        }),
+        sizeof(std::uint32_t) + sizeof(std::uint64_t));
 }
 
 // The Gaussian pyramid (Alg. 3) and its bounding hierarchy (§7.1), saved so
@@ -407,7 +459,7 @@ std::string pyramidDefect(const GmmPyramid& pyramid) {
 }
 
 BufferCodec gmmPyramidCodec() {
-    return makeBufferCodec<GmmPyramid>(
+    return withScalarBytes(makeBufferCodec<GmmPyramid>(
         [](const GmmPyramid& pyramid, CodecWriter& writer) {
             writer.setItemCount(pyramid.nodes.size());
             writer.write<std::uint32_t>(kGmmPyramidCodecVersion);
@@ -421,11 +473,12 @@ BufferCodec gmmPyramidCodec() {
             if (const std::string defect = pyramidDefect(pyramid); !defect.empty()) reader.fail("corrupt buffer: " + defect);
             return pyramid;
         },
-        codecVersionCheck(kGmmPyramidCodecVersion, "a Gaussian pyramid"));
+        codecVersionCheck(kGmmPyramidCodecVersion, "a Gaussian pyramid")),
+        2 * sizeof(std::uint32_t));
 }
 
 BufferCodec gmmBbhCodec() {
-    return makeBufferCodec<GmmBbh>(
+    return withScalarBytes(makeBufferCodec<GmmBbh>(
         [](const GmmBbh& bbh, CodecWriter& writer) {
             writer.setItemCount(bbh.nodes.size());
             writer.write<std::uint32_t>(kGmmBbhCodecVersion);
@@ -453,7 +506,8 @@ BufferCodec gmmBbhCodec() {
             }
             return bbh;
         },
-        codecVersionCheck(kGmmBbhCodecVersion, "a Gaussian BBH"));
+        codecVersionCheck(kGmmBbhCodecVersion, "a Gaussian BBH")),
+        sizeof(std::uint32_t) + sizeof(double));
 }
 
 }  // namespace

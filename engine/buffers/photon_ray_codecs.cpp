@@ -27,6 +27,9 @@ void writeRayScalars(const Rays& rays, CodecWriter& writer) {
     writer.write<double>(rays.sceneScale);
 }
 
+constexpr std::uint64_t kRayScalarBytes =
+    sizeof(std::uint64_t) + sizeof(float) + sizeof(std::uint64_t) * PhotonRayClass::Count + 2 * sizeof(double);
+
 template <class Rays>
 void readRayScalars(Rays& rays, CodecReader& reader) {
     rays.emitted = reader.read<std::uint64_t>();
@@ -45,7 +48,7 @@ void refuseUnknownRayClasses(const Rays& rays, CodecReader& reader) {
 }  // namespace
 
 BufferCodec photonRaysCodec() {
-    return makeBufferCodec<PhotonRays>(
+    return withScalarBytes(makeBufferCodec<PhotonRays>(
         [](const PhotonRays& rays, CodecWriter& writer) {
             writeRayScalars(rays, writer);
             writer.write(rays.hasBandwidths);
@@ -58,11 +61,12 @@ BufferCodec photonRaysCodec() {
             reader.readSoa("rays", rays.rays);
             refuseUnknownRayClasses(rays, reader);
             return rays;
-        });
+        }),
+        kRayScalarBytes + 1);
 }
 
 BufferCodec splatRaysCodec() {
-    return makeBufferCodec<SplatRays>(
+    return withScalarBytes(makeBufferCodec<SplatRays>(
         [](const SplatRays& rays, CodecWriter& writer) {
             writeRayScalars(rays, writer);
             writer.writeSoa("rays", rays.rays);
@@ -73,11 +77,12 @@ BufferCodec splatRaysCodec() {
             reader.readSoa("rays", rays.rays);
             refuseUnknownRayClasses(rays, reader);
             return rays;
-        });
+        }),
+        kRayScalarBytes);
 }
 
 BufferCodec splatIndexCodec() {
-    return makeBufferCodec<SplatIndex>(
+    return withScalarBytes(makeBufferCodec<SplatIndex>(
         [](const SplatIndex& index, CodecWriter& writer) {
             const SplatKdTree& tree = index.tree;
             writer.setItemCount(tree.size());
@@ -109,11 +114,12 @@ BufferCodec splatIndexCodec() {
             index.tree = SplatKdTree::restore(options, lo, hi, std::move(nodes), std::move(ids), std::move(positions),
                                               std::move(normals));
             return index;
-        });
+        }),
+        sizeof(std::uint32_t) + 8 * sizeof(float));
 }
 
 BufferCodec radianceMapCodec() {
-    return makeBufferCodec<RadianceMap>(
+    return withScalarBytes(makeBufferCodec<RadianceMap>(
         [](const RadianceMap& map, CodecWriter& writer) {
             writer.setItemCount(map.vertices.size());
             writer.writeSoa("vertices", map.vertices);
@@ -122,7 +128,8 @@ BufferCodec radianceMapCodec() {
             RadianceMap map;
             reader.readSoa("vertices", map.vertices);
             return map;
-        });
+        }),
+        0);
 }
 
 // The records' layout has changed before and may again: files name the
@@ -130,7 +137,7 @@ BufferCodec radianceMapCodec() {
 inline constexpr std::uint32_t kCacheRecordsCodecVersion = 1;
 
 BufferCodec cacheRecordsCodec() {
-    return makeBufferCodec<CacheRecords>(
+    return withScalarBytes(makeBufferCodec<CacheRecords>(
         [](const CacheRecords& cache, CodecWriter& writer) {
             writer.setItemCount(cache.records.size());
             writer.write<std::uint32_t>(kCacheRecordsCodecVersion);
@@ -145,7 +152,8 @@ BufferCodec cacheRecordsCodec() {
                 if (!(radius > 0.0f)) reader.fail("corrupt buffer: cache record radius " + std::to_string(radius));
             return cache;
         },
-        codecVersionCheck(kCacheRecordsCodecVersion, "cache records"));
+        codecVersionCheck(kCacheRecordsCodecVersion, "cache records")),
+        sizeof(std::uint32_t) + sizeof(float));
 }
 
 }  // namespace fg

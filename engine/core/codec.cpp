@@ -95,6 +95,12 @@ void CodecWriter::addColumn(const std::string& name, std::size_t elementSize, st
     pieces_.push_back(std::move(piece));
 }
 
+std::uint64_t CodecWriter::scalarBytes() const {
+    std::uint64_t bytes = 0;
+    for (const Piece& piece : pieces_) bytes += piece.owned.size();
+    return bytes;
+}
+
 bool CodecWriter::writePayload(std::ostream& out) const {
     for (const Piece& piece : pieces_) {
         if (piece.borrowed)
@@ -159,6 +165,7 @@ CodecReader::CodecReader(const std::string& path) : path_(path) {
             fail("truncated buffer file: column '" + column.name + "' needs more bytes than the file has left");
         columnBytes += column.count * column.elementSize;
     }
+    columnBytes_ = columnBytes;
 }
 
 void CodecReader::fail(const std::string& message) const { throw InputError(path_, 0, message); }
@@ -274,6 +281,12 @@ void writeBufferFile(const BufferHandle& buffer, const std::string& path, const 
 
     CodecWriter writer;
     codec->write(buffer.data.get(), writer);
+    // A codec whose declared size is wrong would have validate refuse every
+    // file it writes: found on the first save, not by its users.
+    if (codec->scalarBytes && codec->scalarBytes(writer.columns()) != writer.scalarBytes())
+        throw std::logic_error("the " + buffer.type + " codec wrote " + std::to_string(writer.scalarBytes()) +
+                               " bytes besides its columns, but its scalarBytes says " +
+                               std::to_string(codec->scalarBytes(writer.columns())));
     writeFileChecked(path, temporaryPath, [&](std::ostream& out) {
         put(out, kBufferFileMagic, sizeof kBufferFileMagic);
         putScalar(out, kBufferFormatVersion);
@@ -303,6 +316,11 @@ std::function<void(CodecReader&)> codecVersionCheck(std::uint32_t supported, std
     };
 }
 
+BufferCodec withScalarBytes(BufferCodec codec, std::uint64_t bytes) {
+    codec.scalarBytes = [bytes](std::span<const CodecColumn>) { return bytes; };
+    return codec;
+}
+
 namespace {
 
 // Everything loadBuffer checks before the codec's read; leaves `reader` at the
@@ -315,7 +333,18 @@ const BufferCodec& checkedCodec(CodecReader& reader, const std::string& expected
                                         : "'" + bufferName + "' is " + article(expectedType) + expectedType));
     const BufferCodec* codec = findCodec(type);
     if (!codec) reader.fail("holds " + article(type) + type + " buffer, which this build cannot read");
+    const std::uint64_t payload = reader.remaining();
+    // The version first: another version may have another size.
     if (codec->checkVersion) codec->checkVersion(reader);
+    if (codec->scalarBytes) {
+        // Both terms are bounded: the reader checked that the columns fit in
+        // the file, and scalars come from the header's (bounded) names.
+        const std::uint64_t expected = reader.columnBytes() + codec->scalarBytes(reader.columns());
+        if (payload < expected)
+            reader.fail("truncated buffer file: its header's columns need " + std::to_string(expected) +
+                        " bytes after the header, the file has " + std::to_string(payload));
+        if (payload > expected) reader.fail(std::to_string(payload - expected) + " bytes after the end of the buffer");
+    }
     return *codec;
 }
 

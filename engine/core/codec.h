@@ -98,6 +98,8 @@ public:
 
     std::uint64_t itemCount() const { return items_; }
     const std::vector<CodecColumn>& columns() const { return columns_; }
+    // The payload's bytes outside the columns: scalars and strings, version included.
+    std::uint64_t scalarBytes() const;
     // Writes the payload; returns false if the stream failed.
     bool writePayload(std::ostream& out) const;
 
@@ -133,6 +135,10 @@ public:
     const std::string& jobText() const { return jobText_; }
     std::uint64_t itemCount() const { return items_; }
     const std::vector<CodecColumn>& columns() const { return columns_; }
+    // Bytes of the file not read yet.
+    std::uint64_t remaining() const { return remaining_; }
+    // The bytes of every column the header lists.
+    std::uint64_t columnBytes() const { return columnBytes_; }
 
     template <class T>
     T read() {
@@ -191,6 +197,7 @@ private:
     std::string jobText_;
     std::uint64_t items_ = 0;
     std::vector<CodecColumn> columns_;
+    std::uint64_t columnBytes_ = 0;
     std::size_t nextColumn_ = 0;
 };
 
@@ -205,7 +212,17 @@ struct BufferCodec {
     std::function<void(CodecReader&)> checkVersion;
     // Reads what follows the version; returns a handle with type, data, bytes set.
     std::function<BufferHandle(CodecReader&)> read;
+    // The payload's bytes outside the columns (version included), from the
+    // header's column list: with the columns' bytes, the size the payload must
+    // have, so that checkBufferFile refuses a file cut short (or with bytes
+    // appended) without reading it. Saving checks that the codec wrote exactly
+    // this many. Empty: only the read can tell.
+    std::function<std::uint64_t(std::span<const CodecColumn>)> scalarBytes;
 };
+
+// `codec` with scalarBytes set to a fixed count, for a codec whose scalars do
+// not depend on the buffer's contents.
+BufferCodec withScalarBytes(BufferCodec codec, std::uint64_t bytes);
 
 // The checkVersion of a codec that writes a u32 `supported` first: any other
 // version is refused as "<what> of codec version N (this build reads version
@@ -257,10 +274,11 @@ void writeBufferFile(const BufferHandle& buffer, const std::string& path, const 
 // other than expectedType (empty: any), naming the buffer `bufferName` if given.
 BufferHandle loadBuffer(const std::string& path, const std::string& expectedType, const std::string& bufferName = "");
 // Refuses, with loadBuffer's messages, every file that loadBuffer would refuse
-// before it reads the arrays: the header, the type, a type without a codec
-// and the codec's own version. The rest of the payload is not read, so a file
-// cut short inside its last scalars or holding inconsistent arrays passes here
-// and is refused when it is loaded.
+// before it reads the arrays: the header, the type, a type without a codec,
+// the codec's own version and, for a codec with scalarBytes (every builtin
+// one), a payload shorter or longer than the header's columns and the codec's
+// scalars make it. The rest of the payload is not read, so arrays that do not
+// fit together pass here and are refused when the file is loaded.
 void checkBufferFile(const std::string& path, const std::string& expectedType, const std::string& bufferName = "");
 
 struct BufferFileInfo {

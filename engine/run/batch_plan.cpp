@@ -3,6 +3,7 @@
 // reported as one line naming the plan file and line.
 #include "engine/run/batch_plan.h"
 
+#include "engine/core/codec.h"
 #include "engine/core/error.h"
 #include "engine/core/pass.h"
 #include "engine/core/scheduler.h"
@@ -276,7 +277,15 @@ std::vector<Job> validateBatchPlan(const BatchPlan& plan, std::optional<int> thr
     for (const BatchRun& run : plan.runs) {
         Job job = loadBatchJob(plan, run, threads);
         try {
-            ExecutionPlan::build(job.pipeline, job.params, job.path, installedRegistry().passes, job.bufferFiles);
+            const ExecutionPlan built =
+                ExecutionPlan::build(job.pipeline, job.params, job.path, installedRegistry().passes, job.bufferFiles);
+            // A batch saves no buffers (its runs take no --save, and a job file
+            // cannot name one), so no run imports what an earlier run makes:
+            // every imported file is there before the batch starts or never
+            // is, and is checked here as validate checks it (cheaply, without
+            // reading its arrays) instead of failing its run after the scene loads.
+            for (const auto& [version, typeAndPath] : built.imports())
+                checkBufferFile(typeAndPath.second, typeAndPath.first, version);
         } catch (const InputError& e) {
             throw InputError(runOrigin(run, e.what()) + ": " + e.what());
         }

@@ -51,8 +51,9 @@ BatchPlan loadBatchPlan(const std::string& path);
 Job loadBatchJob(const BatchPlan& plan, const BatchRun& run, std::optional<int> threads = std::nullopt);
 
 // Loads every run's job and builds its execution plan (unknown parameters,
-// bad values, pipeline errors), before anything is rendered. Throws the first
-// problem as an InputError naming the plan line.
+// bad values, pipeline errors) and checks its imported buffer files as
+// validate does, before anything is rendered. Throws the first problem as an
+// InputError naming the plan line.
 std::vector<Job> validateBatchPlan(const BatchPlan& plan, std::optional<int> threads = std::nullopt);
 
 }  // namespace fg

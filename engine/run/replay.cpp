@@ -130,7 +130,13 @@ ReplayResult replayPass(const Job& job, const ReplayOptions& options, const Regi
             if (info.type != slot->type)
                 throw InputError(path + ": holds a " + info.type + " buffer, but input '" + slot->name + "' of '" +
                                  options.instance + "' reads a " + slot->type);
+            // The codec's version and the file's size too, as validate checks
+            // imports: a file loading would refuse is refused before the scene.
+            checkBufferFile(path, slot->type, version);
         }
+    } else {
+        for (const auto& [version, typeAndPath] : unhinted.imports())
+            checkBufferFile(typeAndPath.second, typeAndPath.first, version);
     }
     if (!options.saveInputsDirectory.empty()) {
         std::error_code ec;

@@ -792,6 +792,39 @@ TEST(Cli, ImportedBuffersOfTheWrongKindAreRefusedWithOneLine) {
               std::string::npos);
 }
 
+// A saved image cut short by one byte or by half: validate refuses it (the
+// header's counts give the file's size) as render does, with the same line
+// naming the file, exit code 2, and render writes nothing.
+TEST(Cli, TruncatedImportsAreRefusedByValidateAndRender) {
+    const fs::path dir = scratchDirectory();
+    const std::vector<std::string> small = {"--set", "film.width=8", "--set", "film.height=8", "--set",
+                                            "passes.pt.spp=1"};
+    std::vector<std::string> save = {"render", quickstartJob(), "-q", "--out", "out", "--save", "image=image.fgbuf"};
+    save.insert(save.end(), small.begin(), small.end());
+    ASSERT_EQ(runFluxgraph(dir, save).exitCode, 0);
+    std::vector<std::string> validate = {"validate", quickstartJob(), "--import", "image=image.fgbuf"};
+    validate.insert(validate.end(), small.begin(), small.end());
+    const CommandResult good = runFluxgraph(dir, validate);
+    EXPECT_EQ(good.exitCode, 0) << good.err;
+    const std::string image = readText(dir / "image.fgbuf");
+    writeText(dir / "short.fgbuf", image.substr(0, image.size() - 1));
+    writeText(dir / "half.fgbuf", image.substr(0, image.size() / 2));
+    for (const std::string file : {"short.fgbuf", "half.fgbuf"}) {
+        std::vector<std::string> args = {quickstartJob(), "--import", "image=" + file};
+        args.insert(args.end(), small.begin(), small.end());
+        std::vector<std::string> v = {"validate"}, r = {"render", "-q", "--out", "refused"};
+        v.insert(v.end(), args.begin(), args.end());
+        r.insert(r.end(), args.begin(), args.end());
+        const CommandResult checked = runFluxgraph(dir, v);
+        expectInputError(checked);
+        EXPECT_EQ(checked.err.rfind(file + ": truncated buffer file", 0), 0u) << checked.err;
+        const CommandResult rendered = runFluxgraph(dir, r);
+        expectInputError(rendered);
+        EXPECT_EQ(rendered.err, checked.err);
+        EXPECT_FALSE(fs::exists(dir / "refused"));
+    }
+}
+
 TEST(Cli, GraphDrawsARepeatBlockOnceUnlessUnrolled) {
     const fs::path dir = scratchDirectory();
     const std::string job = sourcePath("data/jobs/progressive-pt.toml");

@@ -596,6 +596,17 @@ TEST(CodecRefuses, SoaColumnsOfDifferentLengths) {
     ASSERT_EQ(count, 4u);
     count = 3;
     std::memcpy(bytes.data() + offset, &count, sizeof count);
+    // Its last element goes too, so that the file has the size its header
+    // now gives and it is the columns' disagreement that is refused. The
+    // payload: emitted, collapsed footprints, the differentials flag, then
+    // the columns in header order.
+    const CodecReader original(path);
+    const std::vector<CodecColumn>& columns = original.columns();
+    ASSERT_EQ(columns[1].name, "photons.incident");
+    const std::size_t payload = bytes.size() - original.remaining();
+    const std::size_t lastIncident = payload + 8 + 8 + 1 + columns[0].count * columns[0].elementSize +
+                                     3 * columns[1].elementSize;
+    bytes.erase(lastIncident, columns[1].elementSize);
     writeBytes(path, bytes);
     EXPECT_NE(expectRefused(path).find("photons.incident"), std::string::npos);
 }
@@ -825,6 +836,78 @@ TEST(CodecRegistry, CheckingAFileRunsTheVersionCheckButNotTheRead) {
     const std::string wrongType = refusal([&] { checkBufferFile(other, "Film", "image"); });
     EXPECT_NE(wrongType.find("'image' is a Film"), std::string::npos) << wrongType;
     EXPECT_EQ(refusal([&] { loadBuffer(other, "Film", "image"); }), wrongType);
+}
+
+// checkBufferFile refuses a file cut short by one byte or by half, or one
+// byte too long, without reading its arrays (the header's columns and the
+// codec's scalars give the payload's size), with loadBuffer's line; the file
+// as saved passes.
+TEST(CodecRefuses, CheckingAFileRefusesItsWrongSizes) {
+    const fs::path dir = scratchDirectory();
+    for (const auto& [type, make] : everyBuffer()) {
+        const std::string whole = (dir / (type + ".fgbuf")).string();
+        saveBuffer(make(), whole, "job");
+        EXPECT_EQ(refusal([&] { checkBufferFile(whole, type); }), "") << type;
+        const std::string bytes = readBytes(whole);
+        const std::string bad = (dir / (type + "-bad.fgbuf")).string();
+        for (const std::string& copy :
+             {bytes.substr(0, bytes.size() - 1), bytes.substr(0, bytes.size() / 2), bytes + '\0'}) {
+            writeBytes(bad, copy);
+            const std::string checked = refusal([&] { checkBufferFile(bad, type); });
+            EXPECT_EQ(checked.rfind(bad + ": ", 0), 0u) << type << ", " << copy.size() << " bytes: " << checked;
+            EXPECT_EQ(checked.find('\n'), std::string::npos) << checked;
+            EXPECT_EQ(refusal([&] { loadBuffer(bad, type); }), checked) << type;
+        }
+    }
+}
+
+// Cut inside the scalars after the last column, the file's size is all that
+// tells: the line says how many bytes the header calls for.
+TEST(CodecRefuses, CheckingAFileCutInItsLastScalarsSaysWhatIsMissing) {
+    const fs::path dir = scratchDirectory();
+    const std::string path = (dir / "film.fgbuf").string();
+    auto film = std::make_shared<Film>(makeFilm(3));
+    saveBuffer(makeBuffer(film), path, "job");
+    const std::string bytes = readBytes(path);
+    const std::size_t payload = bytes.size() - CodecReader(path).remaining();
+    writeBytes(path, bytes.substr(0, bytes.size() - 1));
+    EXPECT_EQ(refusal([&] { checkBufferFile(path, "Film", "image"); }),
+              path + ": truncated buffer file: its header's columns need " + std::to_string(bytes.size() - payload) +
+                  " bytes after the header, the file has " + std::to_string(bytes.size() - payload - 1));
+    writeBytes(path, bytes + "xyz");
+    EXPECT_EQ(refusal([&] { checkBufferFile(path, "Film", "image"); }), path + ": 3 bytes after the end of the buffer");
+}
+
+TEST(CodecTypes, EveryBuiltinCodecGivesItsPayloadSize) {
+    for (const BufferCodec& codec : builtinCodecs()) EXPECT_TRUE(codec.scalarBytes) << codec.type;
+}
+
+// A codec whose scalars differ from what its scalarBytes says would write
+// files that validate refuses: saving one is an error, and leaves no file.
+TEST(CodecSave, ACodecThatWritesOtherThanItsDeclaredSizeLeavesNoFile) {
+    BufferCodec codec;
+    codec.type = "CodecTestCounter";
+    codec.write = [](const void* buffer, CodecWriter& writer) {
+        const auto& counter = *static_cast<const CodecTestCounter*>(buffer);
+        writer.write(counter.value);
+        writer.writeVector("history", counter.history);
+    };
+    codec.read = [](CodecReader& reader) {
+        CodecTestCounter counter;
+        counter.value = reader.read<std::uint64_t>();
+        counter.history = reader.readVector<std::int16_t>("history");
+        return makeBufferHandle(std::move(counter));
+    };
+    auto counter = std::make_shared<CodecTestCounter>();
+    counter->history = {4, 5};
+    const fs::path dir = scratchDirectory();
+    registerCodec(withScalarBytes(codec, sizeof(std::uint64_t)));
+    saveBuffer(makeBuffer(counter), (dir / "right.fgbuf").string(), "");
+    EXPECT_EQ(refusal([&] { checkBufferFile((dir / "right.fgbuf").string(), "CodecTestCounter"); }), "");
+    registerCodec(withScalarBytes(codec, sizeof(std::uint32_t)));
+    EXPECT_THROW(saveBuffer(makeBuffer(counter), (dir / "wrong.fgbuf").string(), ""), std::logic_error);
+    EXPECT_FALSE(fs::exists(dir / "wrong.fgbuf"));
+    EXPECT_EQ(std::distance(fs::directory_iterator(dir), fs::directory_iterator()), 1);
 }
 
 }  // namespace

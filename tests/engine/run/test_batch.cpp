@@ -4,10 +4,13 @@
 // results table. Every render is tiny: 16x16 pixels, 1 sample per pixel.
 #include "engine/run/batch.h"
 
+#include "engine/core/codec.h"
 #include "engine/core/error.h"
+#include "engine/image/film.h"
 #include "engine/image/image_io.h"
 #include "passes/passes.h"
 #include "tests/support/batch_fixtures.h"
+#include "tests/support/pass_helpers.h"
 
 #include <gtest/gtest.h>
 
@@ -111,6 +114,33 @@ TEST_F(BatchTest, MalformedPlansNameThePlanLine) {
     expectPlanError(dir, "output = \"out\"\njobs = [\"jobs/a/nope.toml\"]\n", 2, "cannot open job file");
     expectPlanError(dir, "output = \"out\"\n[[sweep]]\njob = \"jobs/a/pt.toml\"\nreference = \"ref.exr\"\n", 4,
                     "does not exist");
+}
+
+// Nothing in a batch saves buffers, so a job's imported files are checked
+// with the plan, as validate checks them: a missing file or one cut short is
+// a plan error naming the run's line and the file, before anything renders.
+TEST_F(BatchTest, ImportedFilesAreCheckedWithThePlan) {
+    const fs::path dir = scratchDirectory();
+    FilmSettings settings;
+    settings.width = settings.height = 16;
+    auto film = std::make_shared<Film>(settings);
+    fs::create_directories(dir / "jobs");
+    saveBuffer(test::makeBuffer(film), (dir / "jobs" / "image.fgbuf").string(), "");
+    const std::string bytes = test::readText(dir / "jobs" / "image.fgbuf");
+    writeText(dir / "jobs" / "short.fgbuf", bytes.substr(0, bytes.size() - 1));
+    const auto job = [&](const std::string& file) {
+        writeText(dir / "jobs" / "imports.toml", "scene = \"" + cornellScene() +
+                                                     "\"\npipeline = \"pt\"\n[import]\nimage = \"" + file + "\"\n");
+    };
+    const std::string plan = "output = \"out\"\n" + std::string(kTinySet) + "jobs = [\"jobs/imports.toml\"]\n";
+    job("image.fgbuf");
+    writeText(dir / "plan.toml", plan);
+    EXPECT_EQ(validateBatchPlan(loadBatchPlan((dir / "plan.toml").string())).size(), 1u);
+    job("short.fgbuf");
+    expectPlanError(dir, plan, 3, (dir / "jobs" / "short.fgbuf").string() + ": truncated buffer file");
+    job("missing.fgbuf");
+    expectPlanError(dir, plan, 3, (dir / "jobs" / "missing.fgbuf").string() + ": cannot open buffer file");
+    EXPECT_FALSE(fs::exists(dir / "out"));
 }
 
 TEST_F(BatchTest, RerunSkipsFinishedRunsAndRendersOnlyMissingOnes) {

@@ -16,6 +16,7 @@
 
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <string>
 #include <vector>
 
@@ -198,6 +199,35 @@ TEST(Replay, MissingInputFilesAreRefused) {
     options.inputsDirectory = (dir / "nothing-here").string();
     const std::string message = inputErrorOf(job, options);
     EXPECT_NE(message.find("eye_vertices.fgbuf"), std::string::npos) << message;
+    EXPECT_EQ(message.find('\n'), std::string::npos);
+}
+
+// Input files are checked as validate checks imports (type, codec version,
+// size) before the scene is loaded: with a scene that does not exist, a file
+// cut short is what is refused, and the intact files pass on to the scene.
+TEST(Replay, InputFilesAreCheckedBeforeTheSceneLoads) {
+    const fs::path dir = scratchDirectory();
+    Job job = smallJob("data/jobs/cornell-spm.toml", kSmallSpm);
+    ReplayOptions options;
+    options.instance = "gather";
+    options.repeat = 1;
+    options.saveInputsDirectory = (dir / "inputs").string();
+    replayPass(job, options);
+    options.saveInputsDirectory.clear();
+    options.inputsDirectory = (dir / "inputs").string();
+    job.scenePath = (dir / "no-such-scene.xml").string();
+    EXPECT_NE(inputErrorOf(job, options).find("no-such-scene.xml"), std::string::npos);
+
+    const fs::path index = dir / "inputs" / "global_index.fgbuf";
+    std::string bytes;
+    {
+        std::ifstream in(index, std::ios::binary);
+        bytes.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+    }
+    ASSERT_GT(bytes.size(), 2u);
+    std::ofstream(index, std::ios::binary | std::ios::trunc).write(bytes.data(), static_cast<std::streamsize>(bytes.size() - 1));
+    const std::string message = inputErrorOf(job, options);
+    EXPECT_EQ(message.rfind(index.string() + ": truncated buffer file", 0), 0u) << message;
     EXPECT_EQ(message.find('\n'), std::string::npos);
 }
 
