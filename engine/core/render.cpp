@@ -269,16 +269,24 @@ std::string jsonEscape(const std::string& s) {
     return out;
 }
 
+namespace {
+
+// The checks loadImports makes before decoding (type, codec version, size),
+// run before the scene loads so that a bad import is refused at once, by
+// validate and render alike, with the line loading would give.
+void checkImportFiles(const ExecutionPlan& plan) {
+    for (const auto& [version, typeAndPath] : plan.imports())
+        checkBufferFile(typeAndPath.second, typeAndPath.first, version);
+}
+
+}  // namespace
+
 ExecutionPlan validateJob(const Job& job, const Registry& registry) {
-    ExecutionPlan::build(job.pipeline, job.params, job.path, registry.passes, job.bufferFiles);
+    checkImportFiles(ExecutionPlan::build(job.pipeline, job.params, job.path, registry.passes, job.bufferFiles));
     const Scene scene = loadScene(job.scenePath, job.sceneDefines);
     FilmSettings film = jobFilm(job, scene);
     ExecutionPlan plan = planWithSceneHints(job, scene, film, registry);
     runPreflights(plan, scene, film);
-    // The checks loadImports makes before decoding, so that a file render
-    // would refuse on loading is refused here with the same line.
-    for (const auto& [version, typeAndPath] : plan.imports())
-        checkBufferFile(typeAndPath.second, typeAndPath.first, version);
     return plan;
 }
 
@@ -288,7 +296,7 @@ namespace {
 RenderOutcome renderWith(const Job& job, const RenderOptions& options, const PreparedScene* prepared,
                          const Registry& registry) {
     // Validated before anything slow happens; rebuilt below with the scene's hints.
-    ExecutionPlan::build(job.pipeline, job.params, job.path, registry.passes, job.bufferFiles);
+    checkImportFiles(ExecutionPlan::build(job.pipeline, job.params, job.path, registry.passes, job.bufferFiles));
     // Every output goes to a temporary first; all are renamed at the end, or
     // none (and the directories made for them are removed again).
     OutputCommit outputs;

@@ -825,6 +825,28 @@ TEST(Cli, TruncatedImportsAreRefusedByValidateAndRender) {
     }
 }
 
+TEST(Cli, ImportsAreCheckedBeforeTheSceneLoads) {
+    // A job whose scene is missing and whose import is cut short: validate
+    // and render both refuse the import, so it was checked before the scene.
+    const fs::path dir = scratchDirectory();
+    std::vector<std::string> save = {"render", quickstartJob(), "-q", "--out", "out", "--save", "image=image.fgbuf",
+                                     "--set", "film.width=8", "--set", "film.height=8", "--set", "passes.pt.spp=1"};
+    ASSERT_EQ(runFluxgraph(dir, save).exitCode, 0);
+    const std::string image = readText(dir / "image.fgbuf");
+    writeText(dir / "short.fgbuf", image.substr(0, image.size() - 1));
+    writeText(dir / "no-scene.toml", "scene = \"no-such-scene.toml\"\npipeline = \"pt\"\n[film]\nwidth = 8\n"
+                                     "height = 8\n[passes.pt]\nspp = 1\n");
+    for (const std::string command : {"validate", "render"}) {
+        std::vector<std::string> args = {command, "no-scene.toml", "--import", "image=short.fgbuf"};
+        if (command == "render") args.insert(args.end(), {"-q", "--out", "refused"});
+        const CommandResult refused = runFluxgraph(dir, args);
+        expectInputError(refused);
+        EXPECT_EQ(refused.err.rfind("short.fgbuf: truncated buffer file", 0), 0u) << command << ": " << refused.err;
+        EXPECT_EQ(refused.err.find("no-such-scene"), std::string::npos) << refused.err;
+    }
+    EXPECT_FALSE(fs::exists(dir / "refused"));
+}
+
 TEST(Cli, GraphDrawsARepeatBlockOnceUnlessUnrolled) {
     const fs::path dir = scratchDirectory();
     const std::string job = sourcePath("data/jobs/progressive-pt.toml");
