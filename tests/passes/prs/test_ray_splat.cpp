@@ -30,17 +30,27 @@
 namespace fg {
 namespace {
 
+// Share of the 2D Epanechnikov kernel's mass beyond a line at distance x R
+// from its centre: (8 / 3π) ∫_x^1 (1 − u²)^{3/2} du.
+double kernelMassBeyond(double x) {
+    if (x >= 1.0) return 0.0;
+    return (1.5 * kPi - x * (5.0 - 2.0 * x * x) * std::sqrt(1.0 - x * x) - 3.0 * std::asin(x)) / (3.0 * kPi);
+}
+
 // Quadrature of the splat estimate at the origin of the plane z = 0 (normal +z)
 // for parallel rays at angle theta from the normal, crossing the plane
-// perpendicular to them on a grid 60 per bandwidth, each carrying E_0 times
-// its grid cell's area.
-double planeEstimate(float thetaDegrees, SplatEndCap cap, float h) {
+// perpendicular to them on a grid 60 per bandwidth at the hit, each carrying
+// E_0 times its grid cell's area. The rays are 5 long; with dh > 0 their
+// radius grows from h to h + 5 dh at the hit. Each deposit is multiplied by
+// the ray's hitPlaneGain, as ray_splat does.
+double planeEstimate(float thetaDegrees, SplatEndCap cap, float h, float dh = 0.0f,
+                     SplatSlices slices = SplatSlices::Perpendicular) {
     const float theta = glm::radians(thetaDegrees);
     const Vec3 direction(std::sin(theta), 0.0f, -std::cos(theta));
     const Vec3 e1(std::cos(theta), 0.0f, std::sin(theta)), e2(0.0f, 1.0f, 0.0f);
     const double e0 = 2.0;
     const int half = 180;
-    const float step = h / 60.0f;
+    const float step = (h + 5.0f * dh) / 60.0f;
     double sum = 0.0;
     for (int i = -half; i <= half; ++i)
         for (int j = -half; j <= half; ++j) {
@@ -51,9 +61,11 @@ double planeEstimate(float thetaDegrees, SplatEndCap cap, float h) {
             ray.origin = hit - ray.length * direction;
             ray.direction = direction;
             ray.h0 = h;
-            ray.dh = 0.0f;
+            ray.dh = dh;
             ray.endNormal = Vec3(0, 0, 1);
-            sum += e0 * static_cast<double>(step) * step * splatWeight(ray, cap, Vec3(0.0f), Vec3(0, 0, 1));
+            const SplatFrustum frustum(ray, cap, slices);
+            sum += e0 * static_cast<double>(step) * step * frustum.weight(Vec3(0.0f), Vec3(0, 0, 1)) *
+                   frustum.hitPlaneGain();
         }
     return sum / e0;  // in units of E_0
 }
@@ -75,6 +87,51 @@ TEST_P(PrsPlaneUnderDirectionalLight, HemisphereCapLosesEnergyAtObliqueIncidence
     const double expected = c * (0.5 + c * (0.5 + s2 / 4.0));
     for (float h : {0.05f, 0.2f})
         EXPECT_NEAR(planeEstimate(theta, SplatEndCap::Hemisphere, h), expected, 0.01 * expected) << "h " << h;
+}
+
+// A radius growing along the ray (dh > 0, §6) read at the vertex's foot on
+// the ray, with the kernel normalised across the ray (the paper): the half
+// of the footprint before the hit lies in thinner slices, so a plane met at
+// theta gets 1 - (8 / 15 pi) dh tan theta of E_0 cos theta to first order
+// (the first-order change of the Epanechnikov disk's mass over the half
+// disk, -∂K/∂R times the radius's fall dh tan theta |u|). Slices "hit_plane"
+// read every vertex on the plane at R(t_hit) and give E_0 cos theta.
+TEST_P(PrsPlaneUnderDirectionalLight, GrowingRadiusLosesFluxWithPerpendicularSlices) {
+    const float theta = GetParam();
+    const double c = std::cos(glm::radians(static_cast<double>(theta)));
+    const double tangent = std::tan(glm::radians(static_cast<double>(theta)));
+    const float h = 0.05f, dh = 0.06f;
+    const double estimate = planeEstimate(theta, SplatEndCap::TangentPlane, h, dh) / c;
+    const double firstOrder = 1.0 - 8.0 / (15.0 * kPi) * dh * tangent;
+    std::printf("theta %.0f: perpendicular slices %.4f of E_0 cos theta (first order %.4f)\n",
+                static_cast<double>(theta), estimate, firstOrder);
+    EXPECT_NEAR(estimate, firstOrder, 0.2 * (1.0 - firstOrder) + 0.002);
+    if (theta >= 45.0f) {
+        EXPECT_LT(estimate, 0.995);
+    }
+}
+
+TEST_P(PrsPlaneUnderDirectionalLight, GrowingRadiusHitPlaneSlicesAreExact) {
+    const float theta = GetParam();
+    const double c = std::cos(glm::radians(static_cast<double>(theta)));
+    for (const float dh : {0.0f, 0.03f, 0.06f}) {
+        const double estimate = planeEstimate(theta, SplatEndCap::TangentPlane, 0.05f, dh, SplatSlices::HitPlane);
+        EXPECT_NEAR(estimate, c, 0.003 * c) << "dh " << dh;
+    }
+}
+
+// Within 1 / kMaxTangentStretch of grazing (83 degrees) the tangent-plane
+// footprint ends at the reach, and the part of the ellipse beyond it is
+// lost; slices "hit_plane" renormalise the ray's deposits over what is left.
+TEST(PrsPlaneUnderGrazingLight, StretchCapLossIsRenormalisedWithHitPlaneSlices) {
+    const float theta = 86.0f;
+    const double c = std::cos(glm::radians(static_cast<double>(theta)));
+    const double tangent = std::tan(glm::radians(static_cast<double>(theta)));
+    const double kept = 1.0 - kernelMassBeyond(kMaxTangentStretch / tangent);
+    const double paper = planeEstimate(theta, SplatEndCap::TangentPlane, 0.05f) / c;
+    EXPECT_NEAR(paper, kept, 0.005);
+    EXPECT_LT(paper, 0.99);
+    EXPECT_NEAR(planeEstimate(theta, SplatEndCap::TangentPlane, 0.05f, 0.0f, SplatSlices::HitPlane) / c, 1.0, 0.005);
 }
 
 INSTANTIATE_TEST_SUITE_P(Angles, PrsPlaneUnderDirectionalLight, ::testing::Values(0.0f, 45.0f, 70.0f));
@@ -165,13 +222,6 @@ TEST(PrsTangentPlaneCap, RebuiltHitOffItsPlaneKeepsTheFarFootprint) {
         // A surface 1 mm behind the plane stays cut off.
         EXPECT_EQ(splatWeight(ray, SplatEndCap::TangentPlane, beyond - Vec3(0.0f, 0.0f, 1.0f), Vec3(0, 0, 1)), 0.0f);
     }
-}
-
-// Share of the 2D Epanechnikov kernel's mass beyond a line at distance x R
-// from its centre: (8 / 3π) ∫_x^1 (1 − u²)^{3/2} du.
-double kernelMassBeyond(double x) {
-    if (x >= 1.0) return 0.0;
-    return (1.5 * kPi - x * (5.0 - 2.0 * x * x) * std::sqrt(1.0 - x * x) - 3.0 * std::asin(x)) / (3.0 * kPi);
 }
 
 // A ray of length L meets the plane z = 0 at θ from its normal. Its frustum
@@ -353,7 +403,8 @@ TEST(PrsFrustumWeights, ColumnsGiveTheBitsOfTheOneVertexTest) {
         if (trial % 3 != 0) ray.originNormal = glm::normalize(ray.direction + 0.8f * unitVector());
         if (trial % 5 != 0) ray.endNormal = glm::normalize(-ray.direction + 0.9f * unitVector());
         const SplatEndCap cap = trial % 2 == 0 ? SplatEndCap::TangentPlane : SplatEndCap::Hemisphere;
-        const SplatFrustum frustum(ray, cap);
+        const SplatSlices slices = trial % 7 < 4 ? SplatSlices::HitPlane : SplatSlices::Perpendicular;
+        const SplatFrustum frustum(ray, cap, slices);
         const float reach = splatReach(ray, cap);
         std::vector<Vec3> positions(kVertices), normals(kVertices);
         for (std::uint32_t k = 0; k < kVertices; ++k) {
