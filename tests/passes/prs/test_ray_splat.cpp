@@ -443,21 +443,24 @@ TEST(PrsPipeline, SameImageOnOneAndTwoThreads) {
     FilmSettings film;
     film.width = 32;
     film.height = 32;
-    const std::map<std::string, ParamValue> params = {
-        {"eye.spp", std::int64_t{1}},
-        {"photon.photons", std::int64_t{20000}},
-        {"photon.photon_rays", true},
-        {"photon.store", std::string("none")},
-    };
-    const test::RenderedImage one = test::renderPipeline(scene, "prs", params, film, 1, 1);
-    const test::RenderedImage two = test::renderPipeline(scene, "prs", params, film, 1, 2);
-    ASSERT_EQ(one.pixels.size(), two.pixels.size());
-    double sum = 0.0;
-    for (std::size_t i = 0; i < one.pixels.size(); ++i) {
-        ASSERT_EQ(one.pixels[i], two.pixels[i]) << "pixel value " << i;
-        sum += one.pixels[i].x + one.pixels[i].y + one.pixels[i].z;
+    for (const std::string slices : {"perpendicular", "hit_plane"}) {
+        const std::map<std::string, ParamValue> params = {
+            {"eye.spp", std::int64_t{1}},
+            {"photon.photons", std::int64_t{20000}},
+            {"photon.photon_rays", true},
+            {"photon.store", std::string("none")},
+            {"ray_splat.slices", slices},
+        };
+        const test::RenderedImage one = test::renderPipeline(scene, "prs", params, film, 1, 1);
+        const test::RenderedImage two = test::renderPipeline(scene, "prs", params, film, 1, 2);
+        ASSERT_EQ(one.pixels.size(), two.pixels.size());
+        double sum = 0.0;
+        for (std::size_t i = 0; i < one.pixels.size(); ++i) {
+            ASSERT_EQ(one.pixels[i], two.pixels[i]) << slices << ": pixel value " << i;
+            sum += one.pixels[i].x + one.pixels[i].y + one.pixels[i].z;
+        }
+        EXPECT_GT(sum, 0.0) << slices;
     }
-    EXPECT_GT(sum, 0.0);
 }
 
 // ray_splat's tight-box cone search (traversal = "tight_boxes") and
