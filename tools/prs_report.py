@@ -38,6 +38,11 @@ printed; with --indirect those renders leave the direct light out (eye pass
 direct_light = false) and are compared with the reference less a one-bounce
 pt image of --direct-spp samples, so that the eye pass's direct-light noise,
 common to both, does not enter the corner figures;
+with --edge-split the same renders are split by each pixel's distance to the box's edges (its nearest eye
+vertex's distance to another surface that rises in front of its own, a concave edge, or falls away behind it,
+a convex edge; from the meshes of fragments/shapes.xml) in units of the mean splat radius at the hits: the
+error of each band in % of its own light and its share of the whole image's error; with --photon-depth K the
+photon paths end at K scattering events and the reference is pt with max_depth = K less one-bounce pt;
 with --scaling RS's and PM's T_S at 1, 2 and 4 times the photons. Every row
 also gets the shares of its pixels in Fig. 10's classes of relative error
 against the reference (|image - reference| / reference of the channel mean:
@@ -52,7 +57,8 @@ bytes of the photon rays (ray_bandwidth's output), the splat index
 map (ray_splat's outputs), from --stats, and the process's peak RSS.
 
     python3 tools/prs_report.py [--threads 1] [--photons 200000] [--out results/prs]
-                                [--seeds 11 12 13 14 [--indirect [--direct-spp 1024]] [--fixed-eye] [--corners-only]]
+                                [--seeds 11 12 13 14 [--indirect [--direct-spp 1024] [--photon-depth K]] [--fixed-eye]
+                                 [--corners-only] [--edge-split]]
                                 [--scaling] [--footprint] [--memory]
                                 [--repeats 3] [--set-pm KEY=VALUE ...] [--set-rs KEY=VALUE ...]
 """
@@ -326,6 +332,19 @@ def band_errors(pixels, target, band, whole):
     return 100.0 * diff / own, 100.0 * diff / whole
 
 
+def bounce_reference(binary, work, depth, spp):
+    """The light of paths with 2 to `depth` scattering events: pt with max_depth = depth less pt with
+    max_depth = 1, both of `spp` samples (the photon pass with max_depth = depth stores photons up to that
+    event, and the eye pass adds the first)."""
+    images = []
+    for d in (depth, 1):
+        out = work / f"pt-depth-{d}"
+        subprocess.run([binary, "render", os.path.join(SCENE_DIR, "pt.toml"), "-q", "--out", str(out),
+                        "--set", f"passes.pt.max_depth={d}", "--set", f"passes.pt.spp={spp}"], check=True)
+        images.append(read_exr_rgb(next(out.glob("*.exr"))))
+    return [tuple(a - b for a, b in zip(p, q)) for p, q in zip(*images)]
+
+
 def compare(binary, image):
     text = subprocess.run([binary, "compare", image, REFERENCE], check=True, capture_output=True, text=True).stdout
     values = dict(line.split()[:2] for line in text.splitlines() if len(line.split()) >= 2)
@@ -346,6 +365,9 @@ def main():
     parser.add_argument("--corners-only", action="store_true",
                         help="render only the corner seeds of PM and RS and print their table (writes nothing)")
     parser.add_argument("--direct-spp", type=int, default=1024, help="samples of --indirect's one-bounce pt image")
+    parser.add_argument("--photon-depth", type=int, default=0,
+                        help="with --indirect: photon paths cut at this many scattering events (passes.photon."
+                             "max_depth), against pt of that max_depth less one-bounce pt")
     parser.add_argument("--edge-split", action="store_true",
                         help="with --seeds: the error split by the eye vertices' distance to the box's edges")
     parser.add_argument("--crop-bandwidth", action="store_true",
@@ -406,10 +428,15 @@ def main():
         corner_settings = []
         if args.seeds and args.indirect:
             from pathlib import Path
-            target = indirect_reference(args.binary, Path(scratch), reference, args.direct_spp)
+            if args.photon_depth:
+                target = bounce_reference(args.binary, Path(scratch), args.photon_depth, args.direct_spp)
+            else:
+                target = indirect_reference(args.binary, Path(scratch), reference, args.direct_spp)
             target_pixels = target
             ref_means = [crop_mean(target, 128, c) for c in corner_crops]
             corner_settings = ["--set", "passes.eye.direct_light=false"]
+            if args.photon_depth:
+                corner_settings += ["--set", f"passes.photon.max_depth={args.photon_depth}"]
         per_seed = {}
         seed_images, seed_distances, hit_radii = {}, [], []
         for label, job in methods[:2] if args.seeds else ():
