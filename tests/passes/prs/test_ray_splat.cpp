@@ -373,6 +373,72 @@ TEST(PrsConcaveCorner, AdjacentWallsLightIsLostWithinAFewBandwidths) {
     EXPECT_GT(cornerEstimate(0.25f, h, true), cornerEstimate(0.25f, h, false) + 0.15);
 }
 
+// The convex edge of a block: its top z = 0 (normal +z) for x <= 0 and its
+// side x = 0 (normal +x) for z <= 0, under radiance 1 from every direction
+// above the top: π at every distance δ from the edge. Quadrature as
+// cornerEstimate's over all downward directions, each ray ending where its
+// line first meets the block (or passing it). A vertex on the top beside the
+// edge has in its kernel disk rays that meet the side first: it lies behind
+// their hit's tangent plane, so the cap cuts it from them, and no ray
+// arrives in their place. Returns the estimate in units of the truth.
+double convexEdgeEstimate(float delta, float h, SplatSlices slices) {
+    const Vec3 x(-delta, 0.0f, 0.0f), top(0, 0, 1), side(1, 0, 0);
+    const int thetas = 16, phis = 32, cells = 40;
+    const float far = 20.0f * h;
+    double sum = 0.0;
+    for (int it = 0; it < thetas; ++it)
+        for (int ip = 0; ip < phis; ++ip) {
+            const double theta = (it + 0.5) / thetas * kPi / 2.0, phi = (ip + 0.5) / phis * 2.0 * kPi;
+            const Vec3 direction(static_cast<float>(std::sin(theta) * std::cos(phi)),
+                                 static_cast<float>(std::sin(theta) * std::sin(phi)), static_cast<float>(-std::cos(theta)));
+            const Vec3 e1 = glm::normalize(glm::cross(direction, std::abs(direction.z) < 0.9f ? Vec3(0, 0, 1) : Vec3(1, 0, 0)));
+            const Vec3 e2 = glm::cross(direction, e1);
+            const float step = 2.0f * h / static_cast<float>(cells);
+            double beam = 0.0;
+            for (int i = 0; i < cells; ++i)
+                for (int j = 0; j < cells; ++j) {
+                    const Vec3 p = x + (-h + (static_cast<float>(i) + 0.5f) * step) * e1 +
+                                   (-h + (static_cast<float>(j) + 0.5f) * step) * e2;
+                    // The line p + s d meets the top at s_top (if there x <= 0) and the side at s_side (if there z <= 0).
+                    const float sTop = -p.z / direction.z;
+                    const bool onTop = p.x + sTop * direction.x <= 0.0f;
+                    const float sSide = direction.x < 0.0f ? -p.x / direction.x : kInfinity;
+                    const bool onSide = direction.x < 0.0f && p.z + sSide * direction.z <= 0.0f;
+                    SplatRay ray;
+                    ray.direction = direction;
+                    ray.h0 = h;
+                    if (onTop && (!onSide || sTop <= sSide)) {
+                        ray.origin = p + (sTop - far) * direction;
+                        ray.endNormal = top;
+                    } else if (onSide) {
+                        ray.origin = p + (sSide - far) * direction;
+                        ray.endNormal = side;
+                    } else {
+                        ray.origin = p - far * direction;  // passes the block
+                    }
+                    ray.length = ray.endNormal == Vec3(0.0f) ? 2.0f * far : far;
+                    beam += static_cast<double>(step) * step * splatWeight(ray, SplatEndCap::TangentPlane, x, top, slices);
+                }
+            sum += beam * std::sin(theta) * (kPi / 2.0 / thetas) * (2.0 * kPi / phis);
+        }
+    return sum / kPi;
+}
+
+TEST(PrsConvexEdge, VertexBesideTheEdgeLosesTheRaysThatMeetTheSideFirst) {
+    const float h = 1.0f;
+    for (const float delta : {0.1f, 0.25f, 0.5f, 1.0f, 2.0f, 4.0f}) {
+        const double estimate = convexEdgeEstimate(delta, h, SplatSlices::Perpendicular);
+        std::printf("delta / R = %.2f: %.4f of the truth\n", static_cast<double>(delta / h), estimate);
+        if (delta >= 2.0f) {
+            EXPECT_NEAR(estimate, 1.0, 0.01) << delta;
+        } else {
+            EXPECT_LT(estimate, 0.985) << delta;
+        }
+        // dh = 0: the slices do not matter.
+        EXPECT_EQ(estimate, convexEdgeEstimate(delta, h, SplatSlices::HitPlane)) << delta;
+    }
+}
+
 // SplatFrustum::weights weighs many vertices from columns with masks where
 // weight() branches; both must give the same bits for every vertex, feasible
 // or not: rays with and without an origin surface, escaping or hitting, both
