@@ -38,6 +38,11 @@ printed; with --indirect those renders leave the direct light out (eye pass
 direct_light = false) and are compared with the reference less a one-bounce
 pt image of --direct-spp samples, so that the eye pass's direct-light noise,
 common to both, does not enter the corner figures;
+with --edge-split the same renders are split by each pixel's distance to the box's edges (its nearest eye
+vertex's distance to another surface that rises in front of its own, a concave edge, or falls away behind it,
+a convex edge; from the meshes of fragments/shapes.xml) in units of the mean splat radius at the hits: the
+error of each band in % of its own light and its share of the whole image's error; with --photon-depth K the
+photon paths end at K scattering events and the reference is pt with max_depth = K less one-bounce pt;
 with --scaling RS's and PM's T_S at 1, 2 and 4 times the photons. Every row
 also gets the shares of its pixels in Fig. 10's classes of relative error
 against the reference (|image - reference| / reference of the channel mean:
@@ -52,7 +57,8 @@ bytes of the photon rays (ray_bandwidth's output), the splat index
 map (ray_splat's outputs), from --stats, and the process's peak RSS.
 
     python3 tools/prs_report.py [--threads 1] [--photons 200000] [--out results/prs]
-                                [--seeds 11 12 13 14 [--indirect [--direct-spp 1024]] [--fixed-eye] [--corners-only]]
+                                [--seeds 11 12 13 14 [--indirect [--direct-spp 1024] [--photon-depth K]] [--fixed-eye]
+                                 [--corners-only] [--edge-split]]
                                 [--scaling] [--footprint] [--memory]
                                 [--repeats 3] [--set-pm KEY=VALUE ...] [--set-rs KEY=VALUE ...]
 """
@@ -238,6 +244,107 @@ def crop_bandwidths(eye_file, photon_file, rays_file, k, sample=300):
     return result
 
 
+EDGE_BANDS = ((0.0, 1.0), (1.0, 2.0), (2.0, 4.0))
+
+
+def scene_triangles():
+    """The Cornell box's surfaces as triangles (a fan over each OBJ face), in world space: the shapes of
+    fragments/shapes.xml with their translations (only the luminaire moves)."""
+    import re
+    import numpy as np
+    with open(os.path.join(SCENE_DIR, "fragments", "shapes.xml")) as f:
+        shapes = re.findall(r'value="(meshes/[^"]+)"/>\s*(?:<transform name="to_world">\s*<translate'
+                            r' x="([^"]+)" y="([^"]+)" z="([^"]+)"/>)?', f.read())
+    triangles = []
+    for name, *shift in shapes:
+        offset = [float(s) if s else 0.0 for s in shift]
+        with open(os.path.join(SCENE_DIR, name)) as f:
+            lines = [line.split() for line in f]
+        vertices = [[float(v) + o for v, o in zip(line[1:4], offset)] for line in lines if line and line[0] == "v"]
+        for line in lines:
+            if line and line[0] == "f":
+                corners = [vertices[int(c.split("/")[0]) - 1] for c in line[1:]]
+                triangles += [(corners[0], corners[k], corners[k + 1]) for k in range(1, len(corners) - 1)]
+    return np.array(triangles, dtype=np.float64)
+
+
+def point_triangle_distance(p, a, b, c):
+    """Distance from each point of p (N x 3) to the triangle abc: to its plane where the projection falls
+    inside, else to the nearest of its edges."""
+    import numpy as np
+    n = np.cross(b - a, c - a)
+    n = n / np.linalg.norm(n)
+    height = (p - a) @ n
+    q = p - np.outer(height, n)
+    inside = np.ones(len(p), dtype=bool)
+    for u, v in ((a, b), (b, c), (c, a)):
+        inside &= (np.cross(v - u, q - u) @ n) >= 0.0
+    best = np.where(inside, np.abs(height), np.inf)
+    for u, v in ((a, b), (b, c), (c, a)):
+        e = v - u
+        t = np.clip(((p - u) @ e) / (e @ e), 0.0, 1.0)
+        best = np.minimum(best, np.linalg.norm(p - (u + np.outer(t, e)), axis=1))
+    return best
+
+
+def edge_distances(eye_file, width=128):
+    """Per pixel, the distance from its nearest eye vertex to another surface that rises in front of the
+    vertex's own (a concave edge: the adjacent wall, a box on the floor) and to one that falls away behind it
+    (a convex edge: a box's top and sides). Surfaces parallel to the vertex's (its own wall, the luminaire
+    0.5 below the ceiling) are no edge."""
+    import numpy as np
+    eye = buffer_columns(eye_file)
+    x = np.frombuffer(eye["vertices.position"], dtype="<f4").reshape(-1, 3).astype(np.float64)
+    n = np.frombuffer(eye["vertices.ng"], dtype="<f4").reshape(-1, 3).astype(np.float64)
+    pixel = np.frombuffer(eye["vertices.pixel"], dtype="<u4")
+    concave = np.full(len(x), np.inf)
+    convex = np.full(len(x), np.inf)
+    for a, b, c in scene_triangles():
+        normal = np.cross(b - a, c - a)
+        normal /= np.linalg.norm(normal)
+        crossing = np.abs(n @ normal) < 0.99
+        rises = np.max(np.stack([(corner - x) * n for corner in (a, b, c)]).sum(axis=2), axis=0) > 1e-2
+        d = point_triangle_distance(x, a, b, c)
+        concave = np.where(crossing & rises, np.minimum(concave, d), concave)
+        convex = np.where(crossing & ~rises, np.minimum(convex, d), convex)
+    per_pixel = np.full((2, width * width), np.inf)
+    np.minimum.at(per_pixel[0], pixel, concave)
+    np.minimum.at(per_pixel[1], pixel, convex)
+    return per_pixel
+
+
+def edge_bands(distances, radius):
+    """Pixel index lists: within EDGE_BANDS (in units of `radius`) of a concave edge, then those 4 R or more from
+    any concave edge but within 4 R of a convex one, then the rest (the interior)."""
+    concave, convex = distances[0] / radius, distances[1] / radius
+    bands = [[i for i in range(len(concave)) if lo <= concave[i] < hi] for lo, hi in EDGE_BANDS]
+    far = [i for i in range(len(concave)) if concave[i] >= EDGE_BANDS[-1][1]]
+    bands.append([i for i in far if convex[i] < EDGE_BANDS[-1][1]])
+    bands.append([i for i in far if convex[i] >= EDGE_BANDS[-1][1]])
+    return bands
+
+
+def band_errors(pixels, target, band, whole):
+    """A band's signed error in % of its own indirect light and in % of the whole image's (the bands' shares
+    add up to the whole image's error)."""
+    diff = sum(sum(pixels[i]) - sum(target[i]) for i in band) / 3.0
+    own = sum(sum(target[i]) for i in band) / 3.0
+    return 100.0 * diff / own, 100.0 * diff / whole
+
+
+def bounce_reference(binary, work, depth, spp):
+    """The light of paths with 2 to `depth` scattering events: pt with max_depth = depth less pt with
+    max_depth = 1, both of `spp` samples (the photon pass with max_depth = depth stores photons up to that
+    event, and the eye pass adds the first)."""
+    images = []
+    for d in (depth, 1):
+        out = work / f"pt-depth-{d}"
+        subprocess.run([binary, "render", os.path.join(SCENE_DIR, "pt.toml"), "-q", "--out", str(out),
+                        "--set", f"passes.pt.max_depth={d}", "--set", f"passes.pt.spp={spp}"], check=True)
+        images.append(read_exr_rgb(next(out.glob("*.exr"))))
+    return [tuple(a - b for a, b in zip(p, q)) for p, q in zip(*images)]
+
+
 def compare(binary, image):
     text = subprocess.run([binary, "compare", image, REFERENCE], check=True, capture_output=True, text=True).stdout
     values = dict(line.split()[:2] for line in text.splitlines() if len(line.split()) >= 2)
@@ -258,6 +365,11 @@ def main():
     parser.add_argument("--corners-only", action="store_true",
                         help="render only the corner seeds of PM and RS and print their table (writes nothing)")
     parser.add_argument("--direct-spp", type=int, default=1024, help="samples of --indirect's one-bounce pt image")
+    parser.add_argument("--photon-depth", type=int, default=0,
+                        help="with --indirect: photon paths cut at this many scattering events (passes.photon."
+                             "max_depth), against pt of that max_depth less one-bounce pt")
+    parser.add_argument("--edge-split", action="store_true",
+                        help="with --seeds: the error split by the eye vertices' distance to the box's edges")
     parser.add_argument("--crop-bandwidth", action="store_true",
                         help="PM's and RS's mean bandwidth in the corner crops (from the saved buffers)")
     parser.add_argument("--scaling", action="store_true", help="PM's and RS's T_S at 1, 2 and 4 times the photons")
@@ -316,19 +428,36 @@ def main():
         corner_settings = []
         if args.seeds and args.indirect:
             from pathlib import Path
-            target = indirect_reference(args.binary, Path(scratch), reference, args.direct_spp)
+            if args.photon_depth:
+                target = bounce_reference(args.binary, Path(scratch), args.photon_depth, args.direct_spp)
+            else:
+                target = indirect_reference(args.binary, Path(scratch), reference, args.direct_spp)
+            target_pixels = target
             ref_means = [crop_mean(target, 128, c) for c in corner_crops]
             corner_settings = ["--set", "passes.eye.direct_light=false"]
+            if args.photon_depth:
+                corner_settings += ["--set", f"passes.photon.max_depth={args.photon_depth}"]
         per_seed = {}
+        seed_images, seed_distances, hit_radii = {}, [], []
         for label, job in methods[:2] if args.seeds else ():
             errors = [[] for _ in corner_crops]
             for seed in args.seeds:
                 out_dir = os.path.join(scratch, f"seed-{len(rows)}-{seed}-{len(corners)}")
                 os.makedirs(out_dir)
                 print(f"rendering {label}, seed {seed} ...", file=sys.stderr)
-                _, _, image = render(args.binary, job, out_dir, args.threads, args.photons,
-                                     seed_settings(seed, args.fixed_eye) + corner_settings + rs_settings(label))
+                saves = []
+                if args.edge_split and label.startswith("PM "):
+                    saves = ["--save", f"eye_vertices={out_dir}/eye.fgbuf"]
+                _, seed_counters, image = render(args.binary, job, out_dir, args.threads, args.photons,
+                                                 seed_settings(seed, args.fixed_eye) + corner_settings
+                                                 + rs_settings(label) + saves)
                 pixels = read_exr_rgb(image)
+                if args.edge_split:
+                    seed_images.setdefault(label, []).append(pixels)
+                    if saves:
+                        seed_distances.append(edge_distances(f"{out_dir}/eye.fgbuf"))
+                    if label.startswith("RS "):
+                        hit_radii.append(seed_counters["mean_hit_radius_ppm"])
                 for i, crop in enumerate(corner_crops):
                     errors[i].append(100.0 * (crop_mean(pixels, 128, crop) - ref_means[i]) / ref_means[i])
             corners[label] = [mean_and_error(e) for e in errors]
@@ -336,6 +465,35 @@ def main():
         if len(per_seed) == 2:
             pm, rs = per_seed.values()
             corners["RS - PM, seed by seed"] = paired_errors(rs, pm)
+
+        edge_rows, edge_shares = {}, []
+        if args.edge_split and seed_images:
+            import numpy as np
+            triangles = scene_triangles().reshape(-1, 3)
+            diagonal = float(np.linalg.norm(triangles.max(axis=0) - triangles.min(axis=0)))
+            radius = 1e-6 * sum(hit_radii) / len(hit_radii) * diagonal
+            target = [sum(p) / 3.0 for p in (target_pixels if args.indirect else reference)]
+            target = [(t, t, t) for t in target]
+            whole = sum(t[0] for t in target)
+            by_label = {}
+            for label, images in seed_images.items():
+                cells = []  # per band: (own errors, contributions) over the seeds
+                for pixels, distances in zip(images, seed_distances):
+                    bands = edge_bands(distances, radius)
+                    if label == next(iter(seed_images)):
+                        edge_shares.append([(len(b) / len(target), sum(target[i][0] for i in b) / whole)
+                                            for b in bands])
+                    cells.append([band_errors(pixels, target, b, whole) for b in bands] + [band_errors(pixels, target, range(len(target)), whole)])
+                by_label[label] = cells
+            for label, cells in by_label.items():
+                edge_rows[label] = [(mean_and_error([c[b][0] for c in cells]), mean_and_error([c[b][1] for c in cells]))
+                                    for b in range(len(cells[0]))]
+            if len(by_label) == 2:
+                pm, rs = by_label.values()
+                edge_rows["RS - PM, seed by seed"] = [
+                    (mean_and_error([r[b][0] - p[b][0] for r, p in zip(rs, pm)]),
+                     mean_and_error([r[b][1] - p[b][1] for r, p in zip(rs, pm)])) for b in range(len(pm[0]))]
+            edge_radius = radius
 
         scaling = {}
         base_photons = args.photons or 200000
@@ -371,7 +529,25 @@ def main():
                                      "passes.eye.spp=1"] + rs_settings("RS "), peak=peak)
             memory.append((paths, counters, peak[0]))
 
+    edge_lines = []
+    if edge_rows:
+        shares = [[sum(s[b][k] for s in edge_shares) / len(edge_shares) for k in (0, 1)]
+                  for b in range(len(edge_shares[0]))]
+        names = [f"concave edge {lo:g}–{hi:g} R" for lo, hi in EDGE_BANDS] + ["convex edge < 4 R", "interior", "whole image"]
+        edge_lines = [
+            f"Error by distance to the box's edges (R = {edge_radius:.2f}, the mean splat radius at the hits;"
+            f" a pixel's distance is its nearest eye vertex's, per seed), over seeds {args.seeds}: the band's mean"
+            " signed error in % of its own reference light, then its share of the whole image's error"
+            " (the shares add up to the last column), ± standard errors. Pixels / light of the band:"
+            + "; ".join(f" {n} {100 * a:.1f} % / {100 * b:.1f} %" for n, (a, b) in zip(names, shares)) + ".", "",
+            "| Method | " + " | ".join(names) + " |", "|---|" + "---:|" * len(names)]
+        for label, cells in edge_rows.items():
+            edge_lines.append(f"| {label} | " + " | ".join(f"{m:+.2f} ± {e:.2f} ({c:+.2f} ± {ce:.2f})"
+                                                          for (m, e), (c, ce) in cells) + " |")
+        edge_lines.append("")
+
     if args.corners_only:
+        print("\n".join(edge_lines))
         what = "of the indirect light against the reference less one-bounce pt" if args.indirect else ""
         eye = "the job's eye samples" if args.fixed_eye else "each seed's own eye samples"
         print(f"Corner crops, mean signed error {what} over seeds {args.seeds} ({eye}):\n")
@@ -428,6 +604,8 @@ def main():
                   "|---|" + "---:|" * len(corner_crops)]
         for label, cells in corners.items():
             lines.append(f"| {label} | " + " | ".join(f"{m:+.1f} % ± {e:.1f}" for m, e in cells) + " |")
+    if edge_lines:
+        lines += [""] + edge_lines
     if scaling:
         lines += ["", "T_S (CPU s) against the emitted photon paths:", "",
                   "| Method | " + " | ".join(f"{m // 1000}k" for m, _, _ in next(iter(scaling.values()))) + " |",

@@ -17,7 +17,8 @@
 // hits' tight boxes, leaf hits weighed from the tree's columns, in
 // Algorithm 1's order (§7.2); its vertex_candidates are the hits weighed.
 // `origin_boundary = "renormalise"` corrects the kernel beside the surface a
-// ray leaves as ray_splat's does (SplatFrustum::originBoundaryGain).
+// ray leaves as ray_splat's does (SplatFrustum::originBoundaryGain), and
+// `slices = "hit_plane"` reads the growing radius as ray_splat's does.
 //
 // Rays are splatted in fixed blocks into per-block tile films merged in block
 // order, so the image is the same for any thread count.
@@ -117,7 +118,8 @@ struct SplatCounts {
 template <class WantedClass>
 std::vector<Rgb> splatOnto(const Scene& scene, const EyeVertexBuffer::View& vertices, const SplatTargets& targets,
                            std::size_t pixelCount, const SplatRayBuffer& rays, WantedClass wanted, SplatEndCap cap,
-                           bool useCullNodes, bool tightBoxes, bool renormalise, SplatCounts& counts) {
+                           bool useCullNodes, bool tightBoxes, bool renormalise, SplatSlices slices,
+                           SplatCounts& counts) {
     const auto origin = rays.column<RayOrigin>();
     const auto direction = rays.column<RayDirection>();
     const auto length = rays.column<RayLength>();
@@ -143,7 +145,8 @@ std::vector<Rgb> splatOnto(const Scene& scene, const EyeVertexBuffer::View& vert
             const SplatRay ray{origin[r], direction[r], h0[r], dh[r], length[r], originNormal[r], endNormal[r]};
             if (!(ray.h0 > 0.0f || ray.dh > 0.0f)) continue;
             const Vec3 incident = -ray.direction;
-            const SplatFrustum frustum(ray, cap);
+            const SplatFrustum frustum(ray, cap, slices);
+            const Rgb rayPower = power[r] * frustum.hitPlaneGain();
             const auto deposit = [&](std::uint32_t slot, float weight) {
                 const SplatTargets::Target& target = targets.targets[slot];
                 Rgb f;
@@ -153,12 +156,12 @@ std::vector<Rgb> splatOnto(const Scene& scene, const EyeVertexBuffer::View& vert
                 } else {
                     f = VertexBrdf(scene, vertices, target.vertex)(incident) * throughput[target.vertex];
                 }
-                const Rgb value = f * power[r] * weight;
+                const Rgb value = f * rayPower * weight;
                 if (!isFinite(value)) return;
                 acc.pixels[target.pixel] += value;
                 ++acc.counts.deposits;
             };
-            const SplatCone cone = splatCone(ray, cap);
+            const SplatCone cone = splatCone(ray, cap, slices);
             if (tightBoxes && renormalise && frustum.hasOriginSurface) {
                 const auto renormalised = [&](std::uint32_t slot, float weight) {
                     deposit(slot, weight * frustum.originBoundaryGain(targets.tree.slotPosition(slot)));
@@ -226,6 +229,8 @@ public:
         const bool useCullNodes = ctx.params().getBool("cull_nodes");
         const bool tightBoxes = ctx.params().getString("traversal") == "tight_boxes";
         const bool renormalise = ctx.params().getString("origin_boundary") == "renormalise";
+        const SplatSlices slices =
+            ctx.params().getString("slices") == "hit_plane" ? SplatSlices::HitPlane : SplatSlices::Perpendicular;
         const auto leafSize = static_cast<std::uint32_t>(ctx.params().getInt("leaf_size"));
         const SplatRayBuffer& rays = splatRays.rays;
 
@@ -258,7 +263,7 @@ public:
             const SplatTargets targets = indexTargets(scene, hitView, rect, leafSize);
             const std::vector<Rgb> local =
                 splatOnto(scene, hitView, targets, rect.size(), rays, everyClass, cap, useCullNodes, tightBoxes,
-                          renormalise, counts);
+                          renormalise, slices, counts);
             for (std::size_t i = 0; i < local.size(); ++i) globalPixels[rect.global(i)] += local[i];
             splatMicroseconds += cpuMicrosecondsSince(start);
             ctx.reportProgress(static_cast<double>(tile + 1) / static_cast<double>(byTile.size()));
@@ -272,7 +277,7 @@ public:
             const auto causticOnly = [](std::uint8_t c) { return c == PhotonRayClass::Caustic; };
             caustic.addToPixels(
                 splatOnto(scene, eye, targets, film.size(), rays, causticOnly, cap, useCullNodes, tightBoxes, renormalise,
-                          counts),
+                          slices, counts),
                 1.0f);
             splatMicroseconds += cpuMicrosecondsSince(start);
         }
@@ -312,6 +317,9 @@ PassRegistration finalGatherSplatPass() {
         {"origin_boundary", ParamType::String, std::string("cut"), 0, 0, {"cut", "renormalise"},
          "the kernel where its disk reaches behind the surface the ray leaves: cut there, as the paper, or "
          "renormalised over the part in front of it (ray_splat's parameter of the same name)"},
+        {"slices", ParamType::String, std::string("perpendicular"), 0, 0, {"perpendicular", "hit_plane"},
+         "where the growing radius is read at a vertex: at its foot on the ray (the paper) or where the plane "
+         "through it parallel to the hit's tangent plane crosses the ray (ray_splat's parameter of the same name)"},
         {"traversal", ParamType::String, std::string("tight_boxes"), 0, 0, {"tight_boxes", "cells"},
          "kd search: nodes by their vertices' tight boxes and leaf vertices weighed from columns, or Algorithm 1's "
          "cell clipping (same deposits in the same order)"},

@@ -26,6 +26,21 @@
 // There the frustum is cut at t_hit + R(t_hit) tan theta_hit with tan theta
 // held to kMaxTangentStretch (rays within 7 degrees of grazing lose the far
 // end of their footprint; they carry little flux onto that surface).
+//
+// The frustum's radius grows along the ray (R(t) = h_0 + dh t, §6), and the
+// paper reads it at t_p, the vertex's foot on the ray, while normalising the
+// kernel over the disk perpendicular to the ray. On a surface the ray meets
+// at theta from its normal, the half of the footprint before the hit then
+// lies in thinner slices of the cone, and the ray's deposits integrate over
+// that surface to less than its flux: 1 - (8 / 15 pi) dh tan theta to first
+// order (PrsPlaneUnderDirectionalLight.GrowingRadius*; on the Cornell box
+// it put the indirect light away from the edges 0.23 % below photon
+// mapping's, README "Concave corners"). Slices "hit_plane" read R at
+// t*, where the plane through the vertex parallel to the hit's tangent plane
+// crosses the ray (t* = t_p on the ray's axis), so every vertex on that plane
+// gets R(t_hit) and the footprint there is exactly normalised; a grazing
+// ray's footprint cut at kMaxTangentStretch is renormalised over what is
+// left (hitPlaneGain). Rays that escape keep the paper's slices.
 #pragma once
 
 #include "engine/accel/splat_kdtree.h"
@@ -40,6 +55,7 @@
 namespace fg {
 
 enum class SplatEndCap { Hemisphere, TangentPlane };
+enum class SplatSlices { Perpendicular, HitPlane };
 
 inline constexpr float kMaxTangentStretch = 8.0f;
 
@@ -63,8 +79,32 @@ inline float splatReach(const SplatRay& ray, SplatEndCap cap) {
     return ray.length + hitRadius * std::min(tangent, kMaxTangentStretch);
 }
 
-inline SplatCone splatCone(const SplatRay& ray, SplatEndCap cap) {
-    return SplatCone{ray.origin, ray.direction, ray.h0, ray.dh, ray.length, splatReach(ray, cap)};
+// Whether slices "hit_plane" apply to a ray: it meets a surface, and the
+// footprint beyond the hit is the tangent plane's.
+inline bool slicesAlongHitPlane(const SplatRay& ray, SplatEndCap cap, SplatSlices slices) {
+    return slices == SplatSlices::HitPlane && cap == SplatEndCap::TangentPlane && ray.endNormal != Vec3(0.0f);
+}
+
+// How far t* may lie beyond t_p: |q . n| / cos theta <= R(t_hit) tan theta for
+// an offset q of at most R(t_hit), with tan theta held to the stretch cap.
+inline float sliceShift(const SplatRay& ray) {
+    const float hitRadius = ray.h0 + ray.dh * ray.length;
+    const float cosine = std::clamp(-glm::dot(ray.direction, ray.endNormal), 0.0f, 1.0f);
+    const float tangent = cosine > 0.0f ? std::sqrt(std::max(0.0f, 1.0f - cosine * cosine)) / cosine : kInfinity;
+    return hitRadius * std::min(tangent, kMaxTangentStretch);
+}
+
+// The search cone holds every vertex the frustum can weigh. With slices
+// "hit_plane" a vertex at t_p may get R(t*) for t* up to t_p + sliceShift,
+// so the cone is the frustum's moved back by that much along the ray (never
+// wider than R(t_hit)), widened by a relative 1e-5 for rounding.
+inline SplatCone splatCone(const SplatRay& ray, SplatEndCap cap, SplatSlices slices = SplatSlices::Perpendicular) {
+    if (!slicesAlongHitPlane(ray, cap, slices) || !(ray.dh > 0.0f))
+        return SplatCone{ray.origin, ray.direction, ray.h0, ray.dh, ray.length, splatReach(ray, cap)};
+    const float hitRadius = ray.h0 + ray.dh * ray.length;
+    const float shift = sliceShift(ray);
+    const float start = std::min(ray.h0 + ray.dh * shift, hitRadius) * (1.0f + 1e-5f);
+    return SplatCone{ray.origin, ray.direction, start, ray.dh, std::max(0.0f, ray.length - shift), splatReach(ray, cap)};
 }
 
 // How far behind the hit's tangent plane a vertex may lie and still count as
@@ -88,12 +128,36 @@ inline float endPlaneTolerance(const SplatRay& ray, float radius) {
 // root and a division), the hit point and its tolerance do not depend on
 // the vertex.
 struct SplatFrustum {
-    SplatFrustum(const SplatRay& ray, SplatEndCap endCap)
+    SplatFrustum(const SplatRay& ray, SplatEndCap endCap, SplatSlices slices = SplatSlices::Perpendicular)
         : origin(ray.origin), direction(ray.direction), originNormal(ray.originNormal), endNormal(ray.endNormal),
           end(ray.origin + ray.length * ray.direction), h0(ray.h0), dh(ray.dh), length(ray.length),
           hitRadius(ray.h0 + ray.dh * ray.length), reach(splatReach(ray, endCap)),
-          tolerance(endPlaneTolerance(ray, ray.h0 + ray.dh * ray.length)), cap(endCap),
-          hasOriginSurface(ray.originNormal != Vec3(0.0f)) {}
+          tolerance(endPlaneTolerance(ray, ray.h0 + ray.dh * ray.length)),
+          inverseHitCosine(1.0f / std::max(-glm::dot(ray.direction, ray.endNormal), 1.0f / 64.0f)),
+          shift(sliceShift(ray)), cap(endCap), hasOriginSurface(ray.originNormal != Vec3(0.0f)),
+          hitPlaneSlices(slicesAlongHitPlane(ray, endCap, slices)) {}
+
+    // R at a vertex whose foot on the ray is t_p: R(t_p) (the paper), or
+    // R(t*) with slices "hit_plane" (see the top of this file), t* clamped to
+    // [0, min(t_hit, t_p + shift)] so that the search cone holds the vertex.
+    float radiusAt(const Vec3& x, float tp) const {
+        if (!hitPlaneSlices) return tp <= length ? h0 + dh * tp : hitRadius;
+        const float hitSide = glm::dot(x - end, endNormal);
+        const float slice = std::min(std::max(length - hitSide * inverseHitCosine, 0.0f), std::min(length, tp + shift));
+        return h0 + dh * slice;
+    }
+
+    // The factor slices "hit_plane" multiply every deposit of a ray by: the
+    // footprint on the hit plane ends at the reach, t_hit + R tan theta held
+    // to kMaxTangentStretch R, which cuts the kernel's disk at c R =
+    // kMaxTangentStretch R / tan theta across it; 1 / its mass before the cut.
+    float hitPlaneGain() const {
+        if (!hitPlaneSlices) return 1.0f;
+        const float cosine = 1.0f / inverseHitCosine;
+        const float tangent = std::sqrt(std::max(0.0f, 1.0f - cosine * cosine)) / cosine;
+        if (!(tangent > kMaxTangentStretch)) return 1.0f;
+        return 1.0f / (1.0f - epanechnikovMassBeyond(kMaxTangentStretch / tangent));
+    }
 
     // K_R(d_perp) |cos theta_x| at vertex x with normal n, or 0 if x is not
     // feasible. The tests run from the most to the least selective: most
@@ -106,7 +170,7 @@ struct SplatFrustum {
         // catastrophically on long rays (an error of 0.1 mm^2 at 1 m).
         const Vec3 perpendicular = offset - tp * direction;
         const float d2 = glm::dot(perpendicular, perpendicular);
-        const float radius = tp <= length ? h0 + dh * tp : hitRadius;
+        const float radius = radiusAt(x, tp);
         if (!(radius > 0.0f)) return 0.0f;
         const float r2 = radius * radius;
         if (!(d2 < r2)) return 0.0f;
@@ -138,7 +202,7 @@ struct SplatFrustum {
         if (!hasOriginSurface) return 1.0f;
         const Vec3 offset = x - origin;
         const float tp = glm::dot(offset, direction);
-        const float radius = tp <= length ? h0 + dh * tp : hitRadius;
+        const float radius = radiusAt(x, tp);
         const float leaving = glm::dot(direction, originNormal);
         // How far the disk reaches towards the surface: R sin of the angle between the ray and the normal.
         const float reachTowardsSurface = radius * std::sqrt(std::max(0.0f, 1.0f - leaving * leaving));
@@ -175,9 +239,9 @@ struct SplatFrustum {
     }
 
     Vec3 origin, direction, originNormal, endNormal, end;
-    float h0, dh, length, hitRadius, reach, tolerance;
+    float h0, dh, length, hitRadius, reach, tolerance, inverseHitCosine, shift;
     SplatEndCap cap;
-    bool hasOriginSurface;
+    bool hasOriginSurface, hitPlaneSlices;
 };
 
 // The footprint §9 compares the frustum with: a sphere of radius R(t_hit)
@@ -252,8 +316,9 @@ std::uint64_t forEachWeightedVertex(const SplatKdTree& tree, const Footprint& fr
 }
 
 // The same for one vertex (tests, and callers with a single vertex per ray).
-inline float splatWeight(const SplatRay& ray, SplatEndCap cap, const Vec3& x, const Vec3& n) {
-    return SplatFrustum(ray, cap).weight(x, n);
+inline float splatWeight(const SplatRay& ray, SplatEndCap cap, const Vec3& x, const Vec3& n,
+                         SplatSlices slices = SplatSlices::Perpendicular) {
+    return SplatFrustum(ray, cap, slices).weight(x, n);
 }
 
 }  // namespace fg

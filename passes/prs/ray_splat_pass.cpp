@@ -32,7 +32,10 @@
 // "renormalise"` divides a deposit's kernel by its share in front of the
 // surface the ray leaves (SplatFrustum::originBoundaryGain): beside a
 // concave corner's adjacent wall the paper's kernel averages over a disk
-// partly behind that wall, where no ray of it can be.
+// partly behind that wall, where no ray of it can be. `slices = "hit_plane"`
+// reads the growing radius where the plane through the vertex parallel to
+// the hit's tangent plane crosses the ray (ray_splat.h), so that a ray's
+// deposits on the surface it meets add up to its flux.
 // Rays are splatted in fixed blocks into per-block films merged in block
 // order, so the image is the same for any thread count.
 #include "passes/passes.h"
@@ -75,6 +78,7 @@ FG_SPLAT_WEIGHT_CLONES void SplatFrustum::weights(const SplatVertexColumns& vert
     const float ex = end.x, ey = end.y, ez = end.z;
     const int hemisphere = cap == SplatEndCap::Hemisphere ? 1 : 0;
     const int anyOriginSide = hasOriginSurface ? 0 : 1;
+    const int sliced = hitPlaneSlices ? 1 : 0;
     const float hitPlaneLimit = -tolerance;
     const float* xs = vertices.x + first;
     const float* ys = vertices.y + first;
@@ -87,13 +91,14 @@ FG_SPLAT_WEIGHT_CLONES void SplatFrustum::weights(const SplatVertexColumns& vert
         const float tp = x * dx + y * dy + z * dz;
         const float px = x - tp * dx, py = y - tp * dy, pz = z - tp * dz;
         const float d2 = px * px + py * py + pz * pz;
-        const float radius = maskedSelect(tp <= length ? 1 : 0, h0 + dh * tp, hitRadius);
+        const float hx = xs[k] - ex, hy = ys[k] - ey, hz = zs[k] - ez;
+        const float hitSide = hx * enx + hy * eny + hz * enz;
+        const float slice = std::min(std::max(length - hitSide * inverseHitCosine, 0.0f), std::min(length, tp + shift));
+        const float radius = maskedSelect(sliced, h0 + dh * slice, maskedSelect(tp <= length ? 1 : 0, h0 + dh * tp, hitRadius));
         const float r2 = radius * radius;
         const float cosine = -(dx * nxs[k] + dy * nys[k] + dz * nzs[k]);
         const float originSide = x * onx + y * ony + z * onz;
-        const float hx = xs[k] - ex, hy = ys[k] - ey, hz = zs[k] - ez;
         const float hitDistance2 = hx * hx + hy * hy + hz * hz;
-        const float hitSide = hx * enx + hy * eny + hz * enz;
         const int insideCap = (hemisphere & (hitDistance2 > r2 ? 0 : 1)) |
                               ((hemisphere ^ 1) & (hitSide < hitPlaneLimit ? 0 : 1));
         const int feasible = (tp < 0.0f ? 0 : 1) & (tp > reach ? 0 : 1) & (radius > 0.0f ? 1 : 0) &
@@ -185,6 +190,8 @@ public:
         const bool lambertianToMap = ctx.params().getString("lambertian") == "sh_map";
         const bool sphere = ctx.params().getString("footprint") == "sphere";
         const bool renormalise = ctx.params().getString("origin_boundary") == "renormalise";
+        const SplatSlices slices =
+            ctx.params().getString("slices") == "hit_plane" ? SplatSlices::HitPlane : SplatSlices::Perpendicular;
         if (sphere && !tightBoxes) throw InputError("ray_splat: footprint = \"sphere\" needs traversal = \"tight_boxes\"");
 
         Film& image = ctx.createOutput<Film>("radiance", ctx.filmSettings());
@@ -233,20 +240,20 @@ public:
                 if (!(ray.h0 > 0.0f || ray.dh > 0.0f)) continue;
                 ++acc.splatted;
                 const Vec3 incident = -ray.direction;
-                const SplatFrustum frustum(ray, cap);
+                const SplatFrustum frustum(ray, cap, sphere ? SplatSlices::Perpendicular : slices);
                 // Every deposit of a ray arrives from the same direction, so
                 // Phi Y_lm(incident) is worked out once per ray and a deposit
                 // adds it times its weight: 48 independent multiply-adds the
                 // compiler can vectorise.
+                const Rgb rayPower = power[r] * frustum.hitPlaneGain();
                 std::array<float, 3 * sh::kCoefficients> poweredBasis{};
                 if (glossyCount > 0) {
                     float y[sh::kCoefficients];
                     sh::evaluate(incident, y);
                     for (std::size_t k = 0; k < sh::kCoefficients; ++k)
                         for (int channel = 0; channel < 3; ++channel)
-                            poweredBasis[3 * k + static_cast<std::size_t>(channel)] = power[r][channel] * y[k];
+                            poweredBasis[3 * k + static_cast<std::size_t>(channel)] = rayPower[channel] * y[k];
                 }
-                const Rgb rayPower = power[r];
                 std::int64_t candidates = 0, deposits = 0;
                 const auto deposit = [&](std::uint32_t slot, float weight) __attribute__((always_inline)) {
                     const Vec3& position = slotPositions[slot];
@@ -295,7 +302,7 @@ public:
                             forEachWeightedVertex(index.tree, footprint, footprint.cone(), deposit, useCullNodes));
                         acc.leafVertices += candidates;
                     }
-                } else if (const SplatCone cone = splatCone(ray, cap); tightBoxes) {
+                } else if (const SplatCone cone = splatCone(ray, cap, slices); tightBoxes) {
                     if (renormalise && frustum.hasOriginSurface) {
                         const auto renormalised = [&](std::uint32_t slot, float weight) {
                             deposit(slot, weight * frustum.originBoundaryGain(slotPositions[slot]));
@@ -452,6 +459,11 @@ PassRegistration raySplatPass() {
          "the kernel where its disk reaches behind the surface the ray leaves (a concave corner's adjacent wall): "
          "cut there, as the paper (that wall's light is underestimated, by half at the corner line), or "
          "renormalised over the part in front of it"},
+        {"slices", ParamType::String, std::string("perpendicular"), 0, 0, {"perpendicular", "hit_plane"},
+         "where the growing radius R(t) is read at a vertex: at its foot on the ray, the kernel normalised across "
+         "the ray (the paper; a surface met obliquely gets less than the ray's flux), or where the plane through "
+         "the vertex parallel to the hit's tangent plane crosses the ray (every vertex on that plane gets R(t_hit): "
+         "exact on planes)"},
         {"classes", ParamType::String, std::string("indirect"), 0, 0, {"indirect", "all"},
          "which rays splat: indirect (caustic and global; the eye pass has the direct light) or all"},
         {"cull_nodes", ParamType::Bool, true, 0, 0, {}, "use the index's backface-culling nodes"},

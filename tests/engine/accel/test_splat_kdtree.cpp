@@ -162,6 +162,43 @@ TEST_P(SplatKdTreeTraversal, FindsEveryFeasibleVertex) {
     EXPECT_LT(visitedTotal, 10000 * static_cast<std::int64_t>(p.size()) / 10);
 }
 
+// Slices "hit_plane" read the radius at t*, which may lie up to R(t_hit)
+// tan theta beyond a vertex's foot t_p: the cone splatCone gives them must
+// still hold every vertex the frustum weighs, by cells and by tight boxes.
+TEST_P(SplatKdTreeTraversal, HitPlaneSlicesConeHoldsEveryFeasibleVertex) {
+    std::vector<Vec3> p, n;
+    makeVertices(p, n, 6000);
+    const SplatKdTree tree(p, n, {16, 0.0f, GetParam()});
+    const SplatEndCap cap = SplatEndCap::TangentPlane;
+    const SplatSlices slices = SplatSlices::HitPlane;
+    std::int64_t feasibleTotal = 0, widened = 0;
+    for (std::uint64_t i = 0; i < 5000; ++i) {
+        const SplatRay ray = randomRay(i);
+        std::set<std::uint32_t> expected, byCells, byBoxes;
+        for (std::uint32_t v = 0; v < p.size(); ++v) {
+            if (splatWeight(ray, cap, p[v], n[v], slices) > 0.0f) expected.insert(v);
+            if (splatWeight(ray, cap, p[v], n[v], slices) > 0.0f && !(splatWeight(ray, cap, p[v], n[v]) > 0.0f))
+                ++widened;
+        }
+        const SplatCone cone = splatCone(ray, cap, slices);
+        tree.forEachCandidate(cone, [&](std::uint32_t slot) {
+            const std::uint32_t v = tree.vertexOf(slot);
+            if (splatWeight(ray, cap, p[v], n[v], slices) > 0.0f) byCells.insert(v);
+        });
+        tree.forEachLeafNearCone(cone, [&](std::uint32_t first, std::uint32_t count) {
+            for (std::uint32_t slot = first; slot < first + count; ++slot) {
+                const std::uint32_t v = tree.vertexOf(slot);
+                if (splatWeight(ray, cap, p[v], n[v], slices) > 0.0f) byBoxes.insert(v);
+            }
+        });
+        ASSERT_EQ(byCells, expected) << "ray " << i;
+        ASSERT_EQ(byBoxes, expected) << "ray " << i;
+        feasibleTotal += static_cast<std::int64_t>(expected.size());
+    }
+    EXPECT_GT(feasibleTotal, 5000);
+    EXPECT_GT(widened, 100);  // vertices outside the paper's frustum that the sliced one weighs
+}
+
 // forEachVertexInCone searches by tight boxes and tests the leaves' vertices
 // against the cone; ray_splat's image stays the same bit for bit only if
 // every feasible vertex is still visited, in Algorithm 1's order.

@@ -53,13 +53,16 @@ std::map<std::string, ParamValue> finalGatherParams(const std::string& pipeline,
 TEST(FinalGathering, SameImageOnOneAndTwoThreads) {
     const Scene scene = loadScene((cornellBoxDir() / "cornell-box.xml").string());
     const FilmSettings film = test::smallFilm(24, 24);
-    for (const std::string pipeline : {"prs-fg", "pm-fg"}) {
-        std::map<std::string, ParamValue> params = finalGatherParams(pipeline, 10000, 4);
+    for (const std::string pipeline : {"prs-fg", "prs-fg hit_plane", "pm-fg"}) {
+        const bool hitPlane = pipeline == "prs-fg hit_plane";
+        std::map<std::string, ParamValue> params = finalGatherParams(hitPlane ? "prs-fg" : pipeline, 10000, 4);
         // Three tiles per side on a 24-pixel film: tiles of 8 pixels, several per thread.
-        params[pipeline == "prs-fg" ? "fg_splat.tiles" : "final_gather.tiles"] = std::int64_t{3};
+        params[pipeline == "pm-fg" ? "final_gather.tiles" : "fg_splat.tiles"] = std::int64_t{3};
         if (pipeline == "pm-fg") params["final_gather.secondary_gather"] = true;
-        const test::RenderedImage one = test::renderPipeline(scene, pipeline, params, film, 1, 1);
-        const test::RenderedImage two = test::renderPipeline(scene, pipeline, params, film, 1, 2);
+        if (hitPlane) params["fg_splat.slices"] = std::string("hit_plane");
+        const std::string name = hitPlane ? "prs-fg" : pipeline;
+        const test::RenderedImage one = test::renderPipeline(scene, name, params, film, 1, 1);
+        const test::RenderedImage two = test::renderPipeline(scene, name, params, film, 1, 2);
         ASSERT_EQ(one.pixels.size(), two.pixels.size());
         double sum = 0.0;
         for (std::size_t i = 0; i < one.pixels.size(); ++i) {

@@ -30,17 +30,27 @@
 namespace fg {
 namespace {
 
+// Share of the 2D Epanechnikov kernel's mass beyond a line at distance x R
+// from its centre: (8 / 3π) ∫_x^1 (1 − u²)^{3/2} du.
+double kernelMassBeyond(double x) {
+    if (x >= 1.0) return 0.0;
+    return (1.5 * kPi - x * (5.0 - 2.0 * x * x) * std::sqrt(1.0 - x * x) - 3.0 * std::asin(x)) / (3.0 * kPi);
+}
+
 // Quadrature of the splat estimate at the origin of the plane z = 0 (normal +z)
 // for parallel rays at angle theta from the normal, crossing the plane
-// perpendicular to them on a grid 60 per bandwidth, each carrying E_0 times
-// its grid cell's area.
-double planeEstimate(float thetaDegrees, SplatEndCap cap, float h) {
+// perpendicular to them on a grid 60 per bandwidth at the hit, each carrying
+// E_0 times its grid cell's area. The rays are 5 long; with dh > 0 their
+// radius grows from h to h + 5 dh at the hit. Each deposit is multiplied by
+// the ray's hitPlaneGain, as ray_splat does.
+double planeEstimate(float thetaDegrees, SplatEndCap cap, float h, float dh = 0.0f,
+                     SplatSlices slices = SplatSlices::Perpendicular) {
     const float theta = glm::radians(thetaDegrees);
     const Vec3 direction(std::sin(theta), 0.0f, -std::cos(theta));
     const Vec3 e1(std::cos(theta), 0.0f, std::sin(theta)), e2(0.0f, 1.0f, 0.0f);
     const double e0 = 2.0;
     const int half = 180;
-    const float step = h / 60.0f;
+    const float step = (h + 5.0f * dh) / 60.0f;
     double sum = 0.0;
     for (int i = -half; i <= half; ++i)
         for (int j = -half; j <= half; ++j) {
@@ -51,9 +61,11 @@ double planeEstimate(float thetaDegrees, SplatEndCap cap, float h) {
             ray.origin = hit - ray.length * direction;
             ray.direction = direction;
             ray.h0 = h;
-            ray.dh = 0.0f;
+            ray.dh = dh;
             ray.endNormal = Vec3(0, 0, 1);
-            sum += e0 * static_cast<double>(step) * step * splatWeight(ray, cap, Vec3(0.0f), Vec3(0, 0, 1));
+            const SplatFrustum frustum(ray, cap, slices);
+            sum += e0 * static_cast<double>(step) * step * frustum.weight(Vec3(0.0f), Vec3(0, 0, 1)) *
+                   frustum.hitPlaneGain();
         }
     return sum / e0;  // in units of E_0
 }
@@ -75,6 +87,51 @@ TEST_P(PrsPlaneUnderDirectionalLight, HemisphereCapLosesEnergyAtObliqueIncidence
     const double expected = c * (0.5 + c * (0.5 + s2 / 4.0));
     for (float h : {0.05f, 0.2f})
         EXPECT_NEAR(planeEstimate(theta, SplatEndCap::Hemisphere, h), expected, 0.01 * expected) << "h " << h;
+}
+
+// A radius growing along the ray (dh > 0, §6) read at the vertex's foot on
+// the ray, with the kernel normalised across the ray (the paper): the half
+// of the footprint before the hit lies in thinner slices, so a plane met at
+// theta gets 1 - (8 / 15 pi) dh tan theta of E_0 cos theta to first order
+// (the first-order change of the Epanechnikov disk's mass over the half
+// disk, -∂K/∂R times the radius's fall dh tan theta |u|). Slices "hit_plane"
+// read every vertex on the plane at R(t_hit) and give E_0 cos theta.
+TEST_P(PrsPlaneUnderDirectionalLight, GrowingRadiusLosesFluxWithPerpendicularSlices) {
+    const float theta = GetParam();
+    const double c = std::cos(glm::radians(static_cast<double>(theta)));
+    const double tangent = std::tan(glm::radians(static_cast<double>(theta)));
+    const float h = 0.05f, dh = 0.06f;
+    const double estimate = planeEstimate(theta, SplatEndCap::TangentPlane, h, dh) / c;
+    const double firstOrder = 1.0 - 8.0 / (15.0 * kPi) * dh * tangent;
+    std::printf("theta %.0f: perpendicular slices %.4f of E_0 cos theta (first order %.4f)\n",
+                static_cast<double>(theta), estimate, firstOrder);
+    EXPECT_NEAR(estimate, firstOrder, 0.2 * (1.0 - firstOrder) + 0.002);
+    if (theta >= 45.0f) {
+        EXPECT_LT(estimate, 0.995);
+    }
+}
+
+TEST_P(PrsPlaneUnderDirectionalLight, GrowingRadiusHitPlaneSlicesAreExact) {
+    const float theta = GetParam();
+    const double c = std::cos(glm::radians(static_cast<double>(theta)));
+    for (const float dh : {0.0f, 0.03f, 0.06f}) {
+        const double estimate = planeEstimate(theta, SplatEndCap::TangentPlane, 0.05f, dh, SplatSlices::HitPlane);
+        EXPECT_NEAR(estimate, c, 0.003 * c) << "dh " << dh;
+    }
+}
+
+// Within 1 / kMaxTangentStretch of grazing (83 degrees) the tangent-plane
+// footprint ends at the reach, and the part of the ellipse beyond it is
+// lost; slices "hit_plane" renormalise the ray's deposits over what is left.
+TEST(PrsPlaneUnderGrazingLight, StretchCapLossIsRenormalisedWithHitPlaneSlices) {
+    const float theta = 86.0f;
+    const double c = std::cos(glm::radians(static_cast<double>(theta)));
+    const double tangent = std::tan(glm::radians(static_cast<double>(theta)));
+    const double kept = 1.0 - kernelMassBeyond(kMaxTangentStretch / tangent);
+    const double paper = planeEstimate(theta, SplatEndCap::TangentPlane, 0.05f) / c;
+    EXPECT_NEAR(paper, kept, 0.005);
+    EXPECT_LT(paper, 0.99);
+    EXPECT_NEAR(planeEstimate(theta, SplatEndCap::TangentPlane, 0.05f, 0.0f, SplatSlices::HitPlane) / c, 1.0, 0.005);
 }
 
 INSTANTIATE_TEST_SUITE_P(Angles, PrsPlaneUnderDirectionalLight, ::testing::Values(0.0f, 45.0f, 70.0f));
@@ -165,13 +222,6 @@ TEST(PrsTangentPlaneCap, RebuiltHitOffItsPlaneKeepsTheFarFootprint) {
         // A surface 1 mm behind the plane stays cut off.
         EXPECT_EQ(splatWeight(ray, SplatEndCap::TangentPlane, beyond - Vec3(0.0f, 0.0f, 1.0f), Vec3(0, 0, 1)), 0.0f);
     }
-}
-
-// Share of the 2D Epanechnikov kernel's mass beyond a line at distance x R
-// from its centre: (8 / 3π) ∫_x^1 (1 − u²)^{3/2} du.
-double kernelMassBeyond(double x) {
-    if (x >= 1.0) return 0.0;
-    return (1.5 * kPi - x * (5.0 - 2.0 * x * x) * std::sqrt(1.0 - x * x) - 3.0 * std::asin(x)) / (3.0 * kPi);
 }
 
 // A ray of length L meets the plane z = 0 at θ from its normal. Its frustum
@@ -323,6 +373,72 @@ TEST(PrsConcaveCorner, AdjacentWallsLightIsLostWithinAFewBandwidths) {
     EXPECT_GT(cornerEstimate(0.25f, h, true), cornerEstimate(0.25f, h, false) + 0.15);
 }
 
+// The convex edge of a block: its top z = 0 (normal +z) for x <= 0 and its
+// side x = 0 (normal +x) for z <= 0, under radiance 1 from every direction
+// above the top: π at every distance δ from the edge. Quadrature as
+// cornerEstimate's over all downward directions, each ray ending where its
+// line first meets the block (or passing it). A vertex on the top beside the
+// edge has in its kernel disk rays that meet the side first: it lies behind
+// their hit's tangent plane, so the cap cuts it from them, and no ray
+// arrives in their place. Returns the estimate in units of the truth.
+double convexEdgeEstimate(float delta, float h, SplatSlices slices) {
+    const Vec3 x(-delta, 0.0f, 0.0f), top(0, 0, 1), side(1, 0, 0);
+    const int thetas = 16, phis = 32, cells = 40;
+    const float far = 20.0f * h;
+    double sum = 0.0;
+    for (int it = 0; it < thetas; ++it)
+        for (int ip = 0; ip < phis; ++ip) {
+            const double theta = (it + 0.5) / thetas * kPi / 2.0, phi = (ip + 0.5) / phis * 2.0 * kPi;
+            const Vec3 direction(static_cast<float>(std::sin(theta) * std::cos(phi)),
+                                 static_cast<float>(std::sin(theta) * std::sin(phi)), static_cast<float>(-std::cos(theta)));
+            const Vec3 e1 = glm::normalize(glm::cross(direction, std::abs(direction.z) < 0.9f ? Vec3(0, 0, 1) : Vec3(1, 0, 0)));
+            const Vec3 e2 = glm::cross(direction, e1);
+            const float step = 2.0f * h / static_cast<float>(cells);
+            double beam = 0.0;
+            for (int i = 0; i < cells; ++i)
+                for (int j = 0; j < cells; ++j) {
+                    const Vec3 p = x + (-h + (static_cast<float>(i) + 0.5f) * step) * e1 +
+                                   (-h + (static_cast<float>(j) + 0.5f) * step) * e2;
+                    // The line p + s d meets the top at s_top (if there x <= 0) and the side at s_side (if there z <= 0).
+                    const float sTop = -p.z / direction.z;
+                    const bool onTop = p.x + sTop * direction.x <= 0.0f;
+                    const float sSide = direction.x < 0.0f ? -p.x / direction.x : kInfinity;
+                    const bool onSide = direction.x < 0.0f && p.z + sSide * direction.z <= 0.0f;
+                    SplatRay ray;
+                    ray.direction = direction;
+                    ray.h0 = h;
+                    if (onTop && (!onSide || sTop <= sSide)) {
+                        ray.origin = p + (sTop - far) * direction;
+                        ray.endNormal = top;
+                    } else if (onSide) {
+                        ray.origin = p + (sSide - far) * direction;
+                        ray.endNormal = side;
+                    } else {
+                        ray.origin = p - far * direction;  // passes the block
+                    }
+                    ray.length = ray.endNormal == Vec3(0.0f) ? 2.0f * far : far;
+                    beam += static_cast<double>(step) * step * splatWeight(ray, SplatEndCap::TangentPlane, x, top, slices);
+                }
+            sum += beam * std::sin(theta) * (kPi / 2.0 / thetas) * (2.0 * kPi / phis);
+        }
+    return sum / kPi;
+}
+
+TEST(PrsConvexEdge, VertexBesideTheEdgeLosesTheRaysThatMeetTheSideFirst) {
+    const float h = 1.0f;
+    for (const float delta : {0.1f, 0.25f, 0.5f, 1.0f, 2.0f, 4.0f}) {
+        const double estimate = convexEdgeEstimate(delta, h, SplatSlices::Perpendicular);
+        std::printf("delta / R = %.2f: %.4f of the truth\n", static_cast<double>(delta / h), estimate);
+        if (delta >= 2.0f) {
+            EXPECT_NEAR(estimate, 1.0, 0.01) << delta;
+        } else {
+            EXPECT_LT(estimate, 0.985) << delta;
+        }
+        // dh = 0: the slices do not matter.
+        EXPECT_EQ(estimate, convexEdgeEstimate(delta, h, SplatSlices::HitPlane)) << delta;
+    }
+}
+
 // SplatFrustum::weights weighs many vertices from columns with masks where
 // weight() branches; both must give the same bits for every vertex, feasible
 // or not: rays with and without an origin surface, escaping or hitting, both
@@ -353,7 +469,8 @@ TEST(PrsFrustumWeights, ColumnsGiveTheBitsOfTheOneVertexTest) {
         if (trial % 3 != 0) ray.originNormal = glm::normalize(ray.direction + 0.8f * unitVector());
         if (trial % 5 != 0) ray.endNormal = glm::normalize(-ray.direction + 0.9f * unitVector());
         const SplatEndCap cap = trial % 2 == 0 ? SplatEndCap::TangentPlane : SplatEndCap::Hemisphere;
-        const SplatFrustum frustum(ray, cap);
+        const SplatSlices slices = trial % 7 < 4 ? SplatSlices::HitPlane : SplatSlices::Perpendicular;
+        const SplatFrustum frustum(ray, cap, slices);
         const float reach = splatReach(ray, cap);
         std::vector<Vec3> positions(kVertices), normals(kVertices);
         for (std::uint32_t k = 0; k < kVertices; ++k) {
@@ -392,21 +509,24 @@ TEST(PrsPipeline, SameImageOnOneAndTwoThreads) {
     FilmSettings film;
     film.width = 32;
     film.height = 32;
-    const std::map<std::string, ParamValue> params = {
-        {"eye.spp", std::int64_t{1}},
-        {"photon.photons", std::int64_t{20000}},
-        {"photon.photon_rays", true},
-        {"photon.store", std::string("none")},
-    };
-    const test::RenderedImage one = test::renderPipeline(scene, "prs", params, film, 1, 1);
-    const test::RenderedImage two = test::renderPipeline(scene, "prs", params, film, 1, 2);
-    ASSERT_EQ(one.pixels.size(), two.pixels.size());
-    double sum = 0.0;
-    for (std::size_t i = 0; i < one.pixels.size(); ++i) {
-        ASSERT_EQ(one.pixels[i], two.pixels[i]) << "pixel value " << i;
-        sum += one.pixels[i].x + one.pixels[i].y + one.pixels[i].z;
+    for (const std::string slices : {"perpendicular", "hit_plane"}) {
+        const std::map<std::string, ParamValue> params = {
+            {"eye.spp", std::int64_t{1}},
+            {"photon.photons", std::int64_t{20000}},
+            {"photon.photon_rays", true},
+            {"photon.store", std::string("none")},
+            {"ray_splat.slices", slices},
+        };
+        const test::RenderedImage one = test::renderPipeline(scene, "prs", params, film, 1, 1);
+        const test::RenderedImage two = test::renderPipeline(scene, "prs", params, film, 1, 2);
+        ASSERT_EQ(one.pixels.size(), two.pixels.size());
+        double sum = 0.0;
+        for (std::size_t i = 0; i < one.pixels.size(); ++i) {
+            ASSERT_EQ(one.pixels[i], two.pixels[i]) << slices << ": pixel value " << i;
+            sum += one.pixels[i].x + one.pixels[i].y + one.pixels[i].z;
+        }
+        EXPECT_GT(sum, 0.0) << slices;
     }
-    EXPECT_GT(sum, 0.0);
 }
 
 // ray_splat's tight-box cone search (traversal = "tight_boxes") and
