@@ -7,6 +7,8 @@
 #include "engine/shading/texture.h"
 #include "jobs/parallel.h"
 
+#include <gtest/gtest.h>
+
 #include <stdexcept>
 
 namespace fg::test {
@@ -64,6 +66,20 @@ RenderedImage renderPipeline(const Scene& scene, const std::string& pipeline,
     const RunResult result = execute(plan, scene, rays, options);
     const Film& image = *static_cast<const Film*>(result.results.at("image").data.get());
     return {image.width(), image.height(), image.resolve()};
+}
+
+void expectSameImageAtOneAndTwoThreads(const Scene& scene, const std::string& pipeline,
+                                       const std::map<std::string, ParamValue>& params, const FilmSettings& film,
+                                       const std::string& label) {
+    const RenderedImage one = renderPipeline(scene, pipeline, params, film, 1, 1);
+    const RenderedImage two = renderPipeline(scene, pipeline, params, film, 1, 2);
+    ASSERT_EQ(one.pixels.size(), two.pixels.size()) << label;
+    double sum = 0.0;
+    for (std::size_t i = 0; i < one.pixels.size(); ++i) {
+        ASSERT_EQ(one.pixels[i], two.pixels[i]) << label << ": pixel " << i;
+        sum += one.pixels[i].x + one.pixels[i].y + one.pixels[i].z;
+    }
+    EXPECT_GT(sum, 0.0) << label;
 }
 
 std::vector<double> blockMeans(const std::vector<Rgb>& pixels, int width, int height, int blocksPerSide) {

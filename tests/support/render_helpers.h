@@ -36,6 +36,13 @@ RenderedImage renderPipeline(const Scene& scene, const std::string& pipeline,
                              const std::map<std::string, ParamValue>& params, const FilmSettings& film,
                              std::uint64_t seed = 1, int threads = 0);
 
+// Renders the pipeline at 1 and at 2 threads and expects the same pixels bit
+// for bit, and an image that is not black (which any thread count would
+// give alike). `label` names the case in failure messages.
+void expectSameImageAtOneAndTwoThreads(const Scene& scene, const std::string& pipeline,
+                                       const std::map<std::string, ParamValue>& params, const FilmSettings& film,
+                                       const std::string& label = "");
+
 // Means (R, G, B averaged) of a width x height image over blocksPerSide x
 // blocksPerSide blocks, row by row.
 std::vector<double> blockMeans(const std::vector<Rgb>& pixels, int width, int height, int blocksPerSide);

@@ -10,6 +10,7 @@
 #include "engine/core/error.h"
 #include "engine/image/film.h"
 #include "tests/support/cli_helpers.h"
+#include "tests/support/input_error.h"
 
 #include "tests/support/pass_helpers.h"
 
@@ -775,15 +776,6 @@ TEST(CodecRegistry, RegisteredCodecIsUsed) {
     EXPECT_EQ(readBufferInfo(path).columns, std::vector<std::string>{"history"});
 }
 
-// InputError's line, or "" when `f` does not throw one.
-std::string refusal(const std::function<void()>& f) {
-    try {
-        f();
-    } catch (const InputError& error) {
-        return error.what();
-    }
-    return "";
-}
 
 // checkBufferFile (what validate runs on imported files) refuses a codec
 // version as loadBuffer does, with the same line, without running the codec's
@@ -815,7 +807,7 @@ TEST(CodecRegistry, CheckingAFileRunsTheVersionCheckButNotTheRead) {
     counter->value = 9;
     counter->history = {1, 2, 3};
     saveBuffer(makeBuffer(counter), path, "");
-    EXPECT_EQ(refusal([&] { checkBufferFile(path, "CodecTestCounter", "counter"); }), "");
+    EXPECT_EQ(test::inputErrorOf([&] { checkBufferFile(path, "CodecTestCounter", "counter"); }), "");
     EXPECT_EQ(*reads, 0);
     EXPECT_EQ(test::bufferAs<CodecTestCounter>(loadBuffer(path, "CodecTestCounter")).value, 9u);
     EXPECT_EQ(*reads, 1);
@@ -827,15 +819,15 @@ TEST(CodecRegistry, CheckingAFileRunsTheVersionCheckButNotTheRead) {
     bytes[version] = '\x08';
     const std::string other = (dir / "version8.fgbuf").string();
     writeBytes(other, bytes);
-    const std::string checked = refusal([&] { checkBufferFile(other, "CodecTestCounter", "counter"); });
+    const std::string checked = test::inputErrorOf([&] { checkBufferFile(other, "CodecTestCounter", "counter"); });
     EXPECT_EQ(checked, other + ": a counter of codec version 8 (this build reads version 7)");
-    EXPECT_EQ(refusal([&] { loadBuffer(other, "CodecTestCounter", "counter"); }), checked);
+    EXPECT_EQ(test::inputErrorOf([&] { loadBuffer(other, "CodecTestCounter", "counter"); }), checked);
     EXPECT_EQ(*reads, 1);
 
     // The type is checked first, with loadBuffer's line too.
-    const std::string wrongType = refusal([&] { checkBufferFile(other, "Film", "image"); });
+    const std::string wrongType = test::inputErrorOf([&] { checkBufferFile(other, "Film", "image"); });
     EXPECT_NE(wrongType.find("'image' is a Film"), std::string::npos) << wrongType;
-    EXPECT_EQ(refusal([&] { loadBuffer(other, "Film", "image"); }), wrongType);
+    EXPECT_EQ(test::inputErrorOf([&] { loadBuffer(other, "Film", "image"); }), wrongType);
 }
 
 // checkBufferFile refuses a file cut short by one byte or by half, or one
@@ -847,16 +839,16 @@ TEST(CodecRefuses, CheckingAFileRefusesItsWrongSizes) {
     for (const auto& [type, make] : everyBuffer()) {
         const std::string whole = (dir / (type + ".fgbuf")).string();
         saveBuffer(make(), whole, "job");
-        EXPECT_EQ(refusal([&] { checkBufferFile(whole, type); }), "") << type;
+        EXPECT_EQ(test::inputErrorOf([&] { checkBufferFile(whole, type); }), "") << type;
         const std::string bytes = readBytes(whole);
         const std::string bad = (dir / (type + "-bad.fgbuf")).string();
         for (const std::string& copy :
              {bytes.substr(0, bytes.size() - 1), bytes.substr(0, bytes.size() / 2), bytes + '\0'}) {
             writeBytes(bad, copy);
-            const std::string checked = refusal([&] { checkBufferFile(bad, type); });
+            const std::string checked = test::inputErrorOf([&] { checkBufferFile(bad, type); });
             EXPECT_EQ(checked.rfind(bad + ": ", 0), 0u) << type << ", " << copy.size() << " bytes: " << checked;
             EXPECT_EQ(checked.find('\n'), std::string::npos) << checked;
-            EXPECT_EQ(refusal([&] { loadBuffer(bad, type); }), checked) << type;
+            EXPECT_EQ(test::inputErrorOf([&] { loadBuffer(bad, type); }), checked) << type;
         }
     }
 }
@@ -871,11 +863,11 @@ TEST(CodecRefuses, CheckingAFileCutInItsLastScalarsSaysWhatIsMissing) {
     const std::string bytes = readBytes(path);
     const std::size_t payload = bytes.size() - CodecReader(path).remaining();
     writeBytes(path, bytes.substr(0, bytes.size() - 1));
-    EXPECT_EQ(refusal([&] { checkBufferFile(path, "Film", "image"); }),
+    EXPECT_EQ(test::inputErrorOf([&] { checkBufferFile(path, "Film", "image"); }),
               path + ": truncated buffer file: its header's columns need " + std::to_string(bytes.size() - payload) +
                   " bytes after the header, the file has " + std::to_string(bytes.size() - payload - 1));
     writeBytes(path, bytes + "xyz");
-    EXPECT_EQ(refusal([&] { checkBufferFile(path, "Film", "image"); }), path + ": 3 bytes after the end of the buffer");
+    EXPECT_EQ(test::inputErrorOf([&] { checkBufferFile(path, "Film", "image"); }), path + ": 3 bytes after the end of the buffer");
 }
 
 TEST(CodecTypes, EveryBuiltinCodecGivesItsPayloadSize) {
@@ -903,7 +895,7 @@ TEST(CodecSave, ACodecThatWritesOtherThanItsDeclaredSizeLeavesNoFile) {
     const fs::path dir = scratchDirectory();
     registerCodec(withScalarBytes(codec, sizeof(std::uint64_t)));
     saveBuffer(makeBuffer(counter), (dir / "right.fgbuf").string(), "");
-    EXPECT_EQ(refusal([&] { checkBufferFile((dir / "right.fgbuf").string(), "CodecTestCounter"); }), "");
+    EXPECT_EQ(test::inputErrorOf([&] { checkBufferFile((dir / "right.fgbuf").string(), "CodecTestCounter"); }), "");
     registerCodec(withScalarBytes(codec, sizeof(std::uint32_t)));
     EXPECT_THROW(saveBuffer(makeBuffer(counter), (dir / "wrong.fgbuf").string(), ""), std::logic_error);
     EXPECT_FALSE(fs::exists(dir / "wrong.fgbuf"));

@@ -7,6 +7,7 @@
 #include "engine/core/error.h"
 #include "engine/guiding/guiding_cache.h"
 #include "tests/support/cli_helpers.h"
+#include "tests/support/input_error.h"
 
 #include "jobs/random.h"
 
@@ -53,14 +54,6 @@ BufferHandle handleOf(const std::shared_ptr<GuidingCache>& cache) {
     return handle;
 }
 
-std::string refusal(const std::function<void()>& f) {
-    try {
-        f();
-    } catch (const InputError& error) {
-        return error.what();
-    }
-    return "";
-}
 
 // Saves `cache` with `write` standing in for the builtin codec's write, as a
 // build of that layout would have; the builtin codec is registered again
@@ -146,7 +139,7 @@ TEST(GuidingCacheCodec, ASavedCacheCarriesItsVersionAndLoads) {
     std::uint32_t version = 0;
     std::memcpy(&version, bytes.data() + payloadAt(bytes), sizeof version);
     EXPECT_EQ(version, 3u);
-    EXPECT_EQ(refusal([&] { checkBufferFile(files.good, "GuidingCache", "radiance_cache"); }), "");
+    EXPECT_EQ(test::inputErrorOf([&] { checkBufferFile(files.good, "GuidingCache", "radiance_cache"); }), "");
     const BufferHandle loaded = loadBuffer(files.good, "GuidingCache", "radiance_cache");
     const auto& cache = *static_cast<const GuidingCache*>(loaded.data.get());
     EXPECT_EQ(cache.trainingPasses, 3u);
@@ -167,9 +160,9 @@ TEST(GuidingCacheCodec, OtherVersionsAreRefusedByVersionWithOneLine) {
         {files.unversioned2, ": a guiding cache of codec version 2 (this build reads version 3), saved before the "
                              "version was written: train and save it again with this build"}};
     for (const auto& [path, message] : refused) {
-        const std::string checked = refusal([&] { checkBufferFile(path, "GuidingCache", "radiance_cache"); });
+        const std::string checked = test::inputErrorOf([&] { checkBufferFile(path, "GuidingCache", "radiance_cache"); });
         EXPECT_EQ(checked, path + message);
-        EXPECT_EQ(refusal([&] { loadBuffer(path, "GuidingCache", "radiance_cache"); }), checked);
+        EXPECT_EQ(test::inputErrorOf([&] { loadBuffer(path, "GuidingCache", "radiance_cache"); }), checked);
     }
 }
 

@@ -9,6 +9,7 @@
 #include "engine/core/job.h"
 #include "engine/core/render.h"
 #include "tests/support/cli_helpers.h"
+#include "tests/support/input_error.h"
 
 #include <gtest/gtest.h>
 
@@ -165,12 +166,7 @@ TEST(Replay, ReportHasARowPerRepetitionAndTheMedian) {
 }
 
 std::string inputErrorOf(const Job& job, const ReplayOptions& options) {
-    try {
-        replayPass(job, options);
-    } catch (const InputError& e) {
-        return e.what();
-    }
-    return "";
+    return test::inputErrorOf([&] { replayPass(job, options); });
 }
 
 TEST(Replay, UnknownInstanceNamesTheInstances) {

@@ -138,10 +138,7 @@ TEST(PrsRadianceCache, SameImageOnOneAndTwoThreads) {
     const Scene scene = loadScene(
         (std::filesystem::path(FLUXGRAPH_SOURCE_DIR) / "data/cornell-box/cornell-box-glossy.toml").string());
     const FilmSettings film = test::smallFilm(32, 32);
-    const test::RenderedImage one = test::renderPipeline(scene, "prs-rc", prsParams(20000), film, 1, 1);
-    const test::RenderedImage two = test::renderPipeline(scene, "prs-rc", prsParams(20000), film, 1, 2);
-    ASSERT_EQ(one.pixels.size(), two.pixels.size());
-    for (std::size_t i = 0; i < one.pixels.size(); ++i) ASSERT_EQ(one.pixels[i], two.pixels[i]) << "pixel " << i;
+    test::expectSameImageAtOneAndTwoThreads(scene, "prs-rc", prsParams(20000), film);
 }
 
 TEST(PrsRadianceCache, CloseToTheUncachedImageInTheFurnace) {

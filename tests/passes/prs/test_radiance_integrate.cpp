@@ -36,10 +36,7 @@ TEST(PrsRadianceMap, SameImageOnOneAndTwoThreads) {
     FilmSettings film;
     film.width = 32;
     film.height = 32;
-    const test::RenderedImage one = test::renderPipeline(scene, "prs", prsParams("sh_map", 20000), film, 1, 1);
-    const test::RenderedImage two = test::renderPipeline(scene, "prs", prsParams("sh_map", 20000), film, 1, 2);
-    ASSERT_EQ(one.pixels.size(), two.pixels.size());
-    for (std::size_t i = 0; i < one.pixels.size(); ++i) ASSERT_EQ(one.pixels[i], two.pixels[i]) << "pixel " << i;
+    test::expectSameImageAtOneAndTwoThreads(scene, "prs", prsParams("sh_map", 20000), film);
 }
 
 TEST(PrsRadianceMap, GlossyPixelsMatchEq6PerRay) {
