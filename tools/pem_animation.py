@@ -183,8 +183,9 @@ def main():
         f"{args.res}x{args.res} pixels. CPU seconds per pass (`--stats`).",
         "",
         "| frame | independent pem_fit | iterations (inner / outer) | photons | coherent pem_fit | iterations "
-        "(inner / outer) | photons | \\|P\\| indep. / coh. | pem total indep. / coh. | bre total |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "(inner / outer) | photons | components indep. / coh. (restored) | \\|P\\| indep. / coh. | pem total indep. / coh. "
+        "| bre total |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in frames:
         i, c = r["independent"], r["coherent"]
@@ -193,6 +194,7 @@ def main():
             f"| {r['frame']} | {i['cpu_seconds']:.3f} s | {ic['inner_iterations']} / {ic['outer_iterations']} | "
             f"{ic['photons']:,} | {c['cpu_seconds']:.3f} s{'' if cc.get('seeded') else ' (not seeded)'} | "
             f"{cc['inner_iterations']} / {cc['outer_iterations']} | {cc['photons']:,} | "
+            f"{ic['components']} / {cc['components']} ({cc.get('restored_components', 0)}) | "
             f"{ic['cells']:,} / {cc['cells']:,} | {r['independent_total']:.3f} / {r['coherent_total']:.3f} s | "
             f"{r['bre']:.3f} s |")
     total_i = sum(r["independent"]["cpu_seconds"] for r in later)
@@ -213,7 +215,10 @@ def main():
         f"photons {median_counter('independent', 'photons'):,.0f} and {median_counter('coherent', 'photons'):,.0f}; "
         f"all of pem's media passes (photon, pem_fit, gmm_pyramid, gmm_bbh, gmm_render) {all_i:.2f} s independent, "
         f"{all_c:.2f} s coherent ({all_i / all_c:.2f}×); bre's (photon, photon_radius, photon_bvh, beam_query, "
-        f"at the independent fit's photons) {total_b:.2f} s.",
+        f"at the independent fit's photons) {total_b:.2f} s. Components of the coherent fits: "
+        f"{min(r['coherent']['counters']['components'] for r in later)} to "
+        f"{max(r['coherent']['counters']['components'] for r in later)}, "
+        f"{frames[-1]['coherent']['counters']['components']} in the last frame (k = {k}).",
         "",
         f"Flicker over the crop {crop} (x, y, w, h): mean RMSE between consecutive frames; the reference "
         f"(bre, {reference_photons:,} volume photons, one seed) changes by {reference:.5f} from frame to frame.",

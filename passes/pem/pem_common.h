@@ -24,6 +24,14 @@ double ridgeInSceneUnits(const EmTree& tree, double regCovar);
 void storeMixture(const std::vector<gmm::EmComponent>& components, std::uint64_t photons, GaussianMixture& mixture,
                   double powerScale = 1.0);
 
+// Completes a seed of fewer than k components to k (see pem_common.cpp):
+// the component with the largest weight times largest eigenvalue is split
+// along that eigenvalue's axis into two of half its weight that keep its
+// mean and covariance, repeatedly, ties to the lower index. The split
+// component keeps its place and its second half is appended. A seed of k or
+// more components is left as it is. Returns the number added.
+std::size_t splitToCount(std::vector<gmm::EmComponent>& components, std::size_t k);
+
 // Counters every fit reports.
 void reportFit(PassContext& ctx, const gmm::EmRun& run, const std::vector<gmm::EmComponent>& components,
                double photons);

@@ -119,6 +119,11 @@
 // of tools/pem_animation.py seeded by frame 0, one run each); 30 is the
 // smallest that ended after one expansion there, at k = 256 with a gain of
 // 0.0071, too near the threshold to count on.
+// A seed of fewer than k components (the previous fit dropped some, n_eff <
+// min_n_eff) is completed to k before the fit by moment-preserving splits
+// (splitToCount in pem_common.cpp; counted: restored_components), so that a
+// drop lasts one frame instead of the rest of the sequence. A seed of k
+// components is used as it is.
 //
 // Powers: the first map's powers are normalised to its paths (`emitted`), a
 // later map's to the paths up to its last photon. The tree holds every
@@ -190,6 +195,7 @@ public:
         ctx.addCounter("sparse_components", shortOnes.sparse);
         ctx.addCounter("fit_us", fitNs_ / 1000);
         ctx.addCounter("seeded", seeded_ ? 1 : 0);
+        ctx.addCounter("restored_components", static_cast<std::int64_t>(restored_));
         ctx.addCounter("expansions_reusing_inner_estep", reusedExpansions_);
         // The last expansion's gain in F/n, in millionths of a nat (counters are integers).
         ctx.addCounter("expansion_gain_e6", static_cast<std::int64_t>(std::llround(lastGain_ * 1e6)));
@@ -231,6 +237,7 @@ private:
         if (ctx.hasInput("previous")) components_ = seedComponents(ctx.input<GaussianMixture>("previous"));
         seeded_ = !components_.empty();
         if (seeded_) {
+            restored_ = splitToCount(components_, k);
             cut_ = tree_.cut(components_.size() * static_cast<std::size_t>(params.getInt("seeded_cut")));
         } else {
             components_ = gmm::componentsFromCells(cellsOf(tree_, tree_.cut(k)), options_.regCovar);
@@ -452,7 +459,7 @@ private:
     double boundPerPhoton_ = 0.0, lastGain_ = 0.0;
     std::uint64_t photons_ = 0, maxPhotons_ = 0, firstEmitted_ = 1, lastEmitted_ = 1;
     std::int64_t batches_ = 0, reusedExpansions_ = 0, inner_ = 0, outer_ = 0, treeLeaves_ = 0, fitNs_ = 0;
-    std::size_t dropped_ = 0;
+    std::size_t dropped_ = 0, restored_ = 0;
 };
 
 }  // namespace
@@ -467,8 +474,8 @@ PassRegistration pemFitPass() {
                     "volume_batch (32 k) while wanted",
                     true},
                    {"previous", "GaussianMixture",
-                    "the previous frame's fitted mixture (import it), which replaces the initial guess (its "
-                    "components, not k) and starts the fit on a cut of seeded_cut cells per component (§5.4, temporal "
+                    "the previous frame's fitted mixture (import it), which replaces the initial guess (a seed of "
+                    "fewer than k components is completed to k by splitting its widest heavy ones) and starts the fit on a cut of seeded_cut cells per component (§5.4, temporal "
                     "coherence)",
                     false, true}};
     spec.outputs = {{"gmm", "GaussianMixture",

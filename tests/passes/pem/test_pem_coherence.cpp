@@ -6,7 +6,7 @@
 // seeded with the converged mixture of the same photons needs fewer EM
 // iterations than the fit from its own initial guess and its F/n is at most
 // 1e-3 nats per photon below that fit's; seeded fits are identical at one
-// and two threads.
+// and two threads; a seed that lost components is split back to k.
 #include "engine/accel/ray_query.h"
 #include "engine/buffers/photon_buffers.h"
 #include "engine/core/codec.h"
@@ -19,6 +19,7 @@
 #include "engine/scene/scene_loader.h"
 #include "jobs/parallel.h"
 #include "passes/passes.h"
+#include "passes/pem/pem_common.h"
 #include "tests/support/cli_helpers.h"
 #include "tests/support/pass_helpers.h"
 
@@ -455,6 +456,118 @@ TEST(PemCoherence, SeededFitsAreIdenticalAtOneAndTwoThreads) {
     EXPECT_EQ(one.counters, two.counters);
     EXPECT_EQ(one.counters.at("seeded"), 1);
     EXPECT_NE(one.parameters, previous.parameters);
+}
+
+
+// The seed's first and second moments: total weight, sum w mu and
+// sum w (Sigma + mu mu^T).
+struct SeedMoments {
+    double weight = 0.0;
+    glm::dvec3 first{0.0};
+    gmm::Sym3 second;
+};
+SeedMoments momentsOf(const std::vector<gmm::EmComponent>& components) {
+    SeedMoments m;
+    for (const gmm::EmComponent& c : components) {
+        m.weight += c.weight;
+        m.first += c.weight * c.gaussian.mean;
+        m.second += (c.gaussian.covariance + gmm::Sym3::outer(c.gaussian.mean)) * c.weight;
+    }
+    return m;
+}
+
+std::vector<gmm::EmComponent> componentsOf(const GaussianMixture& mixture) {
+    std::vector<gmm::EmComponent> components;
+    for (std::size_t s = 0; s < mixture.components.size(); ++s) {
+        gmm::EmComponent c;
+        c.weight = mixture.components.column<GmmWeight>()[s];
+        c.power = mixture.components.column<GmmPower>()[s];
+        c.effectiveCount = mixture.components.column<GmmEffectiveCount>()[s];
+        c.gaussian = gaussianAt(mixture.components, s);
+        components.push_back(c);
+    }
+    return components;
+}
+
+// A seed that lost components is completed to k by splits that keep the
+// seed's weight and moments (1e-12) and give usable Gaussians, the same way
+// every time; a seed of k components is left byte for byte as it is.
+TEST(PemCoherence, SplittingCompletesASeedToKComponentsAndKeepsItsMoments) {
+    const Fit previous = runFit(2, nullptr);
+    const std::vector<gmm::EmComponent> full = componentsOf(*previous.mixture);
+    const std::size_t k = full.size();
+    ASSERT_GE(k, 16u);
+
+    std::vector<gmm::EmComponent> untouched = full;
+    EXPECT_EQ(splitToCount(untouched, k), 0u);
+    ASSERT_EQ(untouched.size(), k);
+    for (std::size_t s = 0; s < k; ++s) {
+        EXPECT_EQ(std::memcmp(&untouched[s].weight, &full[s].weight, sizeof(double)), 0);
+        EXPECT_EQ(std::memcmp(&untouched[s].gaussian.mean, &full[s].gaussian.mean, sizeof(glm::dvec3)), 0);
+        EXPECT_EQ(std::memcmp(untouched[s].gaussian.covariance.v.data(), full[s].gaussian.covariance.v.data(),
+                              sizeof(full[s].gaussian.covariance.v)),
+                  0);
+    }
+
+    std::vector<gmm::EmComponent> reduced;
+    for (std::size_t s = 0; s < k; ++s)
+        if (s % 5 != 2) reduced.push_back(full[s]);
+    const std::size_t removed = k - reduced.size();
+    const SeedMoments before = momentsOf(reduced);
+    std::vector<gmm::EmComponent> once = reduced, twice = reduced;
+    EXPECT_EQ(splitToCount(once, k), removed);
+    EXPECT_EQ(splitToCount(twice, k), removed);
+    ASSERT_EQ(once.size(), k);
+    ASSERT_EQ(twice.size(), k);
+    for (std::size_t s = 0; s < k; ++s) {
+        EXPECT_EQ(std::memcmp(&once[s].weight, &twice[s].weight, sizeof(double)), 0);
+        EXPECT_EQ(std::memcmp(&once[s].gaussian.mean, &twice[s].gaussian.mean, sizeof(glm::dvec3)), 0);
+        EXPECT_TRUE(once[s].gaussian.factors.valid) << s;
+        EXPECT_GT(once[s].weight, 0.0);
+    }
+    const SeedMoments after = momentsOf(once);
+    const double scale = std::max(1.0, std::abs(before.second.trace()));
+    EXPECT_NEAR(after.weight, before.weight, 1e-12);
+    for (int i = 0; i < 3; ++i) EXPECT_NEAR(after.first[i], before.first[i], 1e-12 * scale);
+    for (std::size_t e = 0; e < 6; ++e) EXPECT_NEAR(after.second.v[e], before.second.v[e], 1e-12 * scale);
+    // Only split components move; the others keep their places and values.
+    std::size_t unchanged = 0;
+    for (std::size_t s = 0; s < reduced.size(); ++s)
+        unchanged += std::memcmp(&once[s].gaussian.mean, &reduced[s].gaussian.mean, sizeof(glm::dvec3)) == 0 ? 1 : 0;
+    EXPECT_GE(unchanged, reduced.size() - removed);
+}
+
+// pem_fit seeded with a mixture that lost components fits k again (none is
+// dropped at these photon counts), the same at one and two threads; seeded
+// with all k it restores none.
+TEST(PemCoherence, ASeedWithComponentsRemovedGetsBackToK) {
+    const Fit previous = runFit(2, nullptr);
+    const std::int64_t k = 32;
+    ASSERT_EQ(previous.counters.at("components"), k);
+    const GmmBuffer& from = previous.mixture->components;
+    auto reduced = std::make_shared<GaussianMixture>();
+    reduced->photons = previous.mixture->photons;
+    reduced->components.resize(from.size());
+    std::int64_t removed = 0;
+    for (std::size_t s = 0; s < from.size(); ++s) {
+        // A component of weight 0 is not seeded, as one the fit dropped.
+        const bool remove = s % 7 == 3;
+        removed += remove ? 1 : 0;
+        reduced->components.column<GmmWeight>()[s] = remove ? 0.0 : from.column<GmmWeight>()[s];
+        reduced->components.column<GmmPower>()[s] = from.column<GmmPower>()[s];
+        reduced->components.column<GmmEffectiveCount>()[s] = from.column<GmmEffectiveCount>()[s];
+        setGaussianAt(reduced->components, s, gaussianAt(from, s));
+    }
+    const Fit one = runFit(1, reduced);
+    const Fit two = runFit(2, reduced);
+    EXPECT_EQ(one.counters.at("restored_components"), removed);
+    EXPECT_EQ(one.counters.at("components") + one.counters.at("dropped_components"), k);
+    EXPECT_EQ(one.counters.at("components"), k);
+    ASSERT_EQ(one.parameters.size(), two.parameters.size());
+    EXPECT_EQ(std::memcmp(one.parameters.data(), two.parameters.data(), one.parameters.size() * sizeof(double)), 0);
+    EXPECT_EQ(one.counters, two.counters);
+    const Fit full = runFit(2, previous.mixture);
+    EXPECT_EQ(full.counters.at("restored_components"), 0);
 }
 
 }  // namespace
