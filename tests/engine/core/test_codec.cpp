@@ -836,7 +836,8 @@ TEST(CodecRegistry, CheckingAFileRunsTheVersionCheckButNotTheRead) {
 // as saved passes.
 TEST(CodecRefuses, CheckingAFileRefusesItsWrongSizes) {
     const fs::path dir = scratchDirectory();
-    for (const auto& [type, make] : everyBuffer()) {
+    for (const auto& [typeName, make] : everyBuffer()) {
+        const std::string type = typeName;  // a variable, not a binding: the lambdas below capture it
         const std::string whole = (dir / (type + ".fgbuf")).string();
         saveBuffer(make(), whole, "job");
         EXPECT_EQ(test::inputErrorOf([&] { checkBufferFile(whole, type); }), "") << type;

@@ -159,7 +159,8 @@ TEST(GuidingCacheCodec, OtherVersionsAreRefusedByVersionWithOneLine) {
                              "version was written: train and save it again with this build"},
         {files.unversioned2, ": a guiding cache of codec version 2 (this build reads version 3), saved before the "
                              "version was written: train and save it again with this build"}};
-    for (const auto& [path, message] : refused) {
+    for (const auto& [file, message] : refused) {
+        const std::string path = file;  // a variable, not a binding: the lambdas below capture it
         const std::string checked = test::inputErrorOf([&] { checkBufferFile(path, "GuidingCache", "radiance_cache"); });
         EXPECT_EQ(checked, path + message);
         EXPECT_EQ(test::inputErrorOf([&] { loadBuffer(path, "GuidingCache", "radiance_cache"); }), checked);
