@@ -293,6 +293,22 @@ BufferCodec importonMapCodec() {
         sizeof(std::uint64_t));
 }
 
+BufferCodec importonExitsCodec() {
+    return withScalarBytes(makeBufferCodec<ImportonExits>(
+        [](const ImportonExits& exits, CodecWriter& writer) {
+            writer.setItemCount(exits.exits.size());
+            writer.write<std::uint64_t>(exits.paths);
+            writer.writeSoa("exits", exits.exits);
+        },
+        [](CodecReader& reader) {
+            ImportonExits exits;
+            exits.paths = reader.read<std::uint64_t>();
+            reader.readSoa("exits", exits.exits);
+            return exits;
+        }),
+        sizeof(std::uint64_t));
+}
+
 // The guiding cache's records gain columns as guiding does (bsdf_only and
 // moment_ratio were added to the first layout), so its payload begins with
 // its codec version and other versions are refused rather than misread.
@@ -525,6 +541,7 @@ std::vector<BufferCodec> builtinCodecs() {
     codecs.push_back(photonBvhCodec());
     codecs.push_back(guidingCacheCodec());
     codecs.push_back(importonMapCodec());
+    codecs.push_back(importonExitsCodec());
     codecs.push_back(photonRaysCodec());
     codecs.push_back(splatRaysCodec());
     codecs.push_back(splatIndexCodec());

@@ -35,4 +35,25 @@ struct BufferTypeName<ImportonMap> {
     static constexpr const char* value = "ImportonMap";
 };
 
+// Importons that leave the scene (Vorba et al. 2014, §4.4, Fig. 6a): where a
+// camera path's ray escapes to the environment. They train the environment
+// sampler (environment_guide.h), which learns from them which directions and
+// which lines through the scene photons from an environment light should take.
+FG_SOA_COLUMN(ExitPosition, Vec3, "position");    // where the ray crosses the scene's bounding sphere
+FG_SOA_COLUMN(ExitDirection, Vec3, "direction");  // unit direction it leaves in (towards the environment)
+FG_SOA_COLUMN(ExitWeight, float, "weight");       // as ImportonWeight: path throughput mean / paths
+FG_SOA_COLUMN(ExitBounces, std::uint16_t, "bounces");  // scattering events before it left
+
+using ImportonExitBuffer = SoaBuffer<ExitPosition, ExitDirection, ExitWeight, ExitBounces>;
+
+struct ImportonExits {
+    ImportonExitBuffer exits;
+    std::uint64_t paths = 0;  // camera paths traced to make them
+    std::size_t bytes() const { return exits.bytes(); }
+};
+template <>
+struct BufferTypeName<ImportonExits> {
+    static constexpr const char* value = "ImportonExits";
+};
+
 }  // namespace fg

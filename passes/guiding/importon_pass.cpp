@@ -14,10 +14,18 @@
 // are gathered per fixed chunk of paths and concatenated in path order, so the
 // buffer is the same for any thread count.
 //
-// Not yet here (issue 20): exit points of importons leaving the scene (for
-// guided environment emission, §4.4). The weight-based Russian roulette of
-// §4.5 is pt's with `rr_threshold` below 1 (roulette.h); the importons'
-// weights are stored for the importance cache that will train on them.
+// Importons leaving the scene (§4.4, Fig. 6a): a path whose ray escapes to
+// the environment leaves an exit (the point where the ray crosses the scene's
+// bounding sphere, on which the infinite lights' emission disks sit, its
+// direction, weight and bounce count) in `exits`, which trains the
+// environment sampler. They are recorded only when the scene has an
+// environment emitter (a non-delta infinite light), the only case in which a
+// photon can come from those directions; otherwise `exits` is empty.
+// Recording draws no random number, so the importons are the same either way.
+//
+// The weight-based Russian roulette of §4.5 is pt's with `rr_threshold` below
+// 1 (roulette.h); the importons' weights are stored for the importance cache
+// that will train on them.
 #include "passes/common/path_vertex.h"
 #include "passes/passes.h"
 
@@ -30,6 +38,8 @@
 #include "jobs/random.h"
 
 #include <algorithm>
+#include <cmath>
+#include <span>
 #include <vector>
 
 namespace fg {
@@ -39,6 +49,17 @@ namespace {
 // Paths per chunk: the unit whose importons are gathered together. Fixed, so
 // that the concatenation order never depends on scheduling.
 constexpr std::size_t kChunk = 256;
+
+// Where a ray from inside the scene's bounding sphere leaves it; a ray from
+// outside (by rounding) keeps its origin, which lies on the same line.
+Vec3 sphereExit(const Vec3& origin, const Vec3& direction, const Vec3& center, float radius) {
+    const Vec3 o = origin - center;
+    const float b = glm::dot(o, direction);
+    const float c = glm::dot(o, o) - radius * radius;
+    if (!(c < 0.0f)) return origin;
+    const float t = -b + std::sqrt(std::max(0.0f, b * b - c));
+    return origin + t * direction;
+}
 
 class ImportonPass final : public Pass {
 public:
@@ -61,6 +82,11 @@ public:
         const std::size_t pathCount = static_cast<std::size_t>(pixels * spp);
         const std::size_t chunks = (pathCount + kChunk - 1) / kChunk;
         std::vector<std::vector<GuidableVertex>> gathered(chunks);
+        std::vector<std::vector<ImportonExitBuffer::Record>> exitsGathered(chunks);
+        bool recordExits = false;
+        for (const auto& light : scene.lights) recordExits = recordExits || (light->isInfinite() && !light->isDelta());
+        const Vec3 boundsCenter = 0.5f * (scene.boundsMin + scene.boundsMax);
+        const float boundsRadius = glm::length(scene.boundsMax - boundsCenter);
         std::vector<std::int64_t> segments(chunks, 0);
         const std::uint64_t seed = ctx.seed(), stream = ctx.streamKey();
         jobs::parallelForChunks(pathCount, kChunk, [&](jobs::IndexRange r) {
@@ -81,7 +107,20 @@ public:
                     const Hit hit = pts.rays.intersect(state.ray);
                     ++segments[chunk];
                     ShadowRequest unused;
+                    const Vec3 from = state.ray.origin;
                     alive = advancePath(pts, limits, hit, state, unused);
+                    // Escaped: no surface ahead and no medium event on the way
+                    // (which would have moved the ray's origin).
+                    if (!alive && recordExits && !hit.valid() && state.ray.origin == from) {
+                        const float w = (beta.x + beta.y + beta.z) / 3.0f;
+                        if (w > 0.0f && std::isfinite(w)) {
+                            const Vec3 exit = sphereExit(state.ray.origin, state.ray.direction, boundsCenter,
+                                                         boundsRadius);
+                            exitsGathered[chunk].push_back(
+                                {exit, state.ray.direction, w,
+                                 static_cast<std::uint16_t>(std::min(history.depth, 0xFFFF))});
+                        }
+                    }
                 }
             }
         });
@@ -112,7 +151,15 @@ public:
             }
             segmentTotal += segments[c];
         }
+        ImportonExits& exits = ctx.createOutput<ImportonExits>("exits");
+        exits.paths = pathCount;
+        for (auto& g : exitsGathered) {
+            // Normalised per path as the importons are.
+            for (auto& e : g) e.get<ExitWeight>() /= static_cast<float>(pathCount);
+            exits.exits.append(std::span<const ImportonExitBuffer::Record>(g));
+        }
         ctx.addItems(static_cast<std::int64_t>(pathCount));
+        ctx.addCounter("exits", static_cast<std::int64_t>(exits.exits.size()));
         ctx.addCounter("importons", static_cast<std::int64_t>(total));
         ctx.addCounter("path_segments", segmentTotal);
     }
@@ -129,7 +176,10 @@ PassRegistration importonPass() {
                            "the radiance cache of the previous training pass that guides the paths (absent: BSDF sampling)"};
     radianceCache.optional = true;
     spec.inputs = {radianceCache};
-    spec.outputs = {{"importons", "ImportonMap", "importons at the paths' guidable surface vertices, in path order"}};
+    spec.outputs = {{"importons", "ImportonMap", "importons at the paths' guidable surface vertices, in path order"},
+                    {"exits", "ImportonExits",
+                     "importons leaving the scene (§4.4): exit point on the bounding sphere, direction, weight; "
+                     "empty without an environment emitter"}};
     spec.params = {
         {"spp", ParamType::Int, std::int64_t{1}, 1, 1 << 16, {}, "camera paths per pixel"},
         {"max_depth", ParamType::Int, std::int64_t{16}, 1, 4096, {},
