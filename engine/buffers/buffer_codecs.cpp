@@ -13,6 +13,7 @@
 #include "engine/buffers/radiance_cache_buffers.h"
 #include "engine/core/codec.h"
 #include "engine/gmm/gmm_buffers.h"
+#include "engine/guiding/environment_guide.h"
 #include "engine/guiding/guiding_cache.h"
 #include "engine/guiding/importons.h"
 #include "engine/image/film.h"
@@ -309,6 +310,57 @@ BufferCodec importonExitsCodec() {
         sizeof(std::uint64_t));
 }
 
+// The environment sampler (Vorba et al. 2014, §4.4) is trained across passes
+// like the caches, so it is saved and imported like them: its codec version
+// first, then the bitmap's layout, the bounding sphere the disks sit on, the
+// training state, and one cell per bitmap pixel. A loaded model must be
+// usable: a layout matching the cells, finite densities, valid mixtures.
+constexpr std::uint32_t kEnvironmentGuideCodecVersion = 1;
+constexpr std::uint64_t kEnvironmentGuideScalarBytes =
+    3 * sizeof(std::uint32_t) + 4 * sizeof(float) + sizeof(std::uint64_t) + sizeof(float);
+
+BufferCodec environmentGuideCodec() {
+    return withScalarBytes(makeBufferCodec<EnvironmentGuide>(
+        [](const EnvironmentGuide& guide, CodecWriter& writer) {
+            writer.setItemCount(guide.cells.size());
+            writer.write<std::uint32_t>(kEnvironmentGuideCodecVersion);
+            writer.write<std::uint32_t>(guide.columns);
+            writer.write<std::uint32_t>(guide.rows);
+            writer.write(guide.center.x);
+            writer.write(guide.center.y);
+            writer.write(guide.center.z);
+            writer.write(guide.radius);
+            writer.write<std::uint64_t>(guide.passes);
+            writer.write(guide.kernelCap);
+            writer.writeSoa("cells", guide.cells);
+        },
+        [](CodecReader& reader) {
+            EnvironmentGuide guide;
+            guide.columns = reader.read<std::uint32_t>();
+            guide.rows = reader.read<std::uint32_t>();
+            guide.center.x = reader.read<float>();
+            guide.center.y = reader.read<float>();
+            guide.center.z = reader.read<float>();
+            guide.radius = reader.read<float>();
+            guide.passes = reader.read<std::uint64_t>();
+            guide.kernelCap = reader.read<float>();
+            reader.readSoa("cells", guide.cells);
+            if (guide.cells.size() != guide.cellCount() || (guide.cellCount() > 0 && !(guide.radius > 0.0f)))
+                reader.fail("corrupt buffer: an environment sampler of " + std::to_string(guide.cells.size()) +
+                            " cells for a " + std::to_string(guide.columns) + " x " + std::to_string(guide.rows) +
+                            " bitmap");
+            const auto density = guide.cells.column<EnvCellDensity>();
+            const auto gmms = guide.cells.column<EnvCellMixture>();
+            const auto fitted = guide.cells.column<EnvCellFitted>();
+            for (std::size_t i = 0; i < guide.cells.size(); ++i)
+                if (!std::isfinite(density[i]) || !(density[i] >= 0.0f) || (fitted[i] != 0 && !validMixture(gmms[i])))
+                    reader.fail("corrupt buffer: environment sampler cell " + std::to_string(i));
+            return guide;
+        },
+        codecVersionCheck(kEnvironmentGuideCodecVersion, "an environment sampler")),
+        kEnvironmentGuideScalarBytes);
+}
+
 // The guiding cache's records gain columns as guiding does (bsdf_only and
 // moment_ratio were added to the first layout), so its payload begins with
 // its codec version and other versions are refused rather than misread.
@@ -542,6 +594,7 @@ std::vector<BufferCodec> builtinCodecs() {
     codecs.push_back(guidingCacheCodec());
     codecs.push_back(importonMapCodec());
     codecs.push_back(importonExitsCodec());
+    codecs.push_back(environmentGuideCodec());
     codecs.push_back(photonRaysCodec());
     codecs.push_back(splatRaysCodec());
     codecs.push_back(splatIndexCodec());
