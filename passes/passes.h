@@ -34,6 +34,7 @@ PassRegistration splatIndexPass();
 PassRegistration raySplatPass();
 PassRegistration cacheUpdatePass();
 PassRegistration importonPass();
+PassRegistration environmentUpdatePass();
 PassRegistration radianceIntegratePass();
 PassRegistration radianceCachePass();
 PassRegistration cacheSelectPass();

@@ -21,7 +21,7 @@ const Registry& builtinRegistry() {
             filmNoisePass(),   compositePass(),
             rayBandwidthPass(), splatIndexPass(), raySplatPass(), radianceIntegratePass(), radianceCachePass(),
             cacheSelectPass(),
-            cacheUpdatePass(), importonPass(),
+            cacheUpdatePass(), importonPass(), environmentUpdatePass(),
             finalGatherSplatPass(), finalGatherPass(),
             bdptPass(),
         };
