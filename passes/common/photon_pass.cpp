@@ -85,6 +85,27 @@
 // Specular, transmissive and null lobes are never guided, and without the
 // input every path draws exactly the numbers and values it drew before.
 //
+// Guided environment emission (Vorba et al. 2014, §4.4, Fig. 6b). With an
+// `environment` input (an EnvironmentGuide trained on the importons that left
+// the scene, environment_update) that has importance somewhere, a path whose
+// chosen light is an environment emitter (a non-delta infinite light) draws
+// its direction towards the light from the one-sample mixture
+// β p_L p_W + (1 − β) p_L (balance heuristic, Veach 1997 §9.2.4; the paper's
+// "MIS of the product and p_L"), with p_L p_W piecewise constant per bitmap
+// cell (EnvironmentSampler) and p_L the light's own direction sampling, and
+// its start on the emission disk perpendicular to the direction from
+// γ p(x|ω) + (1 − γ) / (π R²), p(x|ω) the cell's disk GMM where one is
+// fitted (§4.4 "Position distributions"; the uniform part, which the paper
+// does not mention, keeps every line through the scene reachable). The flux
+// is L_e(ω) / (p(x) p(ω)) with both mixture densities, as unguided emission's
+// is L_e / (p_A p_ω), so the photon map's expected density does not change. A
+// GMM sample outside its square ends the path, as in §4.1. β and γ are
+// environment_direction_probability and environment_position_probability
+// (0.5 each: not in the paper). Such a path draws five numbers more than an
+// unguided one, after the light's; delta lights (directional) are never
+// guided, and without the input (or with an empty model) every path draws
+// exactly the numbers it drew before.
+//
 // Determinism: path i draws from the stream (seed, instance, i); a batch is
 // split into fixed chunks, each chunk collects its photons in path order, and
 // chunks are appended in order, so the maps do not depend on the thread count
@@ -100,6 +121,7 @@
 
 #include "engine/shading/differentials.h"
 #include "engine/core/error.h"
+#include "engine/guiding/environment_guide.h"
 #include "engine/guiding/guided_sampling.h"
 #include "engine/guiding/guiding_cache.h"
 #include "engine/buffers/photon_buffers.h"
@@ -161,6 +183,12 @@ struct Settings {
     float guidingBsdfProbability = 0.5f;  // α
     std::uint32_t guidingCandidates = 2;  // M of Eq. 11 without a cover grid
     bool guidingCovering = true;
+    // Guided environment emission: the model (null: unguided emission) and,
+    // per light, its sampler of p_L p_W (unusable for other lights).
+    const EnvironmentGuide* environment = nullptr;
+    std::vector<EnvironmentSampler> environmentSamplers;
+    float environmentDirectionProbability = 0.5f;  // β
+    float environmentPositionProbability = 0.5f;   // γ
 };
 
 // A photon and the path that stored it, for stopping at a photon-count target.
@@ -181,6 +209,7 @@ struct ChunkResult {
     std::int64_t collapsedGlobal = 0;
     std::int64_t segments = 0;
     std::int64_t guidedEvents = 0;
+    std::int64_t guidedEmissions = 0;
 
     // Empties the chunk for its next paths; the vectors keep their capacity.
     void clear() {
@@ -188,7 +217,7 @@ struct ChunkResult {
         global.clear();
         volume.clear();
         rays.clear();
-        collapsedCaustic = collapsedGlobal = segments = guidedEvents = 0;
+        collapsedCaustic = collapsedGlobal = segments = guidedEvents = guidedEmissions = 0;
     }
 };
 
@@ -270,7 +299,13 @@ public:
         float pmf = 0.0f;
         const std::size_t lightIndex = scene_.lightPower.sampleDiscrete(uLight, &pmf);
         if (!(pmf > 0.0f)) return;
-        const std::optional<EmissionSample> emission = scene_.lights[lightIndex]->sampleEmission(uPosition, uDirection);
+        const bool guidedEmission =
+            settings_.environment && settings_.environmentSamplers[lightIndex].usable();
+        const std::optional<EmissionSample> emission =
+            guidedEmission ? guidedEnvironmentEmission(*scene_.lights[lightIndex], settings_.environmentSamplers[lightIndex],
+                                                       uPosition, uDirection, rng)
+                           : scene_.lights[lightIndex]->sampleEmission(uPosition, uDirection);
+        if (guidedEmission) ++out.guidedEmissions;
         if (!emission) return;
         const double photonsFromSource = static_cast<double>(pmf) * static_cast<double>(settings_.photons);
         const Rgb power = emission->flux / static_cast<float>(photonsFromSource);
@@ -446,6 +481,55 @@ public:
     }
 
 private:
+    // §4.4: the emission of an environment light from the guided mixtures (see
+    // the opening comment), with the densities it was drawn with.
+    std::optional<EmissionSample> guidedEnvironmentEmission(const Light& light, const EnvironmentSampler& sampler,
+                                                            const Vec2& uPosition, const Vec2& uDirection,
+                                                            jobs::Rng& rng) const {
+        const float uDirectionStrategy = rng.uniform();
+        const float uPositionStrategy = rng.uniform();
+        const float uComponent = rng.uniform();
+        const Vec2 uGauss = rng.uniform2();
+        const EnvironmentGuide& guide = *settings_.environment;
+        const float beta = settings_.environmentDirectionProbability;
+        const float gamma = settings_.environmentPositionProbability;
+        Vec3 towardsLight;
+        if (uDirectionStrategy < beta) {
+            float unused = 0.0f;
+            towardsLight = sampler.sample(uDirection, &unused);
+        } else {
+            const std::optional<LightSample> ls = light.sampleLi(guide.center, uDirection);
+            if (!ls) return std::nullopt;
+            towardsLight = ls->wi;
+        }
+        const float lightPdf = light.pdfLi(guide.center, Vec3(0.0f), Vec3(0.0f), towardsLight);
+        const float directionPdf = environmentDirectionPdf(beta, sampler.pdf(towardsLight), lightPdf);
+        const Rgb radiance = light.environment(towardsLight);
+        if (!(directionPdf > 0.0f) || isBlack(radiance)) return std::nullopt;
+        const std::uint32_t cell = guide.cellOf(towardsLight);
+        const DirectionalGmm* gmm = guide.diskMixture(cell);
+        Vec2 disk;
+        if (gmm && uPositionStrategy < gamma) {
+            const Vec2 s = gmm->samplePlane(uComponent, uGauss);
+            if (!(s.x >= 0.0f && s.x <= 1.0f && s.y >= 0.0f && s.y <= 1.0f)) return std::nullopt;
+            disk = squareToUnitDisk(s);
+        } else {
+            disk = sampleConcentricDisk(uPosition);
+        }
+        const float positionPdf = environmentPositionPdf(gmm, gamma, disk, guide.radius);
+        if (!(positionPdf > 0.0f)) return std::nullopt;
+        EmissionSample e;
+        e.direction = -towardsLight;
+        e.origin = guide.diskOrigin(cell, towardsLight, disk);
+        e.normal = e.direction;
+        e.pdfPosition = positionPdf;
+        e.pdfDirection = directionPdf;
+        e.flux = radiance / (positionPdf * directionPdf);
+        e.emitterArea = kPi * guide.radius * guide.radius;
+        e.emitterSolidAngle = 4.0f * kPi;
+        return e;
+    }
+
     // The importance cache's record that guides the photon leaving a surface
     // point, as a mixture sampler: only at BSDFs with smooth, non-transmissive
     // lobes only, and only where a record with a usable mixture covers the
@@ -658,6 +742,27 @@ public:
             settings.guidingCandidates = static_cast<std::uint32_t>(params.getInt("guiding_candidates"));
             settings.guidingCovering = params.getString("guiding_query") == "covering";
         }
+        const bool guidedEnvironment = ctx.hasInput("environment");
+        if (guidedEnvironment) {
+            // An empty model (no environment emitter, or no importon left the
+            // scene yet) leaves every path to unguided emission.
+            const EnvironmentGuide& guide = ctx.input<EnvironmentGuide>("environment");
+            if (guide.guides()) {
+                settings.environmentSamplers.resize(scene.lights.size());
+                bool any = false;
+                for (std::size_t l = 0; l < scene.lights.size(); ++l) {
+                    const Light& light = *scene.lights[l];
+                    if (!light.isInfinite() || light.isDelta()) continue;
+                    settings.environmentSamplers[l] = EnvironmentSampler(guide, light);
+                    any = any || settings.environmentSamplers[l].usable();
+                }
+                if (any) settings.environment = &guide;
+            }
+            settings.environmentDirectionProbability =
+                static_cast<float>(params.getFloat("environment_direction_probability"));
+            settings.environmentPositionProbability =
+                static_cast<float>(params.getFloat("environment_position_probability"));
+        }
         // An own seed gives an independent photon set at the same eye vertices (the job's
         // seed keys the camera paths): what variance measurements and comparisons against a
         // reference rendered with the job's seed need.
@@ -720,7 +825,7 @@ public:
 
         const PhotonTracer tracer(scene, ctx.rays(), settings, seed, ctx.streamKey());
         std::int64_t storedCaustic = 0, storedGlobal = 0, storedDirect = 0, storedVolume = 0, singleScattering = 0;
-        std::int64_t segments = 0, guidedEvents = 0;
+        std::int64_t segments = 0, guidedEvents = 0, guidedEmissions = 0;
         std::uint64_t collapsed = 0;
         std::uint64_t emitted = 0;
         bool targetReached = false;
@@ -820,6 +925,7 @@ public:
                     storedVolume += static_cast<std::int64_t>(take.volume);
                     segments += chunk.segments;
                     guidedEvents += chunk.guidedEvents;
+                    guidedEmissions += chunk.guidedEmissions;
                     if (targetReached) {
                         if (laterVolume) {
                             laterRecords.assign(chunk.volume.begin() + static_cast<std::ptrdiff_t>(take.volume),
@@ -903,6 +1009,7 @@ public:
         ctx.addCounter("collapsed_footprints", static_cast<std::int64_t>(collapsed));
         ctx.addCounter("photon_segments", segments);
         if (guided) ctx.addCounter("guided_events", guidedEvents);
+        if (guidedEnvironment) ctx.addCounter("guided_emissions", guidedEmissions);
     }
 };
 
@@ -917,7 +1024,11 @@ PassRegistration photonPass() {
                              "importance cache trained on importons (Vorba et al. 2014): guides the directions "
                              "photons leave non-specular reflecting surfaces in (absent: BSDF sampling)"};
     importanceCache.optional = true;
-    spec.inputs = {importanceCache};
+    SlotSpec environment{"environment", "EnvironmentGuide",
+                         "environment sampler trained on importons that left the scene (Vorba et al. 2014, §4.4): "
+                         "guides emission from environment lights (absent or empty: unguided emission)"};
+    environment.optional = true;
+    spec.inputs = {importanceCache, environment};
     spec.outputs = {
         {"caustic_photons", "PhotonMap", "photons at smooth surfaces after only specular events (L S+ D), with footprints",
          true},
@@ -970,6 +1081,12 @@ PassRegistration photonPass() {
     };
     const std::vector<ParamSpec> guidedParams = guidedSamplingParams();
     spec.params.insert(spec.params.end(), guidedParams.begin(), guidedParams.end());
+    spec.params.push_back({"environment_direction_probability", ParamType::Float, 0.5, 0.0, 0.999, {},
+                           "beta: with an environment input, the share of environment photons whose direction is "
+                           "drawn from p_L p_W (the rest from p_L alone, which keeps every direction reachable)"});
+    spec.params.push_back({"environment_position_probability", ParamType::Float, 0.5, 0.0, 0.999, {},
+                           "gamma: with an environment input, the share of environment photons that start at a point "
+                           "drawn from the cell's disk GMM p(x|w) (the rest uniformly on the disk)"});
     const auto preflight = [](const PreflightContext& pf) {
         const std::string& store = pf.params.getString("store");
         if (pf.params.getInt("volume_photons") > 0 && store != "volume" && store != "all") {
