@@ -6,15 +6,21 @@
 // square) and match their sampling routines by chi².
 #include "engine/guiding/environment_guide.h"
 
+#include "engine/core/codec.h"
+#include "engine/core/error.h"
 #include "engine/shading/light.h"
 #include "engine/shading/texture.h"
 #include "jobs/random.h"
 #include "tests/support/chi2.h"
+#include "tests/support/cli_helpers.h"
+#include "tests/support/input_error.h"
 #include "tests/support/gmm_fixtures.h"
 
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstring>
+#include <fstream>
 #include <memory>
 #include <vector>
 
@@ -246,6 +252,51 @@ TEST(EnvironmentGuide, Chi2PositionSampling) {
         },
         config);
     EXPECT_TRUE(result.passed) << result.message;
+}
+
+// The model is saved and imported like the caches: it loads as saved, and a
+// truncated file or another codec version is refused.
+TEST(EnvironmentGuideCodec, LoadsAsSavedAndRefusesDamage) {
+    const std::filesystem::path dir = test::scratchDirectory("environment-guide-codec");
+    auto guide = std::make_shared<EnvironmentGuide>(syntheticGuide(Vec3(0.0f, 0.4f, 1.0f)));
+    guide->kernelCap = 0.01f;
+    BufferHandle handle;
+    handle.type = BufferTypeName<EnvironmentGuide>::value;
+    handle.bytes = [raw = guide.get()] { return raw->bytes(); };
+    handle.data = guide;
+    const std::string path = (dir / "model.fgbuf").string();
+    saveBuffer(handle, path, "");
+    const BufferHandle loaded = loadBuffer(path, "EnvironmentGuide");
+    const auto& back = *static_cast<const EnvironmentGuide*>(loaded.data.get());
+    EXPECT_EQ(back.columns, guide->columns);
+    EXPECT_EQ(back.rows, guide->rows);
+    EXPECT_EQ(back.center, guide->center);
+    EXPECT_EQ(back.radius, guide->radius);
+    EXPECT_EQ(back.kernelCap, guide->kernelCap);
+    ASSERT_EQ(back.cells.size(), guide->cells.size());
+    for (std::uint32_t c = 0; c < guide->cellCount(); ++c) {
+        EXPECT_EQ(back.cells.column<EnvCellDensity>()[c], guide->cells.column<EnvCellDensity>()[c]);
+        EXPECT_EQ(back.diskMixture(c) != nullptr, guide->diskMixture(c) != nullptr);
+        if (guide->diskMixture(c)) {
+            EXPECT_EQ(back.diskMixture(c)->pdfSquare(Vec2(0.4f, 0.5f)), guide->diskMixture(c)->pdfSquare(Vec2(0.4f, 0.5f)));
+        }
+    }
+    const std::string bytes = test::readText(path);
+    const std::string cut = (dir / "cut.fgbuf").string();
+    for (std::size_t length = 0; length < bytes.size(); length += std::max<std::size_t>(1, bytes.size() / 97)) {
+        std::ofstream(cut, std::ios::binary) << bytes.substr(0, length);
+        EXPECT_THROW(loadBuffer(cut, "EnvironmentGuide"), InputError) << "cut to " << length;
+    }
+    // The codec version is the payload's first u32, after the header: find and change it.
+    const std::string version("\x01\x00\x00\x00\x10\x00\x00\x00\x08\x00\x00\x00", 12);
+    const std::size_t at = bytes.find(version);
+    ASSERT_NE(at, std::string::npos);
+    std::string other = bytes;
+    other[at] = 2;
+    std::ofstream(cut, std::ios::binary) << other;
+    EXPECT_NE(test::inputErrorOf([&] { loadBuffer(cut, "EnvironmentGuide"); })
+                  .find("an environment sampler of codec version 2 (this build reads version 1)"),
+              std::string::npos);
 }
 
 }  // namespace
