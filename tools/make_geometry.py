@@ -545,9 +545,10 @@ def window_room_boxes(params):
         ("wall-west-lintel", "wall", (-3 - t, -3), (y1, 3), (-2, 2)),
         ("wall-west-left", "wall", (-3 - t, -3), (y0, y1), (-2, z0)),
         ("wall-west-right", "wall", (-3 - t, -3), (y0, y1), (z1, 2)),
-        # Curtains: opaque panels 5 cm inside the wall, wider and taller than the opening, leaving the gap.
-        ("curtain-left", "curtain", (-2.96, -2.94), (y0 - 0.1, y1 + 0.2), (z0 - 0.1, -g)),
-        ("curtain-right", "curtain", (-2.96, -2.94), (y0 - 0.1, y1 + 0.2), (g, z1 + 0.1)),
+        # Curtains: opaque panels against the wall (no slot behind them for light to leak through around
+        # their edges), wider and taller than the opening, leaving the gap.
+        ("curtain-left", "curtain", (-3.0, -2.96), (y0 - 0.1, y1 + 0.2), (z0 - 0.1, -g)),
+        ("curtain-right", "curtain", (-3.0, -2.96), (y0 - 0.1, y1 + 0.2), (g, z1 + 0.1)),
         # Furniture: a table, a low chest at the far end of the sunlit streak, a cupboard and a sofa block.
         ("table", "wood", (-0.6, 0.6), (0, 0.75), (-1.5, -0.7)),
         ("chest", "fabric", (0.3, 1.0), (0, 0.45), (0.7, 1.4)),
