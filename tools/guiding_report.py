@@ -71,6 +71,10 @@ PT_SEED_OFFSET = 1000
 SCENES = {
     "veach-ajar": os.path.join(ROOT, "data/veach-ajar/fragments/veach-ajar.xml"),
     "cornell-box": os.path.join(ROOT, "data/cornell-box/cornell-box.xml"),
+    # A closed room lit by a sky with a small sun through a curtain gap and a
+    # thin glass pane (tools/make_geometry.py window-room): the paper's living
+    # room / classroom case, where nearly all light arrives indirectly.
+    "window-room": os.path.join(ROOT, "data/window-room/window-room.xml"),
 }
 
 

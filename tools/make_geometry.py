@@ -10,6 +10,7 @@ reproduces the committed file byte for byte.
     tools/make_geometry.py ring  OUT.obj [--inner R] [--outer R] [--height H] [--segments N]
                                  [--start DEG] [--sweep DEG]
     tools/make_geometry.py teapot BODY.obj LID.obj [--steps N]
+    tools/make_geometry.py window-room ROOM.xml SKY.exr
     tools/make_geometry.py all [--root DIR]   (regenerates every mesh used by data/)
 
 Conventions: y is up. A wave is a height field y = H + sum_i a_i sin(k_i (d_i . (x, z)) + phase_i)
@@ -30,6 +31,10 @@ partials taken slightly inside the patch where a patch collapses to a point);
 each patch's side is chosen so that its normals point out of the pot (a ray
 from the patch centre along the normal crosses the surface an even number of
 times). BODY gets rim, body, handle, spout and bottom, LID the lid.
+The window room is a whole Mitsuba 3 scene (closed boxes, a thin glass pane,
+a sky environment map) rather than a mesh; its sky is a half-float OpenEXR
+file written by a small standard-library writer (ZIP compression through
+zlib), since Debian's Python has no EXR module.
 """
 
 import argparse
@@ -392,6 +397,281 @@ def write_teapot(body_path, lid_path, steps, names):
     write_obj(lid, lid_path, [command, "Newell's Utah teapot (public-domain data): lid"])
 
 
+# ---------------------------------------------------------------- window room
+
+# The window room (data/window-room/): a closed 6 x 3 x 4 room lit only through
+# a narrow gap between two curtains behind a glass pane, by a generated sky with
+# a small sun, after the living-room and classroom scenes of Vorba et al. 2014
+# (Fig. 1, Sec. 6). Lengths in metres; the room's inside is x in [-3, 3],
+# y in [0, 3], z in [-2, 2]; the window is in the wall x = -3.
+WINDOW_ROOM = dict(
+    wall=0.1,                       # thickness of floor, ceiling and walls (closed boxes: no light leaks at edges)
+    opening=(-0.9, 0.9, 0.8, 2.4),  # window opening in the wall x = -3: z0, z1, y0, y1
+    gap=0.12,                       # width of the vertical gap between the curtains, centred on z = 0
+    sun_elevation=30.0,             # degrees above the horizon
+    sun_azimuth=15.0,               # degrees from -x (straight through the window) towards -z
+    sun_radius=2.0,                 # angular radius, degrees
+    sun_radiance=(6000.0, 5600.0, 5000.0),
+    sky_size=(256, 128),
+)
+
+
+def window_room_sun_direction(params):
+    """Unit vector towards the sun (world space; the envmap is not rotated)."""
+    e, a = math.radians(params["sun_elevation"]), math.radians(params["sun_azimuth"])
+    return (-math.cos(e) * math.cos(a), math.sin(e), -math.cos(e) * math.sin(a))
+
+
+def sky_radiance(d, sun, params):
+    """A clear-sky gradient (bluish zenith, bright horizon, dim ground) plus a sun disk of uniform radiance."""
+    y = d[1]
+    if y >= 0.0:
+        t = 1.0 - y  # 1 at the horizon, 0 at the zenith
+        base = [0.25 + 0.55 * t ** 3, 0.40 + 0.45 * t ** 3, 0.80 + 0.15 * t ** 3]
+        # Brighter around the sun (a crude circumsolar glow, wide and smooth).
+        cos_sun = sum(d[k] * sun[k] for k in range(3))
+        glow = 1.5 * math.exp(-(1.0 - cos_sun) * 12.0)
+        base = [b + glow * c for b, c in zip(base, (1.0, 0.9, 0.7))]
+    else:
+        base = [0.25, 0.22, 0.20]
+    cos_sun = sum(d[k] * sun[k] for k in range(3))
+    if cos_sun >= math.cos(math.radians(params["sun_radius"])):
+        base = [b + s for b, s in zip(base, params["sun_radiance"])]
+    return base
+
+
+def make_sky(params):
+    """Equirectangular sky in the envmap's convention (engine/shading/light.cpp): column x is
+    phi = 2 pi (x + 0.5) / W with phi = atan2(d.x, -d.z), row y is theta = pi y / (H - 1) from +y.
+    Each pixel averages 8 x 8 directions over its footprint, so the sun's edge is spread over
+    the pixels it partly covers. Returns rows of RGB tuples and the sun's and the whole map's
+    radiant integrals (sum of radiance x solid angle over pixels)."""
+    width, height = params["sky_size"]
+    sun = window_room_sun_direction(params)
+    n = 8
+    rows = []
+    sun_integral = 0.0
+    total = [0.0, 0.0, 0.0]
+    for y in range(height):
+        row = []
+        theta0 = math.pi * max(0.0, (y - 0.5)) / (height - 1)
+        theta1 = math.pi * min(height - 1.0, (y + 0.5)) / (height - 1)
+        solid = 2.0 * math.pi / width * (math.cos(theta0) - math.cos(theta1))
+        for x in range(width):
+            acc = [0.0, 0.0, 0.0]
+            sun_part = 0.0
+            for j in range(n):
+                theta = theta0 + (theta1 - theta0) * (j + 0.5) / n
+                for i in range(n):
+                    phi = 2.0 * math.pi * (x + (i + 0.5) / n) / width
+                    d = (math.sin(phi) * math.sin(theta), math.cos(theta), -math.cos(phi) * math.sin(theta))
+                    value = sky_radiance(d, sun, params)
+                    for k in range(3):
+                        acc[k] += value[k]
+                    if sum(d[k] * sun[k] for k in range(3)) >= math.cos(math.radians(params["sun_radius"])):
+                        sun_part += 1.0
+            pixel = tuple(v / (n * n) for v in acc)
+            row.append(pixel)
+            sun_integral += sun_part / (n * n) * solid
+            for k in range(3):
+                total[k] += pixel[k] * solid
+        rows.append(row)
+    return rows, sun_integral, total
+
+
+def write_exr(rows, path):
+    """Half-float RGB OpenEXR, scanlines, ZIP compression (16 lines per chunk), standard library only.
+    The layout is that of the OpenEXR file format specification ("The OpenEXR File Layout"):
+    magic and version, header attributes, a line offset table, then chunks of (y, size, data);
+    ZIP data are the chunk's bytes split into even and odd halves, delta-coded, then zlib."""
+    import struct
+    import zlib
+    height, width = len(rows), len(rows[0])
+
+    def attribute(name, kind, value):
+        return name.encode() + b"\0" + kind.encode() + b"\0" + struct.pack("<i", len(value)) + value
+
+    channels = b"".join(c.encode() + b"\0" + struct.pack("<iB3xii", 1, 0, 1, 1) for c in "BGR") + b"\0"
+    box = struct.pack("<iiii", 0, 0, width - 1, height - 1)
+    header = b"\x76\x2f\x31\x01" + struct.pack("<i", 2)
+    header += attribute("channels", "chlist", channels)
+    header += attribute("compression", "compression", b"\x03")
+    header += attribute("dataWindow", "box2i", box)
+    header += attribute("displayWindow", "box2i", box)
+    header += attribute("lineOrder", "lineOrder", b"\x00")
+    header += attribute("pixelAspectRatio", "float", struct.pack("<f", 1.0))
+    header += attribute("screenWindowCenter", "v2f", struct.pack("<ff", 0.0, 0.0))
+    header += attribute("screenWindowWidth", "float", struct.pack("<f", 1.0))
+    header += b"\0"
+    chunks = []
+    for first in range(0, height, 16):
+        raw = bytearray()
+        for y in range(first, min(first + 16, height)):
+            for c in (2, 1, 0):  # channels in name order: B, G, R
+                raw += struct.pack("<%de" % width, *(p[c] for p in rows[y]))
+        half = (len(raw) + 1) // 2
+        split = bytearray(len(raw))
+        split[:half] = raw[0::2]
+        split[half:] = raw[1::2]
+        coded = bytearray(split)
+        for i in range(1, len(split)):
+            coded[i] = (split[i] - split[i - 1] + 128 + 256) & 0xFF
+        packed = zlib.compress(bytes(coded), 9)
+        data = packed if len(packed) < len(raw) else bytes(raw)
+        chunks.append(struct.pack("<ii", first, len(data)) + data)
+    offset = len(header) + 8 * len(chunks)
+    table = b""
+    for chunk in chunks:
+        table += struct.pack("<Q", offset)
+        offset += len(chunk)
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    with open(path, "wb") as out:
+        out.write(header + table + b"".join(chunks))
+
+
+def window_room_boxes(params):
+    """(name, material, (x0, x1), (y0, y1), (z0, z1)) of every box of the room."""
+    t = params["wall"]
+    z0, z1, y0, y1 = params["opening"]
+    g = 0.5 * params["gap"]
+    return [
+        ("floor", "floor", (-3 - t, 3 + t), (-t, 0), (-2 - t, 2 + t)),
+        ("ceiling", "ceiling", (-3 - t, 3 + t), (3, 3 + t), (-2 - t, 2 + t)),
+        ("wall-east", "wall", (3, 3 + t), (0, 3), (-2, 2)),
+        ("wall-north", "wall", (-3, 3), (0, 3), (-2 - t, -2)),
+        ("wall-south", "wall", (-3, 3), (0, 3), (2, 2 + t)),
+        # The window wall x = -3 around its opening.
+        ("wall-west-sill", "wall", (-3 - t, -3), (0, y0), (-2, 2)),
+        ("wall-west-lintel", "wall", (-3 - t, -3), (y1, 3), (-2, 2)),
+        ("wall-west-left", "wall", (-3 - t, -3), (y0, y1), (-2, z0)),
+        ("wall-west-right", "wall", (-3 - t, -3), (y0, y1), (z1, 2)),
+        # Curtains: opaque panels against the wall (no slot behind them for light to leak through around
+        # their edges), wider and taller than the opening, leaving the gap.
+        ("curtain-left", "curtain", (-3.0, -2.96), (y0 - 0.1, y1 + 0.2), (z0 - 0.1, -g)),
+        ("curtain-right", "curtain", (-3.0, -2.96), (y0 - 0.1, y1 + 0.2), (g, z1 + 0.1)),
+        # Furniture: a table, a low chest at the far end of the sunlit streak, a cupboard and a sofa block.
+        ("table", "wood", (-0.6, 0.6), (0, 0.75), (-1.5, -0.7)),
+        ("chest", "fabric", (0.3, 1.0), (0, 0.45), (0.7, 1.4)),
+        ("cupboard", "wood", (-2.2, -1.0), (0, 1.8), (1.55, 2.0)),
+        ("sofa", "fabric", (2.1, 2.9), (0, 0.8), (-0.4, 1.6)),
+    ]
+
+
+WINDOW_ROOM_MATERIALS = [
+    ("wall", (0.7, 0.68, 0.62)),
+    ("floor", (0.45, 0.33, 0.22)),
+    ("ceiling", (0.8, 0.8, 0.8)),
+    ("curtain", (0.55, 0.2, 0.15)),
+    ("wood", (0.35, 0.25, 0.15)),
+    ("fabric", (0.25, 0.35, 0.5)),
+]
+
+
+def window_room_xml(params, command, sky_file, sun_integral, total):
+    z0, z1, y0, y1 = params["opening"]
+    sun = window_room_sun_direction(params)
+    width, height = params["sky_size"]
+    zenith = sky_radiance((0.0, 1.0, 0.0), sun, params)
+    solid = 2.0 * math.pi * (1.0 - math.cos(math.radians(params["sun_radius"])))
+    sun_power = sun_integral * sum(params["sun_radiance"]) / 3.0
+    lines = [
+        '<?xml version="1.0" encoding="utf-8"?>',
+        "<!--",
+        "    Written by: %s" % command,
+        "    Window room: a closed 6 x 3 x 4 room (inside x in [-3, 3], y in [0, 3], z in [-2, 2])",
+        "    lit only through a %.2f m wide vertical gap between two curtains behind a thin glass" % params["gap"],
+        "    pane in the window opening (z in [%g, %g], y in [%g, %g] of the wall x = -3), by a" % (z0, z1, y0, y1),
+        "    generated %d x %d sky (%s) with a sun of angular radius %g degrees" % (width, height, sky_file, params["sun_radius"]),
+        "    (solid angle %.3g sr; radiance %g, %.0f x the zenith sky's luminance; %.0f %% of the" % (
+            solid, params["sun_radiance"][1], luminance3(params["sun_radiance"]) / luminance3(zenith),
+            100.0 * sun_power / (sum(total) / 3.0)),
+        "    map's radiant integral) at %g degrees elevation, %g degrees azimuth from the window's" % (
+            params["sun_elevation"], params["sun_azimuth"]),
+        "    normal. Sunlight through the gap lands as a streak on the floor; the camera sees the",
+        "    streak, the curtains and the room, lit mostly indirectly. After the living room and",
+        "    classroom of Vorba et al. 2014. Every surface but the pane is diffuse; every solid is",
+        "    a closed box, so no light leaks through edges.",
+        "-->",
+        '<scene version="3.0.0">',
+        '    <default name="spp" value="64"/>',
+        '    <default name="width" value="64"/>',
+        '    <default name="height" value="48"/>',
+        '    <default name="max_depth" value="16"/>',
+        "",
+        '    <integrator type="path">',
+        '        <integer name="max_depth" value="$max_depth"/>',
+        "    </integrator>",
+        "",
+        '    <sensor type="perspective">',
+        '        <string name="fov_axis" value="x"/>',
+        '        <float name="fov" value="75"/>',
+        '        <transform name="to_world">',
+        '            <lookat origin="2.75, 1.6, -1.85" target="-1.2, 0.5, 0.6" up="0, 1, 0"/>',
+        "        </transform>",
+        '        <sampler type="independent">',
+        '            <integer name="sample_count" value="$spp"/>',
+        "        </sampler>",
+        '        <film type="hdrfilm">',
+        '            <integer name="width" value="$width"/>',
+        '            <integer name="height" value="$height"/>',
+        '            <rfilter type="box"/>',
+        "        </film>",
+        "    </sensor>",
+        "",
+    ]
+    for name, rgb in WINDOW_ROOM_MATERIALS:
+        lines += ['    <bsdf type="diffuse" id="mat-%s">' % name,
+                  '        <rgb name="reflectance" value="%s, %s, %s"/>' % tuple(fmt(v) for v in rgb),
+                  "    </bsdf>"]
+    lines += ['    <bsdf type="thindielectric" id="mat-glass">',
+              '        <float name="int_ior" value="1.5"/>',
+              '        <float name="ext_ior" value="1"/>',
+              "    </bsdf>", ""]
+    for name, material, (xa, xb), (ya, yb), (za, zb) in window_room_boxes(params):
+        lines += ['    <shape type="cube" id="%s">' % name,
+                  '        <transform name="to_world">',
+                  '            <scale x="%s" y="%s" z="%s"/>' % tuple(fmt(0.5 * (b - a)) for a, b in ((xa, xb), (ya, yb), (za, zb))),
+                  '            <translate x="%s" y="%s" z="%s"/>' % tuple(fmt(0.5 * (a + b)) for a, b in ((xa, xb), (ya, yb), (za, zb))),
+                  "        </transform>",
+                  '        <ref id="mat-%s"/>' % material,
+                  "    </shape>"]
+    # The pane: a rectangle (Mitsuba's [-1, 1]^2 in z = 0) turned to face x, in the middle of the wall.
+    lines += ['    <shape type="rectangle" id="glass">',
+              '        <transform name="to_world">',
+              '            <scale x="%s" y="%s"/>' % (fmt(0.5 * (z1 - z0)), fmt(0.5 * (y1 - y0))),
+              '            <rotate y="1" angle="90"/>',
+              '            <translate x="%s" y="%s" z="%s"/>' % (fmt(-3 - 0.5 * params["wall"]), fmt(0.5 * (y0 + y1)), fmt(0.5 * (z0 + z1))),
+              "        </transform>",
+              '        <ref id="mat-glass"/>',
+              "    </shape>", "",
+              '    <emitter type="envmap">',
+              '        <string name="filename" value="%s"/>' % sky_file,
+              "    </emitter>",
+              "</scene>"]
+    return "\n".join(lines) + "\n"
+
+
+def luminance3(rgb):
+    return 0.2126 * rgb[0] + 0.7152 * rgb[1] + 0.0722 * rgb[2]
+
+
+WINDOW_ROOM_XML = "data/window-room/window-room.xml"
+WINDOW_ROOM_SKY = "data/window-room/sky.exr"
+
+
+def write_window_room(xml_path, sky_path, names):
+    params = WINDOW_ROOM
+    rows, sun_integral, total = make_sky(params)
+    write_exr(rows, sky_path)
+    command = "tools/make_geometry.py window-room %s %s" % names
+    text = window_room_xml(params, command, os.path.relpath(sky_path, os.path.dirname(os.path.abspath(xml_path))),
+                           sun_integral, total)
+    with open(xml_path, "w", newline="\n") as out:
+        out.write(text)
+    print("%s, %s: %d bytes, %d bytes" % (os.path.relpath(xml_path), os.path.relpath(sky_path),
+                                          os.path.getsize(xml_path), os.path.getsize(sky_path)))
+
+
 def build(kind, params):
     if kind == "wave":
         return make_wave(params["size"], params["grid"], params["height"], params["waves"])
@@ -434,6 +714,9 @@ def main(argv):
     teapot.add_argument("body")
     teapot.add_argument("lid")
     teapot.add_argument("--steps", type=int, default=12, help="grid steps per patch side")
+    room = sub.add_parser("window-room", help="the window room's Mitsuba XML and its generated sky (EXR)")
+    room.add_argument("xml")
+    room.add_argument("sky")
     everything = sub.add_parser("all", help="regenerate every mesh used by the scenes in data/")
     everything.add_argument("--root", default=REPO, help="write below this directory instead of the repository")
     args = parser.parse_args(argv)
@@ -443,6 +726,11 @@ def main(argv):
             write_obj(build(kind, params), os.path.join(args.root, out), [describe(kind, out, params)])
         write_teapot(os.path.join(args.root, TEAPOT_BODY), os.path.join(args.root, TEAPOT_LID), 12,
                      (TEAPOT_BODY, TEAPOT_LID))
+        write_window_room(os.path.join(args.root, WINDOW_ROOM_XML), os.path.join(args.root, WINDOW_ROOM_SKY),
+                          (WINDOW_ROOM_XML, WINDOW_ROOM_SKY))
+        return
+    if args.command == "window-room":
+        write_window_room(args.xml, args.sky, (args.xml, args.sky))
         return
     if args.command == "teapot":
         if args.steps < 1:

@@ -55,10 +55,12 @@ done
 declare -A spp=(
   [cornell-box]=8192
   [conference]=16384
+  [window-room]=16384
 )
 declare -A exposure=(
   [cornell-box]=0
   [conference]=2
+  [window-room]=2.5
 )
 # Scenes whose reference is rendered by bdpt (tools/render_bdpt_references.sh,
 # which these scenes are handed to), with its sample count.
@@ -101,7 +103,7 @@ if ((photon_references)); then
 fi
 
 if ((${#scenes[@]} == 0)); then
-  scenes=(cornell-box volumetric-caustic gold-ring water-wave metal-ring spot-fog conference)
+  scenes=(cornell-box volumetric-caustic gold-ring water-wave metal-ring spot-fog conference window-room)
 fi
 
 for scene in "${scenes[@]}"; do
