@@ -34,7 +34,8 @@ times). BODY gets rim, body, handle, spout and bottom, LID the lid.
 The window room is a whole Mitsuba 3 scene (closed boxes, a thin glass pane,
 a sky environment map) rather than a mesh; its sky is a half-float OpenEXR
 file written by a small standard-library writer (ZIP compression through
-zlib), since Debian's Python has no EXR module.
+zlib), so that regenerating it needs no Python imaging package beyond the
+project's dependencies (Debian's python3-openimageio would do, but is not one).
 """
 
 import argparse
