@@ -44,8 +44,8 @@ a convex edge; from the meshes of fragments/shapes.xml) in units of the mean spl
 error of each band in % of its own light and its share of the whole image's error; with --photon-depth K the
 photon paths end at K scattering events and the reference is pt with max_depth = K less one-bounce pt;
 with --scaling RS's and PM's T_S at 1, 2 and 4 times the photons; with --bandwidth-spread (nothing else is
-rendered; printed only) the spread of PM's and RS's bandwidths beyond their means and Fig. 10's classes of
-the indirect light alone. Every row
+rendered; printed only; numpy) the spread of PM's and RS's bandwidths beyond their means, the samples a
+vertex's estimate effectively averages, and Fig. 10's classes of the indirect light alone. Every row
 also gets the shares of its pixels in Fig. 10's classes of relative error
 against the reference (|image - reference| / reference of the channel mean:
 below 5 %, below 15 %, 30 % and above).
@@ -257,6 +257,41 @@ def quantile(values, q):
     return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
 
 
+def effective_samples(eye_file, photon_file, rays_file, ppm, sample=1000, k=100):
+    """Per eye vertex (`sample` of them, drawn as mean_gather_radius draws), how many samples its estimate
+    effectively averages, (sum w)^2 / sum w^2 of the kernel weights: PM's k nearest photons under Silverman's
+    kernel (1 - d^2/r^2)^2 at the k-th distance r; RS's indirect rays whose hit lies within R(t_hit) of the
+    vertex, weighed (1 - d^2/R^2) / R^2 (the Epanechnikov kernel of a sphere around the hit, not the frustum's;
+    powers and BRDFs left out). Also the kernel-weighted mean R of those rays: the radius a vertex sees."""
+    import numpy as np
+    eye = buffer_columns(eye_file)
+    vertices = np.frombuffer(eye["vertices.position"], dtype="<f4").reshape(-1, 3).astype(np.float64)
+    photons = np.frombuffer(buffer_columns(photon_file)["photons.position"], dtype="<f4").reshape(-1, 3).astype(np.float64)
+    rays = buffer_columns(rays_file)
+    column = lambda name: np.frombuffer(rays[f"rays.{name}"], dtype="<f4")  # noqa: E731
+    origin, direction = column("origin").reshape(-1, 3), column("direction").reshape(-1, 3)
+    length, h0, dh = column("length"), column("h0"), column("dh")
+    hit = (np.frombuffer(rays["rays.class"], dtype="u1") != 0) & np.any(column("end_normal").reshape(-1, 3) != 0, axis=1)
+    hits = (origin[hit] + length[hit, None] * direction[hit]).astype(np.float64)
+    radius = (h0[hit] + dh[hit] * length[hit]).astype(np.float64)
+    chosen = random.Random(7).sample(range(len(vertices)), min(sample, len(vertices)))
+    pm, rs, seen = [], [], []
+    for v in vertices[chosen]:
+        d2 = np.sort(np.partition(((photons - v) ** 2).sum(axis=1), k - 1)[:k])
+        w = (1.0 - d2[:-1] / d2[-1]) ** 2
+        pm.append(w.sum() ** 2 / (w ** 2).sum())
+        d2 = ((hits - v) ** 2).sum(axis=1)
+        inside = d2 < radius ** 2
+        if inside.any():
+            r = radius[inside]
+            w = (1.0 - d2[inside] / r ** 2) / r ** 2
+            rs.append(w.sum() ** 2 / (w ** 2).sum())
+            seen.append((w * r).sum() / w.sum())
+    print(f"Effective samples per eye vertex ({len(chosen)} vertices; medians): PM {np.median(pm):.1f},"
+          f" RS {np.median(rs):.1f} ({len(rs)} vertices with rays); the kernel-weighted mean R of the rays at a"
+          f" vertex, averaged over the vertices: {np.mean(seen) * ppm:.0f} ppm.\n")
+
+
 def bandwidth_spread(args, reference, scratch, spm_job):
     """How PM's and RS's bandwidths are spread, not only their means (§9 matches C by the mean): PM's k-nearest
     radius over the 3000 eye vertices of mean_gather_radius, RS's R(t_hit) over the indirect rays that meet a
@@ -300,6 +335,7 @@ def bandwidth_spread(args, reference, scratch, spm_job):
     print(f"\nC matching PM's (from C = {base:g}): mean {base * (sum(pm) / len(pm)) / (sum(rs) / len(rs)):.3f},"
           f" geometric mean {base * geometric[0] / geometric[1]:.3f}, median"
           f" {base * quantile(pm, 0.5) / quantile(rs, 0.5):.3f}\n")
+    effective_samples(f"{pm_dir}/eye.fgbuf", f"{pm_dir}/global.fgbuf", f"{rs_dir}/rays.fgbuf", ppm)
     from pathlib import Path
     target = indirect_reference(args.binary, Path(scratch), reference, args.direct_spp)
     for label, job, extra in (("PM (spm, k = 100)", spm_job, []), (f"RS (prs, {c})", os.path.join(SCENE_DIR, "prs.toml"), rs_set)):
