@@ -262,10 +262,13 @@ def effective_samples(eye_file, photon_file, rays_file, ppm, sample=1000, k=100)
     effectively averages, (sum w)^2 / sum w^2 of the kernel weights: PM's k nearest photons under Silverman's
     kernel (1 - d^2/r^2)^2 at the k-th distance r; RS's indirect rays whose hit lies within R(t_hit) of the
     vertex, weighed (1 - d^2/R^2) / R^2 (the Epanechnikov kernel of a sphere around the hit, not the frustum's;
-    powers and BRDFs left out). Also the kernel-weighted mean R of those rays: the radius a vertex sees."""
+    powers and BRDFs left out). Also the kernel-weighted mean R of those rays (the radius a vertex sees), and RS's
+    mean taken as PM's is: the mean R(t_hit) of the vertex's k nearest hits, averaged over the vertices and over
+    the pixels they lie in (each pixel's vertices averaged first), beside PM's k-nearest radius averaged alike."""
     import numpy as np
     eye = buffer_columns(eye_file)
     vertices = np.frombuffer(eye["vertices.position"], dtype="<f4").reshape(-1, 3).astype(np.float64)
+    pixel = np.frombuffer(eye["vertices.pixel"], dtype="<u4")
     photons = np.frombuffer(buffer_columns(photon_file)["photons.position"], dtype="<f4").reshape(-1, 3).astype(np.float64)
     rays = buffer_columns(rays_file)
     column = lambda name: np.frombuffer(rays[f"rays.{name}"], dtype="<f4")  # noqa: E731
@@ -275,12 +278,14 @@ def effective_samples(eye_file, photon_file, rays_file, ppm, sample=1000, k=100)
     hits = (origin[hit] + length[hit, None] * direction[hit]).astype(np.float64)
     radius = (h0[hit] + dh[hit] * length[hit]).astype(np.float64)
     chosen = random.Random(7).sample(range(len(vertices)), min(sample, len(vertices)))
-    pm, rs, seen = [], [], []
+    pm, rs, seen, pm_radius, rs_nearest = [], [], [], [], []
     for v in vertices[chosen]:
         d2 = np.sort(np.partition(((photons - v) ** 2).sum(axis=1), k - 1)[:k])
         w = (1.0 - d2[:-1] / d2[-1]) ** 2
         pm.append(w.sum() ** 2 / (w ** 2).sum())
+        pm_radius.append(np.sqrt(d2[-1]))
         d2 = ((hits - v) ** 2).sum(axis=1)
+        rs_nearest.append(radius[np.argpartition(d2, k - 1)[:k]].mean())
         inside = d2 < radius ** 2
         if inside.any():
             r = radius[inside]
@@ -289,7 +294,18 @@ def effective_samples(eye_file, photon_file, rays_file, ppm, sample=1000, k=100)
             seen.append((w * r).sum() / w.sum())
     print(f"Effective samples per eye vertex ({len(chosen)} vertices; medians): PM {np.median(pm):.1f},"
           f" RS {np.median(rs):.1f} ({len(rs)} vertices with rays); the kernel-weighted mean R of the rays at a"
-          f" vertex, averaged over the vertices: {np.mean(seen) * ppm:.0f} ppm.\n")
+          f" vertex, averaged over the vertices: {np.mean(seen) * ppm:.0f} ppm.")
+
+    def over_pixels(values):
+        by_pixel = {}
+        for p, value in zip(pixel[chosen], values):
+            by_pixel.setdefault(int(p), []).append(value)
+        return np.mean([np.mean(v) for v in by_pixel.values()]), len(by_pixel)
+
+    (pm_pixels, count), (rs_pixels, _) = over_pixels(pm_radius), over_pixels(rs_nearest)
+    print(f"Mean bandwidth over the same vertices: PM's k-nearest radius {np.mean(pm_radius) * ppm:.0f} ppm, RS's"
+          f" mean R(t_hit) of the {k} nearest hits {np.mean(rs_nearest) * ppm:.0f}; over the {count} pixels they lie"
+          f" in: PM {pm_pixels * ppm:.0f}, RS {rs_pixels * ppm:.0f}.\n")
 
 
 def bandwidth_spread(args, reference, scratch, spm_job):
