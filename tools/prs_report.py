@@ -43,7 +43,9 @@ vertex's distance to another surface that rises in front of its own, a concave e
 a convex edge; from the meshes of fragments/shapes.xml) in units of the mean splat radius at the hits: the
 error of each band in % of its own light and its share of the whole image's error; with --photon-depth K the
 photon paths end at K scattering events and the reference is pt with max_depth = K less one-bounce pt;
-with --scaling RS's and PM's T_S at 1, 2 and 4 times the photons. Every row
+with --scaling RS's and PM's T_S at 1, 2 and 4 times the photons; with --bandwidth-spread (nothing else is
+rendered; printed only; numpy) the spread of PM's and RS's bandwidths beyond their means, the samples a
+vertex's estimate effectively averages, and Fig. 10's classes of the indirect light alone. Every row
 also gets the shares of its pixels in Fig. 10's classes of relative error
 against the reference (|image - reference| / reference of the channel mean:
 below 5 %, below 15 %, 30 % and above).
@@ -59,7 +61,7 @@ map (ray_splat's outputs), from --stats, and the process's peak RSS.
     python3 tools/prs_report.py [--threads 1] [--photons 200000] [--out results/prs]
                                 [--seeds 11 12 13 14 [--indirect [--direct-spp 1024] [--photon-depth K]] [--fixed-eye]
                                  [--corners-only] [--edge-split]]
-                                [--scaling] [--footprint] [--memory]
+                                [--scaling] [--footprint] [--memory] [--bandwidth-spread]
                                 [--repeats 3] [--set-pm KEY=VALUE ...] [--set-rs KEY=VALUE ...]
 """
 import argparse
@@ -189,9 +191,10 @@ def points(raw):
     return [struct.unpack_from("<3f", raw, 12 * i) for i in range(len(raw) // 12)]
 
 
-def mean_gather_radius(eye_file, photon_file, k, sample=3000, among=None):
+def mean_gather_radius(eye_file, photon_file, k, sample=3000, among=None, radii_out=None):
     """Mean distance from an eye vertex to its k-th nearest global photon, over `sample` vertices (of `among`,
-    if given), and the diagonal of the box around vertices and photons."""
+    if given), and the diagonal of the box around vertices and photons; the radii themselves are appended to
+    `radii_out` if given."""
     photons = points(buffer_columns(photon_file)["photons.position"])
     vertices = points(buffer_columns(eye_file)["vertices.position"])
     lo = [min(p[a] for p in photons + vertices) for a in range(3)]
@@ -216,6 +219,8 @@ def mean_gather_radius(eye_file, photon_file, k, sample=3000, among=None):
                     break
             ring += 1
         radii.append(r)
+    if radii_out is not None:
+        radii_out.extend(radii)
     return sum(radii) / len(radii), diagonal
 
 
@@ -245,6 +250,118 @@ def crop_bandwidths(eye_file, photon_file, rays_file, k, sample=300):
 
 
 EDGE_BANDS = ((0.0, 1.0), (1.0, 2.0), (2.0, 4.0))
+
+
+def quantile(values, q):
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
+
+
+def effective_samples(eye_file, photon_file, rays_file, ppm, sample=1000, k=100):
+    """Per eye vertex (`sample` of them, drawn as mean_gather_radius draws), how many samples its estimate
+    effectively averages, (sum w)^2 / sum w^2 of the kernel weights: PM's k nearest photons under Silverman's
+    kernel (1 - d^2/r^2)^2 at the k-th distance r; RS's indirect rays whose hit lies within R(t_hit) of the
+    vertex, weighed (1 - d^2/R^2) / R^2 (the Epanechnikov kernel of a sphere around the hit, not the frustum's;
+    powers and BRDFs left out). Also the kernel-weighted mean R of those rays (the radius a vertex sees), and RS's
+    mean taken as PM's is: the mean R(t_hit) of the vertex's k nearest hits, averaged over the vertices and over
+    the pixels they lie in (each pixel's vertices averaged first), beside PM's k-nearest radius averaged alike."""
+    import numpy as np
+    eye = buffer_columns(eye_file)
+    vertices = np.frombuffer(eye["vertices.position"], dtype="<f4").reshape(-1, 3).astype(np.float64)
+    pixel = np.frombuffer(eye["vertices.pixel"], dtype="<u4")
+    photons = np.frombuffer(buffer_columns(photon_file)["photons.position"], dtype="<f4").reshape(-1, 3).astype(np.float64)
+    rays = buffer_columns(rays_file)
+    column = lambda name: np.frombuffer(rays[f"rays.{name}"], dtype="<f4")  # noqa: E731
+    origin, direction = column("origin").reshape(-1, 3), column("direction").reshape(-1, 3)
+    length, h0, dh = column("length"), column("h0"), column("dh")
+    hit = (np.frombuffer(rays["rays.class"], dtype="u1") != 0) & np.any(column("end_normal").reshape(-1, 3) != 0, axis=1)
+    hits = (origin[hit] + length[hit, None] * direction[hit]).astype(np.float64)
+    radius = (h0[hit] + dh[hit] * length[hit]).astype(np.float64)
+    chosen = random.Random(7).sample(range(len(vertices)), min(sample, len(vertices)))
+    pm, rs, seen, pm_radius, rs_nearest = [], [], [], [], []
+    for v in vertices[chosen]:
+        d2 = np.sort(np.partition(((photons - v) ** 2).sum(axis=1), k - 1)[:k])
+        w = (1.0 - d2[:-1] / d2[-1]) ** 2
+        pm.append(w.sum() ** 2 / (w ** 2).sum())
+        pm_radius.append(np.sqrt(d2[-1]))
+        d2 = ((hits - v) ** 2).sum(axis=1)
+        rs_nearest.append(radius[np.argpartition(d2, k - 1)[:k]].mean())
+        inside = d2 < radius ** 2
+        if inside.any():
+            r = radius[inside]
+            w = (1.0 - d2[inside] / r ** 2) / r ** 2
+            rs.append(w.sum() ** 2 / (w ** 2).sum())
+            seen.append((w * r).sum() / w.sum())
+    print(f"Effective samples per eye vertex ({len(chosen)} vertices; medians): PM {np.median(pm):.1f},"
+          f" RS {np.median(rs):.1f} ({len(rs)} vertices with rays); the kernel-weighted mean R of the rays at a"
+          f" vertex, averaged over the vertices: {np.mean(seen) * ppm:.0f} ppm.")
+
+    def over_pixels(values):
+        by_pixel = {}
+        for p, value in zip(pixel[chosen], values):
+            by_pixel.setdefault(int(p), []).append(value)
+        return np.mean([np.mean(v) for v in by_pixel.values()]), len(by_pixel)
+
+    (pm_pixels, count), (rs_pixels, _) = over_pixels(pm_radius), over_pixels(rs_nearest)
+    print(f"Mean bandwidth over the same vertices: PM's k-nearest radius {np.mean(pm_radius) * ppm:.0f} ppm, RS's"
+          f" mean R(t_hit) of the {k} nearest hits {np.mean(rs_nearest) * ppm:.0f}; over the {count} pixels they lie"
+          f" in: PM {pm_pixels * ppm:.0f}, RS {rs_pixels * ppm:.0f}.\n")
+
+
+def bandwidth_spread(args, reference, scratch, spm_job):
+    """How PM's and RS's bandwidths are spread, not only their means (§9 matches C by the mean): PM's k-nearest
+    radius over the 3000 eye vertices of mean_gather_radius, RS's R(t_hit) over the indirect rays that meet a
+    surface (ray_splat's mean_hit_radius_ppm is their mean), in millionths of the same diagonal; the share of
+    those rays at the clamps R h and h / R of Eq. 8; and the C that would match PM's mean, geometric mean and
+    median (every R is proportional to C). Then Fig. 10's classes on the indirect light alone (the figure's
+    quantity; eye pass direct_light = false against the reference less one-bounce pt), the job's eye samples."""
+
+    pm_dir, rs_dir = os.path.join(scratch, "spread-pm"), os.path.join(scratch, "spread-rs")
+    os.makedirs(pm_dir)
+    os.makedirs(rs_dir)
+    rs_set = [a for setting in args.set_rs for a in ("--set", setting)]
+    render(args.binary, spm_job, pm_dir, args.threads, args.photons,
+           ["--save", f"eye_vertices={pm_dir}/eye.fgbuf", "--save", f"global_photons={pm_dir}/global.fgbuf"])
+    _, counters, _ = render(args.binary, os.path.join(SCENE_DIR, "prs.toml"), rs_dir, args.threads, args.photons,
+                            ["--save", f"splat_rays={rs_dir}/rays.fgbuf"] + rs_set)
+    pm = []
+    _, diagonal = mean_gather_radius(f"{pm_dir}/eye.fgbuf", f"{pm_dir}/global.fgbuf", 100, radii_out=pm)
+    rays = buffer_columns(f"{rs_dir}/rays.fgbuf")
+    n = len(rays["rays.length"]) // 4
+    length, h0, dh = (struct.unpack(f"<{n}f", rays[f"rays.{c}"]) for c in ("length", "h0", "dh"))
+    end_normal = points(rays["rays.end_normal"])
+    rs = [h0[i] + dh[i] * length[i] for i in range(n)
+          if rays["rays.class"][i] != 0 and end_normal[i] != (0.0, 0.0, 0.0)]
+    ppm = 1e6 / diagonal
+    lo, hi = min(rs), max(rs)
+    smoothness = next((float(a.split("=")[1]) for a in args.set_rs if a.startswith("passes.ray_bandwidth.smoothness=")),
+                      None)
+    c = f"C = {smoothness:g}" if smoothness else "the job's C"
+    geometric = [math.exp(sum(math.log(r) for r in v) / len(v)) for v in (pm, rs)]
+    print(f"Bandwidths in ppm of the diagonal (RS: {c}, {len(rs)} indirect rays that meet a surface; PM: k = 100,"
+          f" {len(pm)} eye vertices): {100 * sum(r <= lo * 1.0001 for r in rs) / len(rs):.1f} % of RS's rays at the"
+          f" lower clamp ({lo * ppm:.0f}), {100 * sum(r >= hi * 0.9999 for r in rs) / len(rs):.1f} % at the upper"
+          f" ({hi * ppm:.0f}); R_hit of the mean_hit_radius_ppm counter {counters['mean_hit_radius_ppm']}.\n")
+    print("| | mean | geometric mean | 10 % | 25 % | median | 75 % | 90 % |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|")
+    for label, v, g in (("PM, k-nearest radius", pm, geometric[0]), ("RS, R(t_hit)", rs, geometric[1])):
+        print(f"| {label} | {sum(v) / len(v) * ppm:.0f} | {g * ppm:.0f} | "
+              + " | ".join(f"{quantile(v, q) * ppm:.0f}" for q in (0.1, 0.25, 0.5, 0.75, 0.9)) + " |")
+    base = smoothness or 0.29
+    print(f"\nC matching PM's (from C = {base:g}): mean {base * (sum(pm) / len(pm)) / (sum(rs) / len(rs)):.3f},"
+          f" geometric mean {base * geometric[0] / geometric[1]:.3f}, median"
+          f" {base * quantile(pm, 0.5) / quantile(rs, 0.5):.3f}\n")
+    effective_samples(f"{pm_dir}/eye.fgbuf", f"{pm_dir}/global.fgbuf", f"{rs_dir}/rays.fgbuf", ppm)
+    from pathlib import Path
+    target = indirect_reference(args.binary, Path(scratch), reference, args.direct_spp)
+    for label, job, extra in (("PM (spm, k = 100)", spm_job, []), (f"RS (prs, {c})", os.path.join(SCENE_DIR, "prs.toml"), rs_set)):
+        out_dir = os.path.join(scratch, "spread-indirect-" + label[:2])
+        os.makedirs(out_dir)
+        _, _, image = render(args.binary, job, out_dir, args.threads, args.photons,
+                             ["--set", "passes.eye.direct_light=false"] + extra)
+        classes = error_classes(read_exr_rgb(image), target)
+        print(f"{label}, indirect light: < 5 % {100 * classes[0]:.1f} %, < 15 % {100 * classes[1]:.1f} %,"
+              f" ≥ 30 % {100 * classes[2]:.1f} %")
 
 
 def scene_triangles():
@@ -372,6 +489,8 @@ def main():
                         help="with --seeds: the error split by the eye vertices' distance to the box's edges")
     parser.add_argument("--crop-bandwidth", action="store_true",
                         help="PM's and RS's mean bandwidth in the corner crops (from the saved buffers)")
+    parser.add_argument("--bandwidth-spread", action="store_true",
+                        help="PM's and RS's bandwidths spread, and Fig. 10's classes of the indirect light (prints only)")
     parser.add_argument("--scaling", action="store_true", help="PM's and RS's T_S at 1, 2 and 4 times the photons")
     parser.add_argument("--footprint", action="store_true", help="RS's T_S with the frustum against the sphere")
     parser.add_argument("--memory", action="store_true", help="memory of RS at 500 x 500 with 500k photons")
@@ -395,6 +514,9 @@ def main():
         spm_job = os.path.join(scratch, "spm.toml")
         with open(spm_job, "w") as f:
             f.write(SPM_JOB.format(scene=os.path.join(SCENE_DIR, "cornell-box.xml")))
+        if args.bandwidth_spread:
+            bandwidth_spread(args, reference, scratch, spm_job)
+            return
         methods = [
             ("PM (spm, " + (", ".join(args.set_pm) or "k = 100") + ")", spm_job),
             ("RS (prs, " + (", ".join(args.set_rs) or "C = 0.29, S = 0.4") + ")", os.path.join(SCENE_DIR, "prs.toml")),

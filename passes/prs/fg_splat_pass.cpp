@@ -18,7 +18,9 @@
 // Algorithm 1's order (§7.2); its vertex_candidates are the hits weighed.
 // `origin_boundary = "renormalise"` corrects the kernel beside the surface a
 // ray leaves as ray_splat's does (SplatFrustum::originBoundaryGain), and
-// `slices = "hit_plane"` reads the growing radius as ray_splat's does.
+// `slices = "hit_plane"` reads the growing radius as ray_splat's does; both
+// are the defaults, as ray_splat's (`"cut"` and `"perpendicular"` give the
+// paper's estimate).
 //
 // Rays are splatted in fixed blocks into per-block tile films merged in block
 // order, so the image is the same for any thread count.
@@ -314,12 +316,12 @@ PassRegistration finalGatherSplatPass() {
         {"end_cap", ParamType::String, std::string("tangent_plane"), 0, 0, {"tangent_plane", "hemisphere"},
          "footprint beyond the hit point, as ray_splat's"},
         {"cull_nodes", ParamType::Bool, true, 0, 0, {}, "use the kd-trees' backface-culling nodes"},
-        {"origin_boundary", ParamType::String, std::string("cut"), 0, 0, {"cut", "renormalise"},
-         "the kernel where its disk reaches behind the surface the ray leaves: cut there, as the paper, or "
-         "renormalised over the part in front of it (ray_splat's parameter of the same name)"},
-        {"slices", ParamType::String, std::string("perpendicular"), 0, 0, {"perpendicular", "hit_plane"},
-         "where the growing radius is read at a vertex: at its foot on the ray (the paper) or where the plane "
-         "through it parallel to the hit's tangent plane crosses the ray (ray_splat's parameter of the same name)"},
+        {"origin_boundary", ParamType::String, std::string("renormalise"), 0, 0, {"cut", "renormalise"},
+         "the kernel where its disk reaches behind the surface the ray leaves: renormalised over the part in front "
+         "of it, or cut there, as the paper (ray_splat's parameter of the same name)"},
+        {"slices", ParamType::String, std::string("hit_plane"), 0, 0, {"perpendicular", "hit_plane"},
+         "where the growing radius is read at a vertex: where the plane through it parallel to the hit's tangent "
+         "plane crosses the ray, or at its foot on the ray (the paper) (ray_splat's parameter of the same name)"},
         {"traversal", ParamType::String, std::string("tight_boxes"), 0, 0, {"tight_boxes", "cells"},
          "kd search: nodes by their vertices' tight boxes and leaf vertices weighed from columns, or Algorithm 1's "
          "cell clipping (same deposits in the same order)"},

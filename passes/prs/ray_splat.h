@@ -134,7 +134,8 @@ struct SplatFrustum {
           hitRadius(ray.h0 + ray.dh * ray.length), reach(splatReach(ray, endCap)),
           tolerance(endPlaneTolerance(ray, ray.h0 + ray.dh * ray.length)),
           inverseHitCosine(1.0f / std::max(-glm::dot(ray.direction, ray.endNormal), 1.0f / 64.0f)),
-          shift(sliceShift(ray)), cap(endCap), hasOriginSurface(ray.originNormal != Vec3(0.0f)),
+          shift(sliceShift(ray)), originReachBound(hitRadius * originSine(ray.direction, ray.originNormal)),
+          cap(endCap), hasOriginSurface(ray.originNormal != Vec3(0.0f)),
           hitPlaneSlices(slicesAlongHitPlane(ray, endCap, slices)) {}
 
     // R at a vertex whose foot on the ray is t_p: R(t_p) (the paper), or
@@ -201,14 +202,23 @@ struct SplatFrustum {
     float originBoundaryGain(const Vec3& x) const {
         if (!hasOriginSurface) return 1.0f;
         const Vec3 offset = x - origin;
+        const float height = glm::dot(offset, originNormal);
+        // Most deposits lie farther from the surface than any disk of the ray
+        // reaches (R <= R(t_hit) everywhere, and float rounding keeps that
+        // order), so they skip the radius at x: the same factor, bit for bit.
+        if (!(height < originReachBound)) return 1.0f;
         const float tp = glm::dot(offset, direction);
         const float radius = radiusAt(x, tp);
-        const float leaving = glm::dot(direction, originNormal);
         // How far the disk reaches towards the surface: R sin of the angle between the ray and the normal.
-        const float reachTowardsSurface = radius * std::sqrt(std::max(0.0f, 1.0f - leaving * leaving));
-        const float height = glm::dot(offset, originNormal);
+        const float reachTowardsSurface = radius * originSine(direction, originNormal);
         if (!(height < reachTowardsSurface) || !(height >= 0.0f)) return 1.0f;
         return 1.0f / (1.0f - epanechnikovMassBeyond(height / reachTowardsSurface));
+    }
+
+    // sin of the angle between the ray and the normal of the surface it leaves.
+    static float originSine(const Vec3& direction, const Vec3& originNormal) {
+        const float leaving = glm::dot(direction, originNormal);
+        return std::sqrt(std::max(0.0f, 1.0f - leaving * leaving));
     }
 
     // Share of the 2D Epanechnikov kernel's mass beyond a line at distance
@@ -240,6 +250,7 @@ struct SplatFrustum {
 
     Vec3 origin, direction, originNormal, endNormal, end;
     float h0, dh, length, hitRadius, reach, tolerance, inverseHitCosine, shift;
+    float originReachBound;  // R(t_hit) sin(ray, origin normal): no disk of the ray reaches farther
     SplatEndCap cap;
     bool hasOriginSurface, hitPlaneSlices;
 };

@@ -35,7 +35,11 @@
 // partly behind that wall, where no ray of it can be. `slices = "hit_plane"`
 // reads the growing radius where the plane through the vertex parallel to
 // the hit's tangent plane crosses the ray (ray_splat.h), so that a ray's
-// deposits on the surface it meets add up to its flux.
+// deposits on the surface it meets add up to its flux. Both corrections are
+// the defaults (on the Cornell box they take the indirect light's mean error
+// from -1.17 % to -0.64 %, README "Concave corners"); `slices =
+// "perpendicular"`, `origin_boundary = "cut"` and `end_cap = "hemisphere"`
+// give the paper's estimator.
 // Rays are splatted in fixed blocks into per-block films merged in block
 // order, so the image is the same for any thread count.
 #include "passes/passes.h"
@@ -455,15 +459,15 @@ PassRegistration raySplatPass() {
         {"footprint", ParamType::String, std::string("frustum"), 0, 0, {"frustum", "sphere"},
          "the ray's conical frustum (§4, §7.2), or a sphere of radius R(t_hit) around its hit with the surface "
          "kernel, as photon splatting (§9's timing comparison; rays that escape splat nothing)"},
-        {"origin_boundary", ParamType::String, std::string("cut"), 0, 0, {"cut", "renormalise"},
+        {"origin_boundary", ParamType::String, std::string("renormalise"), 0, 0, {"cut", "renormalise"},
          "the kernel where its disk reaches behind the surface the ray leaves (a concave corner's adjacent wall): "
-         "cut there, as the paper (that wall's light is underestimated, by half at the corner line), or "
-         "renormalised over the part in front of it"},
-        {"slices", ParamType::String, std::string("perpendicular"), 0, 0, {"perpendicular", "hit_plane"},
-         "where the growing radius R(t) is read at a vertex: at its foot on the ray, the kernel normalised across "
-         "the ray (the paper; a surface met obliquely gets less than the ray's flux), or where the plane through "
-         "the vertex parallel to the hit's tangent plane crosses the ray (every vertex on that plane gets R(t_hit): "
-         "exact on planes)"},
+         "renormalised over the part in front of it, or cut there, as the paper (that wall's light is "
+         "underestimated, by half at the corner line)"},
+        {"slices", ParamType::String, std::string("hit_plane"), 0, 0, {"perpendicular", "hit_plane"},
+         "where the growing radius R(t) is read at a vertex: where the plane through the vertex parallel to the "
+         "hit's tangent plane crosses the ray (every vertex on that plane gets R(t_hit): exact on planes; applies "
+         "with end_cap = tangent_plane), or at its foot on the ray, the kernel normalised across the ray (the "
+         "paper; a surface met obliquely gets less than the ray's flux)"},
         {"classes", ParamType::String, std::string("indirect"), 0, 0, {"indirect", "all"},
          "which rays splat: indirect (caustic and global; the eye pass has the direct light) or all"},
         {"cull_nodes", ParamType::Bool, true, 0, 0, {}, "use the index's backface-culling nodes"},

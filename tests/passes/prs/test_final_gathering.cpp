@@ -53,14 +53,19 @@ std::map<std::string, ParamValue> finalGatherParams(const std::string& pipeline,
 TEST(FinalGathering, SameImageOnOneAndTwoThreads) {
     const Scene scene = loadScene((cornellBoxDir() / "cornell-box.xml").string());
     const FilmSettings film = test::smallFilm(24, 24);
-    for (const std::string pipeline : {"prs-fg", "prs-fg hit_plane", "pm-fg"}) {
-        const bool hitPlane = pipeline == "prs-fg hit_plane";
-        std::map<std::string, ParamValue> params = finalGatherParams(hitPlane ? "prs-fg" : pipeline, 10000, 4);
+    // "prs-fg paper": fg_splat with the paper's slices and cut kernel instead
+    // of the defaults' corrections.
+    for (const std::string pipeline : {"prs-fg", "prs-fg paper", "pm-fg"}) {
+        const bool paper = pipeline == "prs-fg paper";
+        std::map<std::string, ParamValue> params = finalGatherParams(paper ? "prs-fg" : pipeline, 10000, 4);
         // Three tiles per side on a 24-pixel film: tiles of 8 pixels, several per thread.
         params[pipeline == "pm-fg" ? "final_gather.tiles" : "fg_splat.tiles"] = std::int64_t{3};
         if (pipeline == "pm-fg") params["final_gather.secondary_gather"] = true;
-        if (hitPlane) params["fg_splat.slices"] = std::string("hit_plane");
-        const std::string name = hitPlane ? "prs-fg" : pipeline;
+        if (paper) {
+            params["fg_splat.slices"] = std::string("perpendicular");
+            params["fg_splat.origin_boundary"] = std::string("cut");
+        }
+        const std::string name = paper ? "prs-fg" : pipeline;
         test::expectSameImageAtOneAndTwoThreads(scene, name, params, film, pipeline);
     }
 }

@@ -25,6 +25,7 @@
 #include <filesystem>
 #include <map>
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace fg {
@@ -507,15 +508,19 @@ TEST(PrsPipeline, SameImageOnOneAndTwoThreads) {
     FilmSettings film;
     film.width = 32;
     film.height = 32;
-    for (const std::string slices : {"perpendicular", "hit_plane"}) {
+    // The paper's estimator (perpendicular slices, cut kernel) and the
+    // defaults' corrections (hit-plane slices, renormalised kernel).
+    for (const auto& [slices, boundary] : {std::pair<std::string, std::string>{"perpendicular", "cut"},
+                                           std::pair<std::string, std::string>{"hit_plane", "renormalise"}}) {
         const std::map<std::string, ParamValue> params = {
             {"eye.spp", std::int64_t{1}},
             {"photon.photons", std::int64_t{20000}},
             {"photon.photon_rays", true},
             {"photon.store", std::string("none")},
             {"ray_splat.slices", slices},
+            {"ray_splat.origin_boundary", boundary},
         };
-        test::expectSameImageAtOneAndTwoThreads(scene, "prs", params, film, slices);
+        test::expectSameImageAtOneAndTwoThreads(scene, "prs", params, film, slices + ", " + boundary);
     }
 }
 
