@@ -26,29 +26,49 @@ std::vector<double> blockMeans(const Film& image) {
     return means;
 }
 
+SeedComparison compareSeeds(std::span<const double> a, std::span<const double> b) {
+    if (a.size() != b.size() || a.size() < 2)
+        throw std::invalid_argument("compareSeeds: needs the same number (at least 2) of seeds on both sides");
+    const auto seeds = static_cast<double>(a.size());
+    SeedComparison c;
+    for (std::size_t i = 0; i < a.size(); ++i) c.meanA += a[i] / seeds, c.meanB += b[i] / seeds;
+    for (std::size_t i = 0; i < a.size(); ++i) {
+        c.varianceA += (a[i] - c.meanA) * (a[i] - c.meanA) / (seeds - 1);
+        c.varianceB += (b[i] - c.meanB) * (b[i] - c.meanB) / (seeds - 1);
+    }
+    c.sigma = std::sqrt((c.varianceA + c.varianceB) / seeds);
+    c.z = std::abs(c.meanA - c.meanB) / std::max(c.sigma, 1e-12);
+    return c;
+}
+
+void expectSameSeedMean(std::span<const double> a, std::span<const double> b, double maxZ, const std::string& what,
+                        const std::string& nameA, const std::string& nameB) {
+    const SeedComparison c = compareSeeds(a, b);
+    EXPECT_GT(c.meanB, 0.0) << what;
+    std::printf("%s: %s %.5f, %s %.5f (sigma of the difference %.2f %% of the mean, z %.2f, %s/%s variance %.3f)\n",
+                what.c_str(), nameA.c_str(), c.meanA, nameB.c_str(), c.meanB, 100.0 * c.sigma / c.meanB, c.z,
+                nameA.c_str(), nameB.c_str(), c.varianceA / c.varianceB);
+    EXPECT_LT(c.z, maxZ) << what << ": " << nameA << " " << c.meanA << ", " << nameB << " " << c.meanB;
+}
+
 MeanComparison compareSeedMeans(const std::vector<std::vector<double>>& a, const std::vector<std::vector<double>>& b) {
     if (a.size() != b.size() || a.size() < 2 || a.front().empty())
         throw std::invalid_argument("compareSeedMeans: needs the same number (at least 2) of seeds on both sides");
-    const auto seeds = static_cast<double>(a.size());
     const std::size_t imageEntry = a.front().size() - 1;
     MeanComparison result;
     double varianceA = 0.0, varianceB = 0.0;
+    std::vector<double> ak(a.size()), bk(b.size());
     for (std::size_t k = 0; k <= imageEntry; ++k) {
-        double ma = 0, mb = 0, va = 0, vb = 0;
-        for (std::size_t i = 0; i < a.size(); ++i) ma += a[i][k] / seeds, mb += b[i][k] / seeds;
-        for (std::size_t i = 0; i < a.size(); ++i) va += (a[i][k] - ma) * (a[i][k] - ma), vb += (b[i][k] - mb) * (b[i][k] - mb);
-        va /= seeds - 1;
-        vb /= seeds - 1;
-        const double sigma = std::sqrt((va + vb) / seeds);
-        const double z = std::abs(ma - mb) / std::max(sigma, 1e-12);
+        for (std::size_t i = 0; i < a.size(); ++i) ak[i] = a[i][k], bk[i] = b[i][k];
+        const SeedComparison c = compareSeeds(ak, bk);
         if (k == imageEntry) {
-            result.imageZ = z;
-            result.imageRelativeSigma = sigma / mb;
-            result.imageRelativeDifference = (ma - mb) / mb;
+            result.imageZ = c.z;
+            result.imageRelativeSigma = c.sigma / c.meanB;
+            result.imageRelativeDifference = (c.meanA - c.meanB) / c.meanB;
         } else {
-            result.worstBlockZ = std::max(result.worstBlockZ, z);
-            varianceA += va;
-            varianceB += vb;
+            result.worstBlockZ = std::max(result.worstBlockZ, c.z);
+            varianceA += c.varianceA;
+            varianceB += c.varianceB;
         }
     }
     result.varianceRatio = varianceA / varianceB;

@@ -7,6 +7,7 @@
 
 #include "engine/image/film.h"
 
+#include <span>
 #include <string>
 #include <vector>
 
@@ -25,6 +26,20 @@ struct MeanComparison {
     double imageRelativeDifference = 0.0;  // (A - B) / B of the image means
     double varianceRatio = 0.0;            // A / B variance of the block means, summed over blocks
 };
+
+// One quantity measured over independent seeds by estimator A (a[i]) and by
+// estimator B (b[i]): the two means, the standard error of their difference
+// from the seeds' spread (sample variances varianceA, varianceB) and
+// z = |difference| / that error.
+struct SeedComparison {
+    double meanA = 0.0, meanB = 0.0, varianceA = 0.0, varianceB = 0.0, sigma = 0.0, z = 0.0;
+};
+SeedComparison compareSeeds(std::span<const double> a, std::span<const double> b);
+
+// Fails unless B's mean is positive and |z| < maxZ; prints the figures,
+// naming the quantity and the two estimators.
+void expectSameSeedMean(std::span<const double> a, std::span<const double> b, double maxZ, const std::string& what,
+                        const std::string& nameA, const std::string& nameB);
 
 // a[i], b[i]: blockMeans of seed i's image by estimator A and by estimator B.
 MeanComparison compareSeedMeans(const std::vector<std::vector<double>>& a, const std::vector<std::vector<double>>& b);

@@ -18,6 +18,7 @@
 #include "tests/support/guiding_pipeline.h"
 #include "tests/support/pass_helpers.h"
 #include "tests/support/render_helpers.h"
+#include "tests/support/seed_means.h"
 
 #include <gtest/gtest.h>
 
@@ -27,6 +28,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <memory>
+#include <string>
 
 namespace fg {
 namespace {
@@ -103,20 +105,8 @@ TEST(GuidedPhotons, SameFluxAsUnguidedInOccludedRoom) {
         guidedShare += cameraRoomShare(g) / kSeeds;
         plainShare += cameraRoomShare(p) / kSeeds;
     }
-    for (int r = 0; r < kRegions; ++r) {
-        double mg = 0, mp = 0, vg = 0, vp = 0;
-        for (int s = 0; s < kSeeds; ++s) mg += guided[r][s] / kSeeds, mp += plain[r][s] / kSeeds;
-        for (int s = 0; s < kSeeds; ++s) vg += sqr(guided[r][s] - mg), vp += sqr(plain[r][s] - mp);
-        vg /= kSeeds - 1;
-        vp /= kSeeds - 1;
-        const double sigma = std::sqrt((vg + vp) / kSeeds);
-        ASSERT_GT(mp, 0.0) << "region " << r;
-        const double z = std::abs(mg - mp) / std::max(sigma, 1e-12);
-        std::printf("region %d: guided %.5f unguided %.5f (sigma of the difference %.2f %% of the mean, z %.2f, "
-                    "guided/unguided variance %.2f)\n",
-                    r, mg, mp, 100.0 * sigma / mp, z, vg / vp);
-        EXPECT_LT(z, 3.0) << "region " << r << ": guided " << mg << ", unguided " << mp;
-    }
+    for (int r = 0; r < kRegions; ++r)
+        test::expectSameSeedMean(guided[r], plain[r], 3.0, "region " + std::to_string(r), "guided", "unguided");
     std::printf("photons stored in the camera's room: guided %.1f %%, unguided %.1f %%\n", 100.0 * guidedShare,
                 100.0 * plainShare);
     EXPECT_GT(guidedShare, 1.3 * plainShare);
