@@ -91,8 +91,9 @@
 // chosen light is an environment emitter (a non-delta infinite light) draws
 // its direction towards the light from the one-sample mixture
 // β p_L p_W + (1 − β) p_L (balance heuristic, Veach 1997 §9.2.4; the paper's
-// "MIS of the product and p_L"), with p_L p_W piecewise constant per bitmap
-// cell (EnvironmentSampler) and p_L the light's own direction sampling, and
+// "MIS of the product and p_L"), p_L the light's own direction sampling and
+// p_W constant per bitmap cell, the product sampled exactly in p_L
+// (EnvironmentSampler: a sun smaller than a cell is found by both halves), and
 // its start on the emission disk perpendicular to the direction from
 // γ p(x|ω) + (1 − γ) / (π R²), p(x|ω) the cell's disk GMM where one is
 // fitted (§4.4 "Position distributions"; the uniform part, which the paper
@@ -495,8 +496,9 @@ private:
         const float gamma = settings_.environmentPositionProbability;
         Vec3 towardsLight;
         if (uDirectionStrategy < beta) {
-            float unused = 0.0f;
-            towardsLight = sampler.sample(uDirection, &unused);
+            float productPdf = 0.0f;
+            towardsLight = sampler.sample(uDirection, &productPdf);
+            if (!(productPdf > 0.0f)) return std::nullopt;
         } else {
             const std::optional<LightSample> ls = light.sampleLi(guide.center, uDirection);
             if (!ls) return std::nullopt;
