@@ -147,37 +147,36 @@ EnvironmentSampler::EnvironmentSampler(const EnvironmentGuide& guide, const Ligh
     usable_ = true;
 }
 
-Vec3 EnvironmentSampler::sample(const Vec2& u, float* pdf) const {
+std::optional<Vec3> EnvironmentSampler::sample(const Vec2& u, float* pdf) const {
     float pmf = 0.0f, uRemapped = 0.0f;
     const auto cell = static_cast<std::uint32_t>(cells_.sampleDiscrete(u.x, &pmf, &uRemapped));
     if (!patched_) {
-        *pdf = pmf / guide_->cellSolidAngle();
+        if (pdf) *pdf = pmf / guide_->cellSolidAngle();
         return guide_->directionInCell(cell, Vec2(uRemapped, u.y));
     }
     // The cell takes u.x and the patch u.y, and what each leaves over places
     // the direction within the patch: both axes keep about as many bits.
     float vRemapped = 0.0f;
     const std::size_t index = withinCell_[cell].sampleDiscrete(u.y, nullptr, &vRemapped);
-    const std::optional<Vec3> w = light_->sampleInSamplingPatch(patches_[patchStart_[cell] + index],
-                                                                Vec2(uRemapped, vRemapped));
-    if (!w) {
-        // Only at a pole of the map, a set of measure zero; the photon pass
-        // finds the mixture density of the returned direction itself.
-        *pdf = 0.0f;
-        return guide_->cellCentre(cell);
-    }
-    *pdf = this->pdf(*w);
-    return *w;
+    const std::optional<Vec3> w =
+        light_->sampleInSamplingPatch(patches_[patchStart_[cell] + index], Vec2(uRemapped, vRemapped));
+    if (w && pdf) *pdf = this->pdf(*w);
+    return w;
 }
 
 float EnvironmentSampler::pdf(const Vec3& towardsLight) const {
     if (!usable_) return 0.0f;
     if (!patched_) return cells_.discretePmf(guide_->cellOf(towardsLight)) / guide_->cellSolidAngle();
+    return pdf(towardsLight, light_->pdfLi(guide_->center, Vec3(0.0f), Vec3(0.0f), towardsLight));
+}
+
+float EnvironmentSampler::pdf(const Vec3& towardsLight, float lightPdf) const {
+    if (!usable_) return 0.0f;
+    if (!patched_) return cells_.discretePmf(guide_->cellOf(towardsLight)) / guide_->cellSolidAngle();
     const std::uint32_t cell = patchCell_[light_->samplingPatchOf(towardsLight)];
     const float cellMass = withinCell_[cell].size() > 0 ? withinCell_[cell].total() : 0.0f;
-    if (!(cellMass > 0.0f) || !(cells_.discretePmf(cell) > 0.0f)) return 0.0f;
-    return cells_.discretePmf(cell) / cellMass *
-           light_->pdfLi(guide_->center, Vec3(0.0f), Vec3(0.0f), towardsLight);
+    if (!(cellMass > 0.0f)) return 0.0f;
+    return cells_.discretePmf(cell) / cellMass * lightPdf;
 }
 
 }  // namespace fg

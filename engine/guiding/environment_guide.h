@@ -115,8 +115,12 @@ public:
     EnvironmentSampler() = default;
     EnvironmentSampler(const EnvironmentGuide& guide, const Light& light);
     bool usable() const { return usable_; }
-    Vec3 sample(const Vec2& u, float* pdf) const;
+    // None only at a pole of an environment map, where p_L is 0 (a set of
+    // measure zero). The density is written where asked for.
+    std::optional<Vec3> sample(const Vec2& u, float* pdf = nullptr) const;
     float pdf(const Vec3& towardsLight) const;
+    // The same, given the light's pdfLi of the direction (the photon pass has it).
+    float pdf(const Vec3& towardsLight, float lightPdf) const;
 
 private:
     const EnvironmentGuide* guide_ = nullptr;

@@ -496,16 +496,16 @@ private:
         const float gamma = settings_.environmentPositionProbability;
         Vec3 towardsLight;
         if (uDirectionStrategy < beta) {
-            float productPdf = 0.0f;
-            towardsLight = sampler.sample(uDirection, &productPdf);
-            if (!(productPdf > 0.0f)) return std::nullopt;
+            const std::optional<Vec3> w = sampler.sample(uDirection);
+            if (!w) return std::nullopt;
+            towardsLight = *w;
         } else {
             const std::optional<LightSample> ls = light.sampleLi(guide.center, uDirection);
             if (!ls) return std::nullopt;
             towardsLight = ls->wi;
         }
         const float lightPdf = light.pdfLi(guide.center, Vec3(0.0f), Vec3(0.0f), towardsLight);
-        const float directionPdf = environmentDirectionPdf(beta, sampler.pdf(towardsLight), lightPdf);
+        const float directionPdf = environmentDirectionPdf(beta, sampler.pdf(towardsLight, lightPdf), lightPdf);
         const Rgb radiance = light.environment(towardsLight);
         if (!(directionPdf > 0.0f) || isBlack(radiance)) return std::nullopt;
         const std::uint32_t cell = guide.cellOf(towardsLight);
