@@ -111,10 +111,12 @@ EnvironmentSampler::EnvironmentSampler(const EnvironmentGuide& guide, const Ligh
         patched_ = true;
         patchCell_.resize(patchCount);
         std::vector<float> mass(patchCount);
+        std::vector<Vec3> centres(patchCount);
+        light.samplingPatchCentres(centres);
         std::vector<std::uint32_t> counts(guide.cellCount() + 1, 0);
         for (std::size_t k = 0; k < patchCount; ++k) {
             mass[k] = light.samplingPatchMass(k);
-            patchCell_[k] = guide.cellOf(light.samplingPatchCentre(k));
+            patchCell_[k] = guide.cellOf(centres[k]);
             if (mass[k] > 0.0f) ++counts[patchCell_[k] + 1];
         }
         for (std::size_t c = 0; c < guide.cellCount(); ++c) counts[c + 1] += counts[c];

@@ -559,8 +559,21 @@ public:
         return distribution_.pdf(centre) / static_cast<float>(samplingPatchCount());
     }
 
-    Vec3 samplingPatchCentre(std::size_t patch) const override {
-        return glm::normalize(toWorld_ * uvToLocal(patchSpaceToUv(patchCentre(patch))));
+    void samplingPatchCentres(std::span<Vec3> centres) const override {
+        const auto w = static_cast<std::size_t>(image_.width);
+        std::vector<float> sinPhi(w), cosPhi(w);
+        for (std::size_t x = 0; x < w; ++x) {
+            const float phi = 2.0f * kPi * patchSpaceToUv(patchCentre(x)).x;
+            sinPhi[x] = std::sin(phi);
+            cosPhi[x] = std::cos(phi);
+        }
+        for (std::size_t y = 0; y < static_cast<std::size_t>(patchRows_); ++y) {
+            const float theta = kPi * patchCentre(y * w).y;
+            const float sinTheta = std::sin(theta), cosTheta = std::cos(theta);
+            for (std::size_t x = 0; x < w; ++x)
+                centres[y * w + x] =
+                    glm::normalize(toWorld_ * Vec3(sinPhi[x] * sinTheta, cosTheta, -cosPhi[x] * sinTheta));
+        }
     }
 
     std::size_t samplingPatchOf(const Vec3& towardsLight) const override {

@@ -11,7 +11,9 @@
 #include "engine/shading/texture.h"
 
 #include <memory>
+#include <algorithm>
 #include <optional>
+#include <span>
 #include <string>
 
 namespace fg {
@@ -68,8 +70,9 @@ public:
     virtual std::size_t samplingPatchCount() const { return 0; }
     // The probability that the light's direction sampling lands in the patch.
     virtual float samplingPatchMass(std::size_t) const { return 0.0f; }
-    // The direction towards the light at the patch's centre.
-    virtual Vec3 samplingPatchCentre(std::size_t) const { return Vec3(0.0f); }
+    // The directions towards the light at the patches' centres, all at once
+    // (`centres` holds samplingPatchCount() of them): rows share their trigonometry.
+    virtual void samplingPatchCentres(std::span<Vec3> centres) const { std::fill(centres.begin(), centres.end(), Vec3(0.0f)); }
     // The patch whose density pdfLi reads for the direction towards the light.
     virtual std::size_t samplingPatchOf(const Vec3&) const { return 0; }
     // A direction towards the light within the patch, of solid-angle density
