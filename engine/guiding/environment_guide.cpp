@@ -99,34 +99,86 @@ float environmentPositionPdf(const DirectionalGmm* gmm, float gamma, const Vec2&
     return gamma * guided + (1.0f - gamma) * uniform;
 }
 
-EnvironmentSampler::EnvironmentSampler(const EnvironmentGuide& guide, const Light& light) : guide_(&guide) {
+EnvironmentSampler::EnvironmentSampler(const EnvironmentGuide& guide, const Light& light)
+    : guide_(&guide), light_(&light) {
     if (!guide.guides()) return;
     const auto density = guide.cells.column<EnvCellDensity>();
     std::vector<float> weights(guide.cellCount());
-    double total = 0.0;
-    for (std::uint32_t c = 0; c < guide.cellCount(); ++c) {
-        if (!(density[c] > 0.0f)) continue;
-        float emitted = 0.0f;
-        for (const Vec2 u : {Vec2(0.25f, 0.25f), Vec2(0.75f, 0.25f), Vec2(0.25f, 0.75f), Vec2(0.75f, 0.75f)})
-            emitted += 0.25f * std::max(0.0f, luminance(light.environment(guide.directionInCell(c, u))));
-        weights[c] = density[c] * emitted;
-        total += weights[c];
+    const std::size_t patchCount = light.samplingPatchCount();
+    if (patchCount > 0) {
+        // Patches are counted in 32 bits, as cells are; a map with more than
+        // 2^32 patches would not fit in memory anyway.
+        patched_ = true;
+        patchCell_.resize(patchCount);
+        std::vector<float> mass(patchCount);
+        std::vector<Vec3> centres(patchCount);
+        light.samplingPatchCentres(centres);
+        std::vector<std::uint32_t> counts(guide.cellCount() + 1, 0);
+        for (std::size_t k = 0; k < patchCount; ++k) {
+            mass[k] = light.samplingPatchMass(k);
+            patchCell_[k] = guide.cellOf(centres[k]);
+            if (mass[k] > 0.0f) ++counts[patchCell_[k] + 1];
+        }
+        for (std::size_t c = 0; c < guide.cellCount(); ++c) counts[c + 1] += counts[c];
+        patchStart_ = counts;
+        patches_.resize(counts.back());
+        for (std::size_t k = 0; k < patchCount; ++k)
+            if (mass[k] > 0.0f) patches_[counts[patchCell_[k]]++] = static_cast<std::uint32_t>(k);
+        withinCell_.resize(guide.cellCount());
+        std::vector<float> cellMasses;
+        for (std::uint32_t c = 0; c < guide.cellCount(); ++c) {
+            if (!(density[c] > 0.0f) || patchStart_[c] == patchStart_[c + 1]) continue;
+            cellMasses.clear();
+            for (std::uint32_t i = patchStart_[c]; i < patchStart_[c + 1]; ++i) cellMasses.push_back(mass[patches_[i]]);
+            withinCell_[c] = Distribution1D(cellMasses);
+            weights[c] = density[c] * withinCell_[c].total();
+        }
+    } else {
+        for (std::uint32_t c = 0; c < guide.cellCount(); ++c) {
+            if (!(density[c] > 0.0f)) continue;
+            float emitted = 0.0f;
+            for (const Vec2 u : {Vec2(0.25f, 0.25f), Vec2(0.75f, 0.25f), Vec2(0.25f, 0.75f), Vec2(0.75f, 0.75f)})
+                emitted += 0.25f * std::max(0.0f, luminance(light.environment(guide.directionInCell(c, u))));
+            weights[c] = density[c] * emitted;
+        }
     }
+    double total = 0.0;
+    for (const float w : weights) total += w;
     if (!(total > 0.0) || !std::isfinite(total)) return;
     cells_ = Distribution1D(weights);
     usable_ = true;
 }
 
-Vec3 EnvironmentSampler::sample(const Vec2& u, float* pdf) const {
+std::optional<Vec3> EnvironmentSampler::sample(const Vec2& u, float* pdf) const {
     float pmf = 0.0f, uRemapped = 0.0f;
     const auto cell = static_cast<std::uint32_t>(cells_.sampleDiscrete(u.x, &pmf, &uRemapped));
-    *pdf = pmf / guide_->cellSolidAngle();
-    return guide_->directionInCell(cell, Vec2(uRemapped, u.y));
+    if (!patched_) {
+        if (pdf) *pdf = pmf / guide_->cellSolidAngle();
+        return guide_->directionInCell(cell, Vec2(uRemapped, u.y));
+    }
+    // The cell takes u.x and the patch u.y, and what each leaves over places
+    // the direction within the patch: both axes keep about as many bits.
+    float vRemapped = 0.0f;
+    const std::size_t index = withinCell_[cell].sampleDiscrete(u.y, nullptr, &vRemapped);
+    const std::optional<Vec3> w =
+        light_->sampleInSamplingPatch(patches_[patchStart_[cell] + index], Vec2(uRemapped, vRemapped));
+    if (w && pdf) *pdf = this->pdf(*w);
+    return w;
 }
 
 float EnvironmentSampler::pdf(const Vec3& towardsLight) const {
     if (!usable_) return 0.0f;
-    return cells_.discretePmf(guide_->cellOf(towardsLight)) / guide_->cellSolidAngle();
+    if (!patched_) return cells_.discretePmf(guide_->cellOf(towardsLight)) / guide_->cellSolidAngle();
+    return pdf(towardsLight, light_->pdfLi(guide_->center, Vec3(0.0f), Vec3(0.0f), towardsLight));
+}
+
+float EnvironmentSampler::pdf(const Vec3& towardsLight, float lightPdf) const {
+    if (!usable_) return 0.0f;
+    if (!patched_) return cells_.discretePmf(guide_->cellOf(towardsLight)) / guide_->cellSolidAngle();
+    const std::uint32_t cell = patchCell_[light_->samplingPatchOf(towardsLight)];
+    const float cellMass = withinCell_[cell].size() > 0 ? withinCell_[cell].total() : 0.0f;
+    if (!(cellMass > 0.0f)) return 0.0f;
+    return cells_.discretePmf(cell) / cellMass * lightPdf;
 }
 
 }  // namespace fg

@@ -43,6 +43,7 @@
 
 #include <cstdint>
 #include <optional>
+#include <vector>
 
 namespace fg {
 
@@ -94,23 +95,45 @@ struct BufferTypeName<EnvironmentGuide> {
     static constexpr const char* value = "EnvironmentGuide";
 };
 
-// p_L(ω) p_W(ω) of one environment light as a density over directions towards
-// the light, piecewise constant per cell: a cell is chosen in proportion to its
-// p_W times the light's mean luminance at 4 points of the cell, then a
-// direction uniformly within it. Directions where p_W is zero have density 0
-// here; the photon pass mixes this with p_L, which is what keeps them reachable.
+// p_W(ω) p_L(ω) of one environment light, normalised, as a density over
+// directions towards the light. An environment map's p_L is piecewise constant
+// over its patches (Light::samplingPatchCount): each patch is given to the
+// cell holding its centre, a cell is chosen with probability
+// p_W(c) P_L(c) / Σ_c' p_W(c') P_L(c'), P_L(c) the light's own sampling mass of
+// the patches given to c, then a patch with probability its mass / P_L(c), then
+// a direction within the patch as the light samples it, so the density is
+// p_W(c(ω)) p_L(ω) / Σ_c' p_W(c') P_L(c'): p_L exactly (a sun smaller than a
+// cell is hit as the light's own sampling hits it) and p_W at the bitmap's
+// resolution, read at the patch's centre. A light without patches (a constant
+// sky, whose p_L is uniform) is sampled per cell in proportion to p_W times its
+// luminance averaged over 4 points of the cell, then uniformly within the
+// cell, which for a uniform p_L is the same product. Directions where p_W is
+// zero have density 0 here; the photon pass mixes this with p_L, which is what
+// keeps them reachable.
 class EnvironmentSampler {
 public:
     EnvironmentSampler() = default;
     EnvironmentSampler(const EnvironmentGuide& guide, const Light& light);
     bool usable() const { return usable_; }
-    Vec3 sample(const Vec2& u, float* pdf) const;
+    // None only at a pole of an environment map, where p_L is 0 (a set of
+    // measure zero). The density is written where asked for.
+    std::optional<Vec3> sample(const Vec2& u, float* pdf = nullptr) const;
     float pdf(const Vec3& towardsLight) const;
+    // The same, given the light's pdfLi of the direction (the photon pass has it).
+    float pdf(const Vec3& towardsLight, float lightPdf) const;
 
 private:
     const EnvironmentGuide* guide_ = nullptr;
+    const Light* light_ = nullptr;
     Distribution1D cells_;
     bool usable_ = false;
+    // With patches: the cell each patch is given to, and per cell the patches
+    // given to it (patchStart_[c] .. patchStart_[c + 1] in patches_) and the
+    // distribution over them by mass (whose total is P_L(c)).
+    bool patched_ = false;
+    std::vector<std::uint32_t> patchCell_;
+    std::vector<std::uint32_t> patchStart_, patches_;
+    std::vector<Distribution1D> withinCell_;
 };
 
 // Solid-angle density of the photon pass's direction mixture (one-sample MIS

@@ -548,7 +548,73 @@ public:
         return e;
     }
 
+    std::size_t samplingPatchCount() const override {
+        return static_cast<std::size_t>(image_.width) * static_cast<std::size_t>(patchRows_);
+    }
+
+    // The density pdfLi reads is constant over the patch (Distribution2D), so
+    // its mass is that density times the patch's share of the (u, v) square.
+    float samplingPatchMass(std::size_t patch) const override {
+        const Vec2 centre = patchCentre(patch);
+        return distribution_.pdf(centre) / static_cast<float>(samplingPatchCount());
+    }
+
+    void samplingPatchCentres(std::span<Vec3> centres) const override {
+        const auto w = static_cast<std::size_t>(image_.width);
+        std::vector<float> sinPhi(w), cosPhi(w);
+        for (std::size_t x = 0; x < w; ++x) {
+            const float phi = 2.0f * kPi * patchSpaceToUv(patchCentre(x)).x;
+            sinPhi[x] = std::sin(phi);
+            cosPhi[x] = std::cos(phi);
+        }
+        for (std::size_t y = 0; y < static_cast<std::size_t>(patchRows_); ++y) {
+            const float theta = kPi * patchCentre(y * w).y;
+            const float sinTheta = std::sin(theta), cosTheta = std::cos(theta);
+            for (std::size_t x = 0; x < w; ++x)
+                centres[y * w + x] =
+                    glm::normalize(toWorld_ * Vec3(sinPhi[x] * sinTheta, cosTheta, -cosPhi[x] * sinTheta));
+        }
+    }
+
+    std::size_t samplingPatchOf(const Vec3& towardsLight) const override {
+        const Vec2 s = uvToPatchSpace(localToUv(glm::normalize(toLocal_ * towardsLight)));
+        // The row and column Distribution2D::pdf reads.
+        const auto w = static_cast<std::size_t>(image_.width), h = static_cast<std::size_t>(patchRows_);
+        const std::size_t row = std::min(h - 1, static_cast<std::size_t>(std::max(0.0f, s.y) * static_cast<float>(h)));
+        const std::size_t column = std::min(w - 1, static_cast<std::size_t>(std::max(0.0f, s.x) * static_cast<float>(w)));
+        return row * w + column;
+    }
+
+    // Uniform over the patch in (u, v), as Distribution2D samples within it, so
+    // the solid-angle density is p_L's (constant in (u, v)) over the patch's mass.
+    std::optional<Vec3> sampleInSamplingPatch(std::size_t patch, const Vec2& u) const override {
+        const auto w = static_cast<std::size_t>(image_.width);
+        const Vec2 s(std::min((static_cast<float>(patch % w) + u.x) / static_cast<float>(w), 0x1.fffffep-1f),
+                     std::min((static_cast<float>(patch / w) + u.y) / static_cast<float>(patchRows_), 0x1.fffffep-1f));
+        const Vec3 local = uvToLocal(patchSpaceToUv(s));
+        if (!(std::sqrt(local.x * local.x + local.z * local.z) > 0.0f)) return std::nullopt;
+        return glm::normalize(toWorld_ * local);
+    }
+
 private:
+    Vec2 patchCentre(std::size_t patch) const {
+        const auto w = static_cast<std::size_t>(image_.width);
+        return {(static_cast<float>(patch % w) + 0.5f) / static_cast<float>(w),
+                (static_cast<float>(patch / w) + 0.5f) / static_cast<float>(patchRows_)};
+    }
+
+    Vec2 patchSpaceToUv(Vec2 s) const {
+        s.x += 0.5f / static_cast<float>(image_.width);
+        if (s.x >= 1.0f) s.x -= 1.0f;
+        return s;
+    }
+
+    static Vec3 uvToLocal(const Vec2& uv) {
+        const float theta = kPi * uv.y, phi = 2.0f * kPi * uv.x;
+        const float sinTheta = std::sin(theta);
+        return {std::sin(phi) * sinTheta, std::cos(theta), -std::cos(phi) * sinTheta};
+    }
+
     const Rgb& texel(int x, int y) const {
         x %= image_.width;
         if (x < 0) x += image_.width;

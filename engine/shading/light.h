@@ -11,7 +11,9 @@
 #include "engine/shading/texture.h"
 
 #include <memory>
+#include <algorithm>
 #include <optional>
+#include <span>
 #include <string>
 
 namespace fg {
@@ -60,6 +62,22 @@ public:
     virtual float emissionDirectionPdf(const Vec3& direction) const;
     // Infinite and directional lights need the scene's bounding sphere.
     virtual void setSceneBounds(const Vec3& center, float radius);
+    // An environment map samples its directions with a density p_L that is
+    // piecewise constant over patches of its (u, v) grid (light.cpp). Through
+    // these, a product of p_L with a density constant on each patch (guided
+    // environment emission's p_W) is sampled exactly: a patch in proportion to
+    // both, then p_L within it. Lights whose sampling has no patches have none.
+    virtual std::size_t samplingPatchCount() const { return 0; }
+    // The probability that the light's direction sampling lands in the patch.
+    virtual float samplingPatchMass(std::size_t) const { return 0.0f; }
+    // The directions towards the light at the patches' centres, all at once
+    // (`centres` holds samplingPatchCount() of them): rows share their trigonometry.
+    virtual void samplingPatchCentres(std::span<Vec3> centres) const { std::fill(centres.begin(), centres.end(), Vec3(0.0f)); }
+    // The patch whose density pdfLi reads for the direction towards the light.
+    virtual std::size_t samplingPatchOf(const Vec3&) const { return 0; }
+    // A direction towards the light within the patch, of solid-angle density
+    // pdfLi(ω) / samplingPatchMass(patch); none where pdfLi would be 0 (a pole).
+    virtual std::optional<Vec3> sampleInSamplingPatch(std::size_t, const Vec2&) const { return std::nullopt; }
     // Where a point or spot light sits, so that loaders can check it lies in a
     // representable scene; none for lights that are shapes or at infinity.
     virtual std::optional<Vec3> position() const { return std::nullopt; }

@@ -91,8 +91,9 @@
 // chosen light is an environment emitter (a non-delta infinite light) draws
 // its direction towards the light from the one-sample mixture
 // β p_L p_W + (1 − β) p_L (balance heuristic, Veach 1997 §9.2.4; the paper's
-// "MIS of the product and p_L"), with p_L p_W piecewise constant per bitmap
-// cell (EnvironmentSampler) and p_L the light's own direction sampling, and
+// "MIS of the product and p_L"), p_L the light's own direction sampling and
+// p_W constant per bitmap cell, the product sampled exactly in p_L
+// (EnvironmentSampler: a sun smaller than a cell is found by both halves), and
 // its start on the emission disk perpendicular to the direction from
 // γ p(x|ω) + (1 − γ) / (π R²), p(x|ω) the cell's disk GMM where one is
 // fitted (§4.4 "Position distributions"; the uniform part, which the paper
@@ -495,15 +496,16 @@ private:
         const float gamma = settings_.environmentPositionProbability;
         Vec3 towardsLight;
         if (uDirectionStrategy < beta) {
-            float unused = 0.0f;
-            towardsLight = sampler.sample(uDirection, &unused);
+            const std::optional<Vec3> w = sampler.sample(uDirection);
+            if (!w) return std::nullopt;
+            towardsLight = *w;
         } else {
             const std::optional<LightSample> ls = light.sampleLi(guide.center, uDirection);
             if (!ls) return std::nullopt;
             towardsLight = ls->wi;
         }
         const float lightPdf = light.pdfLi(guide.center, Vec3(0.0f), Vec3(0.0f), towardsLight);
-        const float directionPdf = environmentDirectionPdf(beta, sampler.pdf(towardsLight), lightPdf);
+        const float directionPdf = environmentDirectionPdf(beta, sampler.pdf(towardsLight, lightPdf), lightPdf);
         const Rgb radiance = light.environment(towardsLight);
         if (!(directionPdf > 0.0f) || isBlack(radiance)) return std::nullopt;
         const std::uint32_t cell = guide.cellOf(towardsLight);

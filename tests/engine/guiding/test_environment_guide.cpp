@@ -15,6 +15,7 @@
 #include "tests/support/cli_helpers.h"
 #include "tests/support/input_error.h"
 #include "tests/support/gmm_fixtures.h"
+#include "tests/support/sun_sky.h"
 
 #include <gtest/gtest.h>
 
@@ -64,6 +65,17 @@ std::shared_ptr<Light> gradientEnvironmentMap() {
     light->setSceneBounds(Vec3(0.0f), 2.0f);
     return light;
 }
+
+// A 256 x 128 sky with a sun of 1.5° radius (about 80 % of the radiant
+// integral) towards `towardsSun`, a direction in the map's frame (+Y up).
+std::shared_ptr<Light> sunEnvironmentMap(const Vec3& towardsSun) {
+    RgbImage image{256, 128, test::sunSkyPixels(256, 128, towardsSun, 1.5f, 20000.0f)};
+    auto light = makeEnvironmentMap(image, 1.0f);
+    light->setSceneBounds(Vec3(0.0f), 2.0f);
+    return light;
+}
+
+const Vec3 kSun = glm::normalize(Vec3(0.4f, 0.5f, 0.75f));
 
 // Midpoint rule over the sphere in (z, φ), which is equal-area.
 template <class F>
@@ -142,6 +154,67 @@ TEST(EnvironmentGuide, DirectionPdfIntegratesToOne) {
     }
 }
 
+// With a small sun: the product sampler alone and its mixture with p_L
+// integrate to one (on a grid fine enough for the sun's 1.5°).
+TEST(EnvironmentGuide, DirectionPdfIntegratesToOneWithASmallSun) {
+    const EnvironmentGuide guide = syntheticGuide(kSun + Vec3(0.2f, 0.0f, -0.1f));
+    const auto light = sunEnvironmentMap(kSun);
+    const EnvironmentSampler sampler(guide, *light);
+    ASSERT_TRUE(sampler.usable());
+    const auto lightPdf = [&](const Vec3& w) { return light->pdfLi(Vec3(0.0f), Vec3(0.0f), Vec3(0.0f), w); };
+    EXPECT_NEAR(integrateSphere([&](const Vec3& w) { return sampler.pdf(w); }, 2048, 4096), 1.0, 2e-3);
+    EXPECT_NEAR(integrateSphere([&](const Vec3& w) { return environmentDirectionPdf(0.5f, sampler.pdf(w), lightPdf(w)); },
+                                2048, 4096),
+                1.0, 2e-3);
+    // Most of what the product samples is sun: p_W is smooth around it.
+    double inSun = 0.0;
+    integrateSphere([&](const Vec3& w) {
+        if (glm::dot(w, kSun) > std::cos(4.0f * kPi / 180.0f)) inSun += sampler.pdf(w);
+        return 0.0;
+    });
+    EXPECT_GT(inSun * 4.0 * M_PI / (512.0 * 1024.0), 0.5);
+}
+
+// Where p_W is the same in every cell the product is p_L itself, direction by
+// direction: the sampler follows the light's density within a cell (down to
+// the sun's pixels) rather than a cell's mean.
+TEST(EnvironmentGuide, ProductWithConstantImportanceIsTheLightsDensity) {
+    EnvironmentGuide guide = syntheticGuide(kSun);
+    for (float& d : guide.cells.column<EnvCellDensity>()) d = 2.0f;
+    for (const auto& light : {sunEnvironmentMap(kSun), gradientEnvironmentMap()}) {
+        const EnvironmentSampler sampler(guide, *light);
+        ASSERT_TRUE(sampler.usable());
+        jobs::Rng rng(4, jobs::streamKey("env-product-exact"), 0);
+        for (int k = 0; k < 20000; ++k) {
+            // Half the directions near the sun, half anywhere.
+            const Vec3 w = k % 2 ? sampleUniformSphere(rng.uniform2())
+                                 : glm::normalize(kSun + 0.05f * (sampleUniformSphere(rng.uniform2())));
+            const float pL = light->pdfLi(Vec3(0.0f), Vec3(0.0f), Vec3(0.0f), w);
+            EXPECT_NEAR(sampler.pdf(w), pL, 1e-4f * pL + 1e-7f) << w.x << " " << w.y << " " << w.z;
+        }
+    }
+}
+
+// Sampling the product with a small sun against its density.
+TEST(EnvironmentGuide, Chi2DirectionSamplingWithASmallSun) {
+    const EnvironmentGuide guide = syntheticGuide(kSun + Vec3(0.2f, 0.0f, -0.1f));
+    const auto light = sunEnvironmentMap(kSun);
+    const EnvironmentSampler sampler(guide, *light);
+    test::Chi2Config config;
+    config.samples = 400'000;
+    const test::Chi2Result product = test::chi2SphereTest(
+        [&](const Vec2& u) -> std::optional<Vec3> {
+            float pdf = 0.0f;
+            const std::optional<Vec3> w = sampler.sample(u, &pdf);
+            if (w) {
+                EXPECT_NEAR(pdf, sampler.pdf(*w), 1e-5f * pdf);
+            }
+            return w;
+        },
+        [&](const Vec3& w) { return double(sampler.pdf(w)); }, config);
+    EXPECT_TRUE(product.passed) << product.message;
+}
+
 TEST(EnvironmentGuide, EmptyModelDoesNotGuide) {
     EnvironmentGuide empty;
     EXPECT_FALSE(empty.guides());
@@ -162,8 +235,7 @@ TEST(EnvironmentGuide, Chi2DirectionSampling) {
     config.testCount = 2;
     const test::Chi2Result product = test::chi2SphereTest(
         [&](const Vec2& u) -> std::optional<Vec3> {
-            float pdf = 0.0f;
-            return sampler.sample(u, &pdf);
+            return sampler.sample(u);
         },
         [&](const Vec3& w) { return double(sampler.pdf(w)); }, config);
     EXPECT_TRUE(product.passed) << product.message;
@@ -172,8 +244,7 @@ TEST(EnvironmentGuide, Chi2DirectionSampling) {
     const test::Chi2Result mixture = test::chi2SphereTest(
         [&](const Vec2& u) -> std::optional<Vec3> {
             if (strategy.uniform() < 0.5f) {
-                float pdf = 0.0f;
-                return sampler.sample(u, &pdf);
+                return sampler.sample(u);
             }
             const std::optional<LightSample> ls = light->sampleLi(Vec3(0.0f), u);
             if (!ls) return std::nullopt;
