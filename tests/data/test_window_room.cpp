@@ -12,6 +12,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <string>
 
@@ -152,6 +153,36 @@ TEST(WindowRoom, JobsValidate) {
         const test::CommandResult r = test::runFluxgraph(dir, {"validate", test::sourcePath(std::string("data/window-room/") + job)});
         EXPECT_EQ(r.exitCode, 0) << job << ": " << r.err;
     }
+}
+
+// guided-pt.toml spells out the built-in guided-pt pipeline with 3 training
+// passes (a job cannot change a built-in pipeline's repeat count), so that it
+// shows what tools/guiding_report.py runs; a copy left behind when the
+// pipeline changes (as when guided environment emission, Vorba et al. 2014
+// §4.4, was added to it) would silently measure something else.
+TEST(WindowRoom, GuidedJobSpellsOutTheBuiltInPipeline) {
+    const auto pipelineLines = [](const std::string& text) {
+        std::string out;
+        std::size_t start = text.find("[pipeline]");
+        EXPECT_NE(start, std::string::npos);
+        if (start == std::string::npos) return out;
+        std::size_t pos = start;
+        while (pos < text.size()) {
+            const std::size_t end = std::min(text.find('\n', pos), text.size());
+            const std::string line = text.substr(pos, end - pos);
+            pos = end + 1;
+            // Its name, its description and the training count are the job's own.
+            if (line.empty() || line[0] == '#' || line.rfind("name = \"guided-pt", 0) == 0 || line.rfind("doc =", 0) == 0 ||
+                line.rfind("count =", 0) == 0)
+                continue;
+            out += line + "\n";
+        }
+        return out;
+    };
+    const std::string job = test::readText(test::sourcePath("data/window-room/guided-pt.toml"));
+    const std::string builtIn = test::readText(test::sourcePath("passes/pipelines/guided-pt.toml"));
+    EXPECT_EQ(pipelineLines(job), pipelineLines(builtIn));
+    EXPECT_NE(job.find("count = 3\n"), std::string::npos);
 }
 
 }  // namespace
