@@ -27,7 +27,7 @@ fi
 build_dir="${1:-build-sanitize}"
 supp="$PWD/tools/sanitizers"
 # The build runs the test binary too (test discovery), so the options apply to it.
-export ASAN_OPTIONS="detect_leaks=1:strict_init_order=1"
+export ASAN_OPTIONS="detect_leaks=1:strict_init_order=1:suppressions=$supp/asan.supp"
 export LSAN_OPTIONS="suppressions=$supp/lsan.supp:print_suppressions=0"
 export UBSAN_OPTIONS="halt_on_error=1:print_stacktrace=1:suppressions=$supp/ubsan.supp"
 # A from-scratch build of this configuration takes most of the time; ccache,

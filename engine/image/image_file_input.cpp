@@ -10,6 +10,7 @@
 #include <OpenEXR/ImfFrameBuffer.h>
 #include <OpenEXR/ImfHeader.h>
 #include <OpenEXR/ImfInputFile.h>
+#include <OpenEXR/ImfStdIO.h>
 #include <OpenEXR/ImfStringAttribute.h>
 
 #include <dlfcn.h>
@@ -21,6 +22,8 @@
 #include <exception>
 #include <filesystem>
 #include <fstream>
+#include <stdexcept>
+#include <string>
 #include <limits>
 #include <utility>
 #include <vector>
@@ -37,6 +40,55 @@ bool startsWithExrMagic(const std::string& path) {
     std::ifstream in(path, std::ios::binary);
     char magic[4] = {};
     return in.read(magic, sizeof magic) && std::memcmp(magic, "\x76\x2f\x31\x01", 4) == 0;
+}
+
+// OpenEXR sizes its decompression buffers from the header alone when it
+// opens a file (a scanline block, 1 to 256 lines by compression, or a tile):
+// a damaged header, a data window millions of pixels wide or thousands of
+// channels, would allocate gigabytes before any pixel is read. So the header
+// is read first, and a file whose block would exceed kMaxExrBlockBytes is
+// refused. The bound holds legitimate files by far: a 16384-pixel-wide
+// four-channel float image needs 256 KiB a line, 64 MiB a 256-line block.
+constexpr std::int64_t kMaxExrBlockBytes = std::int64_t{256} << 20;
+
+int exrLinesPerBlock(Imf::Compression compression) {
+    switch (compression) {
+        case Imf::NO_COMPRESSION:
+        case Imf::RLE_COMPRESSION:
+        case Imf::ZIPS_COMPRESSION: return 1;
+        case Imf::ZIP_COMPRESSION:
+        case Imf::PXR24_COMPRESSION: return 16;
+        case Imf::PIZ_COMPRESSION:
+        case Imf::B44_COMPRESSION:
+        case Imf::B44A_COMPRESSION:
+        case Imf::DWAA_COMPRESSION: return 32;
+        default: return 256;  // DWAB, and any later method: the largest block
+    }
+}
+
+void refuseOversizedExr(const std::string& path) {
+    Imf::StdIFStream stream(path.c_str());
+    char magicAndVersion[8] = {};
+    stream.read(magicAndVersion, sizeof magicAndVersion);
+    int version = 0;
+    for (int b = 3; b >= 0; --b) version = (version << 8) | static_cast<unsigned char>(magicAndVersion[4 + b]);
+    Imf::Header header;
+    header.readFrom(stream, version);
+    const Imath::Box2i window = header.dataWindow();
+    const std::int64_t width = std::int64_t{window.max.x} - window.min.x + 1;
+    std::int64_t bytesPerPixel = 0;
+    std::int64_t channels = 0;
+    for (auto channel = header.channels().begin(); channel != header.channels().end(); ++channel, ++channels)
+        bytesPerPixel += channel.channel().type == Imf::HALF ? 2 : 4;
+    const std::int64_t blockBytes =
+        header.hasTileDescription()
+            ? std::int64_t{header.tileDescription().xSize} * header.tileDescription().ySize * bytesPerPixel
+            : std::max<std::int64_t>(width, 0) * bytesPerPixel * exrLinesPerBlock(header.compression());
+    if (blockBytes > kMaxExrBlockBytes)
+        throw std::runtime_error("an EXR block of " + std::to_string(blockBytes) + " bytes (" + std::to_string(width) +
+                                 " pixels wide, " + std::to_string(channels) +
+                                 " channels) is more than this reader allows (" +
+                                 std::to_string(kMaxExrBlockBytes >> 20) + " MiB): a damaged header?");
 }
 
 // OpenEXR lists channels alphabetically; OpenImageIO, which read these files
@@ -173,6 +225,7 @@ std::unique_ptr<ImageFileInput> openImageFile(const std::string& path, std::stri
     error.clear();
     if (startsWithExrMagic(path)) {
         try {
+            refuseOversizedExr(path);
             return std::make_unique<ExrFileInput>(path);
         } catch (const std::exception& failure) {
             error = failure.what();
