@@ -1,6 +1,7 @@
 // Guided environment emission's model (Vorba et al. 2014, §4.4); see the header.
 #include "engine/guiding/environment_guide.h"
 
+#include "engine/scene/scene.h"
 #include "engine/shading/light.h"
 
 #include <algorithm>
@@ -97,6 +98,13 @@ float environmentPositionPdf(const DirectionalGmm* gmm, float gamma, const Vec2&
     // Square density -> unit disk (÷ π) -> disk of radius R (÷ R²).
     const float guided = gmm->pdfSquare(s) / (kSquareToUnitDiskJacobian * radius * radius);
     return gamma * guided + (1.0f - gamma) * uniform;
+}
+
+bool isEnvironmentEmitter(const Light& light) { return light.isInfinite() && !light.isDelta(); }
+
+bool hasEnvironmentEmitter(const Scene& scene) {
+    return std::any_of(scene.lights.begin(), scene.lights.end(),
+                       [](const auto& light) { return isEnvironmentEmitter(*light); });
 }
 
 EnvironmentSampler::EnvironmentSampler(const EnvironmentGuide& guide, const Light& light)

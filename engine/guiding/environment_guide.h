@@ -48,6 +48,12 @@
 namespace fg {
 
 class Light;
+struct Scene;
+
+// Environment emitters are the lights §4.4 guides: infinite and not delta
+// (environment maps, constant skies; not directional lights).
+bool isEnvironmentEmitter(const Light& light);
+bool hasEnvironmentEmitter(const Scene& scene);
 
 FG_SOA_COLUMN(EnvCellDensity, float, "density");  // the passes' kernel estimates of p_W at the centre, summed
 FG_SOA_COLUMN(EnvCellMixture, DirectionalGmm, "disk_gmm");

@@ -754,7 +754,7 @@ public:
                 bool any = false;
                 for (std::size_t l = 0; l < scene.lights.size(); ++l) {
                     const Light& light = *scene.lights[l];
-                    if (!light.isInfinite() || light.isDelta()) continue;
+                    if (!isEnvironmentEmitter(light)) continue;
                     settings.environmentSamplers[l] = EnvironmentSampler(guide, light);
                     any = any || settings.environmentSamplers[l].usable();
                 }

@@ -62,9 +62,7 @@ public:
         const Scene& scene = ctx.scene();
         const PassParams& params = ctx.params();
         EnvironmentGuide& guide = ctx.createOutput<EnvironmentGuide>("environment");
-        bool environment = false;
-        for (const auto& light : scene.lights) environment = environment || (light->isInfinite() && !light->isDelta());
-        if (!environment) return;
+        if (!hasEnvironmentEmitter(scene)) return;
 
         if (ctx.hasInput("previous") && ctx.input<EnvironmentGuide>("previous").cellCount() > 0) {
             const EnvironmentGuide& previous = ctx.input<EnvironmentGuide>("previous");

@@ -30,6 +30,7 @@
 #include "passes/passes.h"
 
 #include "engine/core/error.h"
+#include "engine/guiding/environment_guide.h"
 #include "engine/guiding/guiding_cache.h"
 #include "engine/guiding/importons.h"
 #include "engine/accel/ray_query.h"
@@ -83,8 +84,7 @@ public:
         const std::size_t chunks = (pathCount + kChunk - 1) / kChunk;
         std::vector<std::vector<GuidableVertex>> gathered(chunks);
         std::vector<std::vector<ImportonExitBuffer::Record>> exitsGathered(chunks);
-        bool recordExits = false;
-        for (const auto& light : scene.lights) recordExits = recordExits || (light->isInfinite() && !light->isDelta());
+        const bool recordExits = hasEnvironmentEmitter(scene);
         const Vec3 boundsCenter = 0.5f * (scene.boundsMin + scene.boundsMax);
         const float boundsRadius = glm::length(scene.boundsMax - boundsCenter);
         std::vector<std::int64_t> segments(chunks, 0);
