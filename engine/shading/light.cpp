@@ -649,14 +649,10 @@ private:
 
     bool sampleDirection(const Vec2& u, Vec3* wi, Vec2* uv, float* pdf) const {
         float pdfUv = 0.0f;
-        *uv = distribution_.sample(u, &pdfUv);
-        uv->x += 0.5f / static_cast<float>(image_.width);
-        if (uv->x >= 1.0f) uv->x -= 1.0f;
-        const float theta = kPi * uv->y, phi = 2.0f * kPi * uv->x;
-        const float sinTheta = std::sin(theta);
+        *uv = patchSpaceToUv(distribution_.sample(u, &pdfUv));
+        const float sinTheta = std::sin(kPi * uv->y);
         if (!(pdfUv > 0.0f) || !(sinTheta > 0.0f)) return false;
-        const Vec3 local(std::sin(phi) * sinTheta, std::cos(theta), -std::cos(phi) * sinTheta);
-        *wi = glm::normalize(toWorld_ * local);
+        *wi = glm::normalize(toWorld_ * uvToLocal(*uv));
         *pdf = pdfUv / (2.0f * kPi * kPi * sinTheta);
         return true;
     }
